@@ -1,0 +1,212 @@
+//! `i2sdf check` end to end: good datasets pass with a summary; every kind of bad input exits with
+//! code 2 and a message naming the file (and field).
+
+use i2sdf_data::fixture::{self, FixtureOptions};
+use i2sdf_data::imageio::{self, ImageF32};
+use serde_json::Value;
+use std::path::Path;
+use std::process::Command;
+
+fn check(dir: &Path) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_i2sdf"))
+        .args(["check", "--data"])
+        .arg(dir)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn native() -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    fixture::write_native(dir.path(), &FixtureOptions::default());
+    dir
+}
+
+fn edit_json(dir: &Path, f: impl FnOnce(&mut Value)) {
+    let p = dir.join("transforms.json");
+    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+    f(&mut v);
+    std::fs::write(&p, serde_json::to_string(&v).unwrap()).unwrap();
+}
+
+/// Asserts exit code 2 and that stderr mentions every needle.
+fn assert_bad(dir: &Path, needles: &[&str]) {
+    let (code, _, err) = check(dir);
+    assert_eq!(code, 2, "stderr: {err}");
+    for n in needles {
+        assert!(err.contains(n), "expected '{n}' in: {err}");
+    }
+}
+
+#[test]
+fn good_datasets_pass_with_a_summary() {
+    let dir = native();
+    let (code, out, err) = check(dir.path());
+    assert_eq!(code, 0, "{err}");
+    for needle in [
+        "native",
+        "4 train, 2 test",
+        "24×18",
+        "depth 6/6",
+        "normal 6/6",
+        "emitter_mask 6/6",
+        "normalized",
+    ] {
+        assert!(out.contains(needle), "expected '{needle}' in:\n{out}");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    fixture::write_paper(dir.path(), &FixtureOptions::default());
+    let (code, out, err) = check(dir.path());
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.contains("paper release")
+            && out.contains("4 train, 2 test")
+            && out.contains("depth 4/6"),
+        "{out}"
+    );
+}
+
+#[test]
+fn missing_dataset_and_missing_file() {
+    let dir = tempfile::tempdir().unwrap();
+    assert_bad(&dir.path().join("nowhere"), &["nowhere", "not found"]);
+    assert_bad(dir.path(), &["not a dataset"]);
+    let dir = native();
+    std::fs::remove_file(dir.path().join("depth/frame_002.exr")).unwrap();
+    assert_bad(dir.path(), &["frame_002.exr", "not found"]);
+}
+
+#[test]
+fn unreadable_files() {
+    let dir = native();
+    std::fs::write(dir.path().join("images/frame_001.png"), b"garbage").unwrap();
+    assert_bad(dir.path(), &["frame_001.png", "decode"]);
+    let dir = native();
+    std::fs::write(dir.path().join("transforms.json"), b"{ not json").unwrap();
+    assert_bad(dir.path(), &["transforms.json", "invalid JSON"]);
+}
+
+#[test]
+fn wrong_image_size() {
+    let dir = native();
+    imageio::write_exr(
+        &dir.path().join("depth/frame_003.exr"),
+        &ImageF32::new(10, 18, 1),
+    )
+    .unwrap();
+    assert_bad(dir.path(), &["frame_003.exr", "10×18", "24×18"]);
+}
+
+#[test]
+fn non_finite_values() {
+    let dir = native();
+    let p = dir.path().join("normals/frame_000.npy");
+    let mut n = imageio::read_float_map(&p).unwrap();
+    n.pixel_mut(5, 7)[1] = f32::NAN;
+    imageio::write_npy(&p, &n).unwrap();
+    assert_bad(dir.path(), &["frame_000.npy", "non-finite", "(5, 7)"]);
+    let dir = native();
+    edit_json(dir.path(), |v| v["frames"][1]["fl_x"] = Value::Null);
+    assert_bad(dir.path(), &["transforms.json", "frames[1].fl_x"]);
+}
+
+#[test]
+fn degenerate_poses() {
+    let dir = native();
+    edit_json(dir.path(), |v| {
+        v["frames"][2]["transform_matrix"][0] = serde_json::json!([0.0, 0.0, 0.0, 0.0])
+    });
+    assert_bad(
+        dir.path(),
+        &[
+            "transforms.json",
+            "frames[2].transform_matrix",
+            "not invertible",
+        ],
+    );
+    let dir = native();
+    edit_json(dir.path(), |v| {
+        let row = v["frames"][0]["transform_matrix"][1]
+            .as_array_mut()
+            .unwrap();
+        for x in row.iter_mut().take(3) {
+            *x = Value::from(x.as_f64().unwrap() * 1.5);
+        }
+    });
+    assert_bad(
+        dir.path(),
+        &["transforms.json", "frames[0].transform_matrix", "not rigid"],
+    );
+}
+
+#[test]
+fn empty_split_and_bad_split() {
+    let dir = native();
+    edit_json(dir.path(), |v| {
+        for f in v["frames"].as_array_mut().unwrap() {
+            f["split"] = Value::from("train");
+        }
+    });
+    assert_bad(dir.path(), &["transforms.json", "'test' split is empty"]);
+    let dir = native();
+    edit_json(dir.path(), |v| {
+        v["frames"][0]["split"] = Value::from("validation")
+    });
+    assert_bad(dir.path(), &["frames[0].split"]);
+    let dir = tempfile::tempdir().unwrap();
+    fixture::write_paper(dir.path(), &FixtureOptions::default());
+    std::fs::remove_dir_all(dir.path().join("val")).unwrap();
+    assert_bad(dir.path(), &["val", "'test' split is empty"]);
+}
+
+#[test]
+fn nerfstudio_filename_lists_are_honoured() {
+    let dir = native();
+    edit_json(dir.path(), |v| {
+        for f in v["frames"].as_array_mut().unwrap() {
+            f.as_object_mut().unwrap().remove("split");
+        }
+        v["train_filenames"] = serde_json::json!([
+            "images/frame_000.png",
+            "images/frame_001.png",
+            "./images/frame_002.png"
+        ]);
+        v["test_filenames"] = serde_json::json!([
+            "images/frame_003.png",
+            "images/frame_004.png",
+            "images/frame_005.png"
+        ]);
+    });
+    let (code, out, err) = check(dir.path());
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("3 train, 3 test"), "{out}");
+    edit_json(dir.path(), |v| {
+        v["test_filenames"] = serde_json::json!(["images/frame_003.png"])
+    });
+    assert_bad(dir.path(), &["frames[4].file_path", "neither"]);
+}
+
+#[test]
+fn paper_format_errors_name_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    fixture::write_paper(dir.path(), &FixtureOptions::default());
+    std::fs::remove_file(dir.path().join("depth/0001.exr")).unwrap();
+    assert_bad(dir.path(), &["depth", "3 files but image/ has 4"]);
+
+    let dir = tempfile::tempdir().unwrap();
+    fixture::write_paper(dir.path(), &FixtureOptions::default());
+    std::fs::write(dir.path().join("cameras_normalize.npz"), b"PK garbage").unwrap();
+    assert_bad(dir.path(), &["cameras_normalize.npz"]);
+
+    let dir = tempfile::tempdir().unwrap();
+    fixture::write_paper(dir.path(), &FixtureOptions::default());
+    // All-zero normals mean "no normal", which is fine; [0,1]-encoded colours are not normals.
+    let mut n = ImageF32::new(24, 18, 3);
+    n.data.iter_mut().for_each(|v| *v = 0.5);
+    imageio::write_exr(&dir.path().join("normal/0002.exr"), &n).unwrap();
+    assert_bad(dir.path(), &["0002.exr", "unit normals"]);
+}

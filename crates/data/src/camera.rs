@@ -1,0 +1,350 @@
+//! Pinhole cameras in the one internal convention of the house (DESIGN.md "Data"):
+//! OpenCV axes (x right, y down, z forward), camera-to-world pose in world units, and continuous
+//! pixel coordinates whose pixel centres sit at +0.5 (pixel (i, j) covers [i, i+1) × [j, j+1)).
+//! Every loader converts into this; nothing downstream knows about OpenGL poses or integer-pixel
+//! rays.
+
+use glam::{DMat3, DMat4, DVec3, DVec4};
+
+/// A pinhole camera: intrinsics in pixels and a rigid camera-to-world transform (OpenCV axes).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Camera {
+    pub width: usize,
+    pub height: usize,
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    /// Camera-to-world, OpenCV axes: columns 0..3 are the camera's x (right), y (down), z (forward)
+    /// axes in world coordinates, column 3 the camera centre.
+    pub c2w: DMat4,
+}
+
+/// Flips the y and z axes: OpenGL/nerfstudio camera axes (x right, y up, looking down −z) ↔ OpenCV.
+pub const GL_TO_CV: DMat4 = DMat4::from_cols(
+    DVec4::new(1.0, 0.0, 0.0, 0.0),
+    DVec4::new(0.0, -1.0, 0.0, 0.0),
+    DVec4::new(0.0, 0.0, -1.0, 0.0),
+    DVec4::new(0.0, 0.0, 0.0, 1.0),
+);
+
+impl Camera {
+    /// From an OpenGL/nerfstudio camera-to-world matrix (camera looks down −z, y up).
+    pub fn from_opengl_c2w(
+        width: usize,
+        height: usize,
+        fx: f64,
+        fy: f64,
+        cx: f64,
+        cy: f64,
+        c2w_gl: DMat4,
+    ) -> Self {
+        Camera {
+            width,
+            height,
+            fx,
+            fy,
+            cx,
+            cy,
+            c2w: c2w_gl * GL_TO_CV,
+        }
+    }
+
+    /// The camera-to-world matrix in the OpenGL/nerfstudio convention (for writers).
+    pub fn opengl_c2w(&self) -> DMat4 {
+        self.c2w * GL_TO_CV
+    }
+
+    pub fn center(&self) -> DVec3 {
+        self.c2w.w_axis.truncate()
+    }
+
+    pub fn rotation(&self) -> DMat3 {
+        DMat3::from_mat4(self.c2w)
+    }
+
+    pub fn w2c(&self) -> DMat4 {
+        // Rigid inverse: [Rᵀ | −Rᵀ c]; exact and cheaper than a general inverse.
+        let r_t = self.rotation().transpose();
+        let t = -(r_t * self.center());
+        DMat4::from_cols(
+            r_t.x_axis.extend(0.0),
+            r_t.y_axis.extend(0.0),
+            r_t.z_axis.extend(0.0),
+            t.extend(1.0),
+        )
+    }
+
+    /// The intrinsic matrix K (pixel-centre-at-+0.5 convention).
+    pub fn k(&self) -> DMat3 {
+        DMat3::from_cols(
+            DVec3::new(self.fx, 0.0, 0.0),
+            DVec3::new(0.0, self.fy, 0.0),
+            DVec3::new(self.cx, self.cy, 1.0),
+        )
+    }
+
+    /// Direction in camera coordinates through continuous pixel position (u, v), scaled so that
+    /// z = 1: a point at z-depth `d` along it is `d * dir`.
+    #[inline]
+    pub fn pixel_dir_cam(&self, u: f64, v: f64) -> DVec3 {
+        DVec3::new((u - self.cx) / self.fx, (v - self.cy) / self.fy, 1.0)
+    }
+
+    /// Direction in camera coordinates through the centre of pixel (i, j).
+    #[inline]
+    pub fn pixel_center_dir_cam(&self, i: usize, j: usize) -> DVec3 {
+        self.pixel_dir_cam(i as f64 + 0.5, j as f64 + 0.5)
+    }
+
+    /// World-space ray through continuous pixel position (u, v): origin, unit direction, and the
+    /// cosine between the ray and the optical axis (z-depth = t · cos).
+    pub fn ray(&self, u: f64, v: f64) -> (DVec3, DVec3, f64) {
+        let d_cam = self.pixel_dir_cam(u, v);
+        let len = d_cam.length();
+        let d_world = self.rotation() * (d_cam / len);
+        (self.center(), d_world, 1.0 / len)
+    }
+
+    /// The world point seen at pixel (i, j)'s centre with z-depth `depth` (paper eq. 6:
+    /// x = t + D · R K⁻¹ [u, v, 1]ᵀ).
+    pub fn backproject(&self, i: usize, j: usize, depth: f64) -> DVec3 {
+        self.center() + self.rotation() * (self.pixel_center_dir_cam(i, j) * depth)
+    }
+
+    /// Projects a world point: continuous pixel position (u, v) and z-depth. `None` behind the
+    /// camera.
+    pub fn project(&self, p: DVec3) -> Option<(f64, f64, f64)> {
+        let pc = self.w2c().transform_point3(p);
+        if pc.z <= 1e-12 {
+            return None;
+        }
+        Some((
+            self.fx * pc.x / pc.z + self.cx,
+            self.fy * pc.y / pc.z + self.cy,
+            pc.z,
+        ))
+    }
+
+    /// Checks intrinsics and pose; the message says what is wrong (the caller names the file).
+    pub fn validate(&self) -> Result<(), String> {
+        if self.width == 0 || self.height == 0 {
+            return Err(format!(
+                "image size {}×{} is empty",
+                self.width, self.height
+            ));
+        }
+        for (name, v) in [
+            ("fx", self.fx),
+            ("fy", self.fy),
+            ("cx", self.cx),
+            ("cy", self.cy),
+        ] {
+            if !v.is_finite() {
+                return Err(format!("intrinsic {name} = {v} is not finite"));
+            }
+        }
+        if self.fx <= 0.0 || self.fy <= 0.0 {
+            return Err(format!(
+                "focal lengths must be positive (fx = {}, fy = {})",
+                self.fx, self.fy
+            ));
+        }
+        validate_rigid(&self.c2w)
+    }
+}
+
+/// Checks that a 4×4 pose is a finite rigid transform: orthonormal rotation with det +1 and a
+/// bottom row [0 0 0 1].
+pub fn validate_rigid(m: &DMat4) -> Result<(), String> {
+    if !m.is_finite() {
+        return Err("pose has non-finite entries".into());
+    }
+    let row3 = m.row(3);
+    if (row3 - DVec4::new(0.0, 0.0, 0.0, 1.0)).abs().max_element() > 1e-6 {
+        return Err(format!(
+            "pose's last row is {row3:?}, expected [0, 0, 0, 1]"
+        ));
+    }
+    let r = DMat3::from_mat4(*m);
+    let det = r.determinant();
+    if det.abs() < 1e-9 {
+        return Err("pose is not invertible (rotation determinant is 0)".into());
+    }
+    let rtr = r.transpose() * r;
+    let err = (rtr - DMat3::IDENTITY)
+        .to_cols_array()
+        .iter()
+        .fold(0.0f64, |a, v| a.max(v.abs()));
+    if err > 1e-3 {
+        return Err(format!(
+            "pose is not rigid: its rotation part is not orthonormal (|RᵀR − I| = {err:.2e}; scaled or sheared poses are not supported)"
+        ));
+    }
+    if det < 0.0 {
+        return Err("pose is a reflection (rotation determinant is −1)".into());
+    }
+    Ok(())
+}
+
+/// Decomposes a 3×4 projection matrix P = λ·K·[R | t] (world → pixels) into K (with K₃₃ = 1) and a
+/// camera-to-world pose, as OpenCV's `decomposeProjectionMatrix` does for IDR/VolSDF data. `p` is
+/// row-major. Errors if P is degenerate.
+pub fn decompose_projection(p: [[f64; 4]; 3]) -> Result<(DMat3, DMat4), String> {
+    let row = |i: usize| DVec3::new(p[i][0], p[i][1], p[i][2]);
+    let col3 = DVec3::new(p[0][3], p[1][3], p[2][3]);
+    if !(row(0).is_finite() && row(1).is_finite() && row(2).is_finite() && col3.is_finite()) {
+        return Err("projection matrix has non-finite entries".into());
+    }
+    let mut m = [row(0), row(1), row(2)];
+    let mut col3 = col3;
+    // RQ decomposition by Gram–Schmidt from the last row up: M = K R, K upper triangular.
+    let rq = |m: &[DVec3; 3]| -> Option<(DMat3, [DVec3; 3])> {
+        let k33 = m[2].length();
+        if k33 < 1e-12 {
+            return None;
+        }
+        let r3 = m[2] / k33;
+        let k23 = m[1].dot(r3);
+        let r2p = m[1] - k23 * r3;
+        let k22 = r2p.length();
+        if k22 < 1e-12 {
+            return None;
+        }
+        let r2 = r2p / k22;
+        let k13 = m[0].dot(r3);
+        let k12 = m[0].dot(r2);
+        let r1p = m[0] - k13 * r3 - k12 * r2;
+        let k11 = r1p.length();
+        if k11 < 1e-12 {
+            return None;
+        }
+        let r1 = r1p / k11;
+        // Column-major K.
+        let k = DMat3::from_cols(
+            DVec3::new(k11, 0.0, 0.0),
+            DVec3::new(k12, k22, 0.0),
+            DVec3::new(k13, k23, k33),
+        );
+        Some((k, [r1, r2, r3]))
+    };
+    let (mut k, mut r_rows) = rq(&m).ok_or("projection matrix is degenerate (rank < 3)")?;
+    let det = r_rows[0].dot(r_rows[1].cross(r_rows[2]));
+    if det < 0.0 {
+        // P is only defined up to scale; a negative scale flips R's handedness. Use −P.
+        m = [-m[0], -m[1], -m[2]];
+        col3 = -col3;
+        (k, r_rows) = rq(&m).ok_or("projection matrix is degenerate (rank < 3)")?;
+    }
+    // P[:,3] = K t  →  t = K⁻¹ P[:,3]; camera centre c = −Rᵀ t.
+    let t = k.inverse() * col3;
+    let r_w2c = DMat3::from_cols(r_rows[0], r_rows[1], r_rows[2]).transpose();
+    let r_c2w = r_w2c.transpose();
+    let c = -(r_c2w * t);
+    let k = k * (1.0 / k.z_axis.z);
+    let c2w = DMat4::from_cols(
+        r_c2w.x_axis.extend(0.0),
+        r_c2w.y_axis.extend(0.0),
+        r_c2w.z_axis.extend(0.0),
+        c.extend(1.0),
+    );
+    Ok((k, c2w))
+}
+
+/// A camera looking from `eye` towards `target`, OpenCV axes, `up` the world's up direction.
+pub fn look_at(eye: DVec3, target: DVec3, up: DVec3) -> DMat4 {
+    let z = (target - eye).normalize();
+    let x = z.cross(up).normalize();
+    let y = z.cross(x);
+    DMat4::from_cols(x.extend(0.0), y.extend(0.0), z.extend(0.0), eye.extend(1.0))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cam() -> Camera {
+        Camera {
+            width: 64,
+            height: 48,
+            fx: 50.0,
+            fy: 52.0,
+            cx: 32.0,
+            cy: 24.0,
+            c2w: look_at(
+                DVec3::new(0.3, -0.2, 1.0),
+                DVec3::new(1.0, 2.0, 0.5),
+                DVec3::Z,
+            ),
+        }
+    }
+
+    #[test]
+    fn backproject_then_project_is_identity() {
+        let c = cam();
+        assert!(c.validate().is_ok());
+        let p = c.backproject(10, 7, 2.5);
+        let (u, v, z) = c.project(p).unwrap();
+        assert!((u - 10.5).abs() < 1e-9 && (v - 7.5).abs() < 1e-9 && (z - 2.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn ray_cosine_converts_ray_length_to_z_depth() {
+        let c = cam();
+        let (o, d, cos) = c.ray(3.5, 40.5);
+        let t = 4.0;
+        let (_, _, z) = c.project(o + d * t).unwrap();
+        assert!((z - t * cos).abs() < 1e-9);
+    }
+
+    #[test]
+    fn opengl_round_trip() {
+        let c = cam();
+        let gl = c.opengl_c2w();
+        // OpenGL camera looks down its −z axis: the same world direction as OpenCV's +z.
+        assert!((gl.z_axis.truncate() + c.c2w.z_axis.truncate()).length() < 1e-12);
+        let back = Camera::from_opengl_c2w(c.width, c.height, c.fx, c.fy, c.cx, c.cy, gl);
+        assert!((back.c2w - c.c2w).abs_diff_eq(DMat4::ZERO, 1e-12));
+    }
+
+    #[test]
+    fn projection_decomposition_recovers_k_and_pose_even_with_negative_scale() {
+        let c = cam();
+        let k = c.k();
+        let w2c = c.w2c();
+        for scale in [1.0, -3.7] {
+            let mut p = [[0.0; 4]; 3];
+            for i in 0..3 {
+                for j in 0..4 {
+                    let mut s = 0.0;
+                    for l in 0..3 {
+                        s += k.col(l)[i] * w2c.col(j)[l];
+                    }
+                    p[i][j] = s * scale;
+                }
+            }
+            let (k2, c2w) = decompose_projection(p).unwrap();
+            assert!(k2.abs_diff_eq(k, 1e-9), "{k2:?}");
+            assert!(c2w.abs_diff_eq(c.c2w, 1e-9), "{c2w:?}");
+        }
+    }
+
+    #[test]
+    fn validation_catches_bad_poses() {
+        let mut c = cam();
+        c.c2w.x_axis *= 2.0;
+        assert!(c.validate().unwrap_err().contains("not rigid"));
+        let mut c = cam();
+        c.c2w.x_axis = DVec4::ZERO;
+        assert!(c.validate().unwrap_err().contains("not invertible"));
+        let mut c = cam();
+        c.c2w.x_axis = -c.c2w.x_axis;
+        assert!(c.validate().unwrap_err().contains("reflection"));
+        let mut c = cam();
+        c.fx = -1.0;
+        assert!(c.validate().is_err());
+        let mut c = cam();
+        c.c2w.w_axis.x = f64::NAN;
+        assert!(c.validate().unwrap_err().contains("non-finite"));
+    }
+}

@@ -1,0 +1,321 @@
+//! Small datasets of a known geometry, written in either format, for tests (here and in other
+//! crates) — no binary blobs in the repository. The scene is the inside of an axis-aligned box
+//! room, rendered analytically: depth, normals, an emitter patch on the ceiling and a colour that
+//! depends on the hit point. Each writer follows its format's own conventions independently of the
+//! loaders (OpenGL poses and +0.5 pixel centres for the native format; K·W2C projection matrices,
+//! integer-pixel rays and camera-space normals for the paper's), so a loader that gets a convention
+//! wrong fails the tests.
+
+use crate::camera::{look_at, Camera};
+use crate::imageio::{self, ImageF32};
+use glam::{DMat3, DVec3};
+use std::path::Path;
+
+/// The room: the inside of [ROOM_MIN, ROOM_MAX] (z up), in world units.
+pub const ROOM_MIN: DVec3 = DVec3::new(-2.0, -1.5, -0.2);
+pub const ROOM_MAX: DVec3 = DVec3::new(2.5, 1.8, 2.4);
+
+/// Where a ray from inside the room leaves it: distance along the unit direction and the inward
+/// wall normal there.
+pub fn room_hit(o: DVec3, d: DVec3) -> (f64, DVec3) {
+    let mut best = (f64::INFINITY, DVec3::ZERO);
+    for a in 0..3 {
+        if d[a].abs() < 1e-12 {
+            continue;
+        }
+        let (wall, n) = if d[a] > 0.0 {
+            (ROOM_MAX[a], -1.0)
+        } else {
+            (ROOM_MIN[a], 1.0)
+        };
+        let t = (wall - o[a]) / d[a];
+        if t > 0.0 && t < best.0 {
+            let mut nv = DVec3::ZERO;
+            nv[a] = n;
+            best = (t, nv);
+        }
+    }
+    best
+}
+
+fn albedo_at(p: DVec3) -> [f32; 3] {
+    [
+        (0.5 + 0.4 * (3.0 * p.x).sin()) as f32,
+        (0.5 + 0.4 * (2.0 * p.y + 1.0).sin()) as f32,
+        (0.5 + 0.4 * (2.5 * p.z + 2.0).cos()) as f32,
+    ]
+}
+
+fn is_emitter(p: DVec3, n: DVec3) -> bool {
+    n.z < -0.5 && p.x.abs() < 0.6 && p.y.abs() < 0.5
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DepthFormat {
+    Exr,
+    Npy,
+    /// 16-bit PNG in millimetres (`depth_unit_scale_factor` = 0.001).
+    Png16,
+}
+
+#[derive(Clone, Debug)]
+pub struct FixtureOptions {
+    pub width: usize,
+    pub height: usize,
+    pub train_views: usize,
+    pub test_views: usize,
+    pub depth: DepthFormat,
+    /// If set, each camera's principal point is nudged (by less than a pixel) so that this world
+    /// point projects exactly onto a pixel centre in every view: two views then see the very same
+    /// point at a pixel centre, which is what the two-view depth consistency test needs.
+    pub anchor: Option<DVec3>,
+}
+
+impl Default for FixtureOptions {
+    fn default() -> Self {
+        FixtureOptions {
+            width: 24,
+            height: 18,
+            train_views: 4,
+            test_views: 2,
+            depth: DepthFormat::Exr,
+            anchor: None,
+        }
+    }
+}
+
+/// The cameras of the fixture (OpenCV, our pixel-centre convention): inside the room, looking at
+/// `anchor` (or around the room).
+pub fn cameras(opts: &FixtureOptions) -> Vec<Camera> {
+    let n = opts.train_views + opts.test_views;
+    (0..n)
+        .map(|i| {
+            let a = i as f64 * 2.399; // golden angle: spread the views
+            let eye = DVec3::new(0.6 * a.cos(), 0.5 * a.sin(), 1.0 + 0.2 * (i as f64).sin());
+            let target = opts.anchor.unwrap_or(DVec3::new(
+                2.0 * (a + 1.0).cos(),
+                1.5 * (a + 1.0).sin(),
+                0.8,
+            ));
+            let fx = 0.9 * opts.width as f64 + i as f64;
+            let mut cam = Camera {
+                width: opts.width,
+                height: opts.height,
+                fx,
+                fy: fx * 1.01,
+                cx: opts.width as f64 / 2.0 + 0.1,
+                cy: opts.height as f64 / 2.0 - 0.2,
+                c2w: look_at(eye, target, DVec3::Z),
+            };
+            if let Some(anchor) = opts.anchor {
+                let (u, v, _) = cam.project(anchor).expect("anchor in front of the camera");
+                cam.cx += u.floor() + 0.5 - u;
+                cam.cy += v.floor() + 0.5 - v;
+            }
+            cam
+        })
+        .collect()
+}
+
+/// Renders the analytic maps of one view. `pixel_offset` is where the format puts pixel centres
+/// (0.5 for ours, 0.0 for the paper's integer-pixel rays, with `cx`, `cy` in that convention).
+struct Maps {
+    rgb: ImageF32,
+    depth: ImageF32,
+    normal_world: ImageF32,
+    mask: ImageF32,
+}
+
+fn render(cam: &Camera, cx: f64, cy: f64, pixel_offset: f64) -> Maps {
+    let (w, h) = (cam.width, cam.height);
+    let mut m = Maps {
+        rgb: ImageF32::new(w, h, 3),
+        depth: ImageF32::new(w, h, 1),
+        normal_world: ImageF32::new(w, h, 3),
+        mask: ImageF32::new(w, h, 1),
+    };
+    let r = DMat3::from_mat4(cam.c2w);
+    for j in 0..h {
+        for i in 0..w {
+            let d_cam = DVec3::new(
+                (i as f64 + pixel_offset - cx) / cam.fx,
+                (j as f64 + pixel_offset - cy) / cam.fy,
+                1.0,
+            );
+            let len = d_cam.length();
+            let d = r * (d_cam / len);
+            let (t, n) = room_hit(cam.center(), d);
+            let p = cam.center() + d * t;
+            m.rgb.pixel_mut(i, j).copy_from_slice(&albedo_at(p));
+            m.depth.pixel_mut(i, j)[0] = (t / len) as f32; // z-depth = t · cos θ
+            m.normal_world
+                .pixel_mut(i, j)
+                .copy_from_slice(&[n.x as f32, n.y as f32, n.z as f32]);
+            m.mask.pixel_mut(i, j)[0] = is_emitter(p, n) as u8 as f32;
+        }
+    }
+    m
+}
+
+fn write_depth(path_stem: &Path, depth: &ImageF32, fmt: DepthFormat) -> String {
+    match fmt {
+        DepthFormat::Exr => {
+            let p = path_stem.with_extension("exr");
+            imageio::write_exr(&p, depth).unwrap();
+            p.file_name().unwrap().to_string_lossy().into_owned()
+        }
+        DepthFormat::Npy => {
+            let p = path_stem.with_extension("npy");
+            imageio::write_npy(&p, depth).unwrap();
+            p.file_name().unwrap().to_string_lossy().into_owned()
+        }
+        DepthFormat::Png16 => {
+            let p = path_stem.with_extension("png");
+            let raw: Vec<u16> = depth
+                .data
+                .iter()
+                .map(|d| (d * 1000.0).round() as u16)
+                .collect();
+            imageio::write_png16_raw(&p, depth.width, depth.height, 1, &raw).unwrap();
+            p.file_name().unwrap().to_string_lossy().into_owned()
+        }
+    }
+}
+
+/// Writes the native format into `dir` and returns the true cameras (train first, then test).
+pub fn write_native(dir: &Path, opts: &FixtureOptions) -> Vec<Camera> {
+    let cams = cameras(opts);
+    let mut frames = Vec::new();
+    for (k, cam) in cams.iter().enumerate() {
+        let name = format!("frame_{k:03}");
+        let maps = render(cam, cam.cx, cam.cy, 0.5);
+        imageio::write_png(&dir.join("images").join(format!("{name}.png")), &maps.rgb).unwrap();
+        let depth_name = write_depth(&dir.join("depth").join(&name), &maps.depth, opts.depth);
+        imageio::write_npy(
+            &dir.join("normals").join(format!("{name}.npy")),
+            &maps.normal_world,
+        )
+        .unwrap();
+        imageio::write_png(&dir.join("masks").join(format!("{name}.png")), &maps.mask).unwrap();
+        let gl = cam.opengl_c2w();
+        let rows: Vec<Vec<f64>> = (0..4).map(|r| gl.row(r).to_array().to_vec()).collect();
+        frames.push(serde_json::json!({
+            "file_path": format!("images/{name}.png"),
+            "depth_file_path": format!("depth/{depth_name}"),
+            "normal_file_path": format!("normals/{name}.npy"),
+            "emitter_mask_path": format!("masks/{name}.png"),
+            "split": if k < opts.train_views { "train" } else { "test" },
+            "fl_x": cam.fx, "fl_y": cam.fy, "cx": cam.cx, "cy": cam.cy,
+            "transform_matrix": rows,
+        }));
+    }
+    let json = serde_json::json!({
+        "w": opts.width, "h": opts.height,
+        "camera_model": "OPENCV",
+        "depth_unit_scale_factor": 0.001,
+        "an_unknown_key": {"is": "ignored"},
+        "frames": frames,
+    });
+    imageio::write_bytes_atomic(
+        &dir.join("transforms.json"),
+        serde_json::to_string_pretty(&json).unwrap().as_bytes(),
+    )
+    .unwrap();
+    cams
+}
+
+/// Writes the paper's release format into `dir` and returns the true cameras (train, then val).
+pub fn write_paper(dir: &Path, opts: &FixtureOptions) -> Vec<Camera> {
+    use npyz::WriterBuilder;
+    let cams = cameras(opts);
+    let npz_path = dir.join("cameras_normalize.npz");
+    std::fs::create_dir_all(dir).unwrap();
+    let mut npz = npyz::npz::NpzWriter::create(&npz_path).unwrap();
+    let mut put = |name: &str, m: [[f64; 4]; 4]| {
+        let mut w = npz
+            .array::<f64>(name, Default::default())
+            .unwrap()
+            .default_dtype()
+            .shape(&[4, 4])
+            .begin_nd()
+            .unwrap();
+        w.extend(m.iter().flatten().copied()).unwrap();
+        w.finish().unwrap();
+    };
+    // A VolSDF-style normalization: uniform scale + translation.
+    let s = 2.0;
+    put(
+        "scale_mat_0",
+        [
+            [s, 0.0, 0.0, 0.2],
+            [0.0, s, 0.0, 0.1],
+            [0.0, 0.0, s, 1.1],
+            [0.0, 0.0, 0.0, 1.0],
+        ],
+    );
+    for (k, cam) in cams.iter().enumerate() {
+        // The release's convention: ray through K⁻¹[u, v, 1] with integer u, v, so its principal
+        // point is ours minus ½.
+        let (cxp, cyp) = (cam.cx - 0.5, cam.cy - 0.5);
+        let k_mat = DMat3::from_cols(
+            DVec3::new(cam.fx, 0.0, 0.0),
+            DVec3::new(0.0, cam.fy, 0.0),
+            DVec3::new(cxp, cyp, 1.0),
+        );
+        let w2c = cam.w2c();
+        let mut p = [[0.0; 4]; 4];
+        for i in 0..3 {
+            for j in 0..4 {
+                p[i][j] = (0..3).map(|l| k_mat.col(l)[i] * w2c.col(j)[l]).sum::<f64>() * 3.0;
+            }
+        }
+        p[3] = [0.0, 0.0, 0.0, 1.0];
+        let is_train = k < opts.train_views;
+        let idx = if is_train { k } else { k - opts.train_views };
+        put(
+            &format!("{}_{idx}", if is_train { "world_mat" } else { "val_mat" }),
+            p,
+        );
+        if is_train {
+            put(
+                &format!("scale_mat_{idx}"),
+                [
+                    [s, 0.0, 0.0, 0.2],
+                    [0.0, s, 0.0, 0.1],
+                    [0.0, 0.0, s, 1.1],
+                    [0.0, 0.0, 0.0, 1.0],
+                ],
+            );
+        }
+        let maps = render(cam, cxp, cyp, 0.0);
+        let name = format!("{idx:04}");
+        if is_train {
+            imageio::write_png(&dir.join("image").join(format!("{name}.png")), &maps.rgb).unwrap();
+            // Depth as a 3-channel EXR, as the release ships it (the loader reads the R channel).
+            let depth3 = ImageF32::from_data(
+                maps.depth.width,
+                maps.depth.height,
+                3,
+                maps.depth.data.iter().flat_map(|d| [*d; 3]).collect(),
+            );
+            imageio::write_exr(&dir.join("depth").join(format!("{name}.exr")), &depth3).unwrap();
+            // Normals in OpenCV camera space: n_cam = Rᵀ n_world.
+            let rt = DMat3::from_mat4(cam.c2w).transpose();
+            let mut ncam = maps.normal_world.clone();
+            for px in ncam.data.chunks_mut(3) {
+                let n = rt * DVec3::new(px[0] as f64, px[1] as f64, px[2] as f64);
+                px.copy_from_slice(&[n.x as f32, n.y as f32, n.z as f32]);
+            }
+            imageio::write_exr(&dir.join("normal").join(format!("{name}.exr")), &ncam).unwrap();
+            imageio::write_png(
+                &dir.join("light_mask").join(format!("{name}.png")),
+                &maps.mask,
+            )
+            .unwrap();
+        } else {
+            imageio::write_png(&dir.join("val").join(format!("{name}.png")), &maps.rgb).unwrap();
+        }
+    }
+    drop(npz); // finishes the zip archive
+    cams
+}

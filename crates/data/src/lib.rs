@@ -1,0 +1,18 @@
+//! i2sdf datasets: the native nerfstudio-style format and the paper's release format, read into one
+//! internal scene (OpenCV cameras, world-space normals, z-depth, a normalization into the unit
+//! sphere), with every file validated on load. Also the image/array I/O every other crate uses.
+
+pub mod camera;
+pub mod dataset;
+pub mod error;
+pub mod fixture;
+pub mod imageio;
+pub mod native;
+pub mod paper;
+pub mod summary;
+
+pub use camera::Camera;
+pub use dataset::{load, Bounds, Dataset, Format, Frame, Normalization, RelightSet, Split};
+pub use error::DataError;
+pub use imageio::ImageF32;
+pub use summary::Summary;

@@ -1,0 +1,420 @@
+//! The native format (DESIGN.md "Data", format 1): a nerfstudio-style `transforms.json`.
+//!
+//! Cameras: `fl_x fl_y cx cy w h` at the top level or per frame (per-frame values win), pinhole
+//! only (distortion coefficients must be zero), `transform_matrix` = camera-to-world in the
+//! OpenGL convention, principal point in the pixel-centre-at-+0.5 convention (nerfstudio's).
+//! Per frame: `file_path` (LDR PNG or EXR), optional `hdr_file_path`, `depth_file_path` (z-depth in
+//! world units: EXR or `.npy` float32, or 16-bit PNG times `depth_unit_scale_factor`, default
+//! 0.001), `normal_file_path` (world-space unit normals), `emitter_mask_path`, `split`, and the GT
+//! material maps `albedo_file_path`, `specular_file_path`, `roughness_file_path`. Splits come from
+//! `split`, else from nerfstudio's top-level `train_filenames` / `test_filenames`; a dataset with
+//! neither holds out every 8th frame (0, 8, 16, …) for testing. Top level, optional: `mesh_path`,
+//! `relight: [{spec, frames}]`, `ldr: {transfer: "srgb"|"linear"}`. Unknown keys are ignored.
+
+use crate::camera::Camera;
+use crate::dataset::{self, Dataset, Format, Frame, RelightSet, Split};
+use crate::error::{DataError, Result};
+use glam::DMat4;
+use rayon::prelude::*;
+use serde_json::{Map, Value};
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+
+/// Where a frame entry sits in the JSON, for error messages: `frames[3]` or `relight[0].frames[1]`.
+struct Ctx<'a> {
+    json: &'a Path,
+    entry: String,
+}
+
+impl Ctx<'_> {
+    fn err(&self, field: &str, msg: impl Into<String>) -> DataError {
+        DataError::field(self.json, format!("{}.{field}", self.entry), msg)
+    }
+}
+
+fn get_f64(
+    obj: &Map<String, Value>,
+    top: &Map<String, Value>,
+    key: &str,
+    ctx: &Ctx,
+) -> Result<f64> {
+    let v = obj.get(key).or_else(|| top.get(key));
+    match v {
+        Some(v) => v
+            .as_f64()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| ctx.err(key, format!("expected a finite number, found {v}"))),
+        None => Err(ctx.err(key, "missing (needed at the top level or in the frame)")),
+    }
+}
+
+fn parse_matrix(v: Option<&Value>, ctx: &Ctx) -> Result<DMat4> {
+    let rows = v
+        .and_then(Value::as_array)
+        .ok_or_else(|| ctx.err("transform_matrix", "missing or not a 4×4 array"))?;
+    if rows.len() != 4 && rows.len() != 3 {
+        return Err(ctx.err(
+            "transform_matrix",
+            format!("expected 4 rows, found {}", rows.len()),
+        ));
+    }
+    let mut m = [[0.0f64; 4]; 4];
+    m[3] = [0.0, 0.0, 0.0, 1.0];
+    for (i, row) in rows.iter().enumerate() {
+        let row = row
+            .as_array()
+            .filter(|r| r.len() == 4)
+            .ok_or_else(|| ctx.err("transform_matrix", format!("row {i} is not 4 numbers")))?;
+        for (j, x) in row.iter().enumerate() {
+            m[i][j] = x.as_f64().ok_or_else(|| {
+                ctx.err(
+                    "transform_matrix",
+                    format!("entry [{i}][{j}] is not a number"),
+                )
+            })?;
+        }
+    }
+    // JSON is row-major; glam is column-major.
+    Ok(DMat4::from_cols_array_2d(&m).transpose())
+}
+
+fn camera_of(obj: &Map<String, Value>, top: &Map<String, Value>, ctx: &Ctx) -> Result<Camera> {
+    let model = obj
+        .get("camera_model")
+        .or_else(|| top.get("camera_model"))
+        .and_then(Value::as_str)
+        .unwrap_or("PINHOLE");
+    if !matches!(model, "PINHOLE" | "OPENCV" | "SIMPLE_PINHOLE") {
+        return Err(ctx.err(
+            "camera_model",
+            format!("'{model}' is not supported (pinhole only)"),
+        ));
+    }
+    for k in ["k1", "k2", "k3", "k4", "p1", "p2"] {
+        if let Some(v) = obj.get(k).or_else(|| top.get(k)).and_then(Value::as_f64) {
+            if v != 0.0 {
+                return Err(ctx.err(
+                    k,
+                    "lens distortion is not supported: undistort the images first",
+                ));
+            }
+        }
+    }
+    let w = get_f64(obj, top, "w", ctx)?;
+    let h = get_f64(obj, top, "h", ctx)?;
+    if w < 1.0 || h < 1.0 || w.fract() != 0.0 || h.fract() != 0.0 {
+        return Err(ctx.err(
+            "w",
+            format!("image size {w}×{h} is not a positive integer size"),
+        ));
+    }
+    let fx = get_f64(obj, top, "fl_x", ctx)?;
+    let fy = match get_f64(obj, top, "fl_y", ctx) {
+        Ok(v) => v,
+        Err(_) if !obj.contains_key("fl_y") && !top.contains_key("fl_y") => fx,
+        Err(e) => return Err(e),
+    };
+    let cx = get_f64(obj, top, "cx", ctx).unwrap_or(w / 2.0);
+    let cy = get_f64(obj, top, "cy", ctx).unwrap_or(h / 2.0);
+    let c2w = parse_matrix(obj.get("transform_matrix"), ctx)?;
+    let cam = Camera::from_opengl_c2w(w as usize, h as usize, fx, fy, cx, cy, c2w);
+    cam.validate().map_err(|m| ctx.err("transform_matrix", m))?;
+    Ok(cam)
+}
+
+fn opt_path(
+    obj: &Map<String, Value>,
+    key: &str,
+    root: &Path,
+    ctx: &Ctx,
+) -> Result<Option<PathBuf>> {
+    match obj.get(key) {
+        None | Some(Value::Null) => Ok(None),
+        Some(Value::String(s)) => Ok(Some(root.join(s))),
+        Some(v) => Err(ctx.err(key, format!("expected a path string, found {v}"))),
+    }
+}
+
+/// Reads one frame entry: camera, image and every annotation it names.
+fn load_frame(
+    root: &Path,
+    obj: &Map<String, Value>,
+    top: &Map<String, Value>,
+    ctx: &Ctx,
+    split: Split,
+    png_depth_scale: f64,
+) -> Result<Frame> {
+    let camera = camera_of(obj, top, ctx)?;
+    let image_path =
+        opt_path(obj, "file_path", root, ctx)?.ok_or_else(|| ctx.err("file_path", "missing"))?;
+    let rgb = dataset::load_rgb(&image_path, &camera)?;
+    let path = |k: &str| opt_path(obj, k, root, ctx);
+    let hdr = path("hdr_file_path")?
+        .map(|p| dataset::load_rgb(&p, &camera))
+        .transpose()?;
+    let depth = path("depth_file_path")?
+        .map(|p| dataset::load_depth(&p, &camera, png_depth_scale))
+        .transpose()?;
+    let normal = path("normal_file_path")?
+        .map(|p| dataset::load_normal(&p, &camera, None))
+        .transpose()?;
+    let emitter_mask = path("emitter_mask_path")?
+        .map(|p| dataset::load_mask(&p, &camera))
+        .transpose()?;
+    let albedo = path("albedo_file_path")?
+        .map(|p| dataset::load_float(&p, &camera, 3, "an albedo map"))
+        .transpose()?;
+    let specular = path("specular_file_path")?
+        .map(|p| dataset::load_float(&p, &camera, 3, "a specular map"))
+        .transpose()?;
+    let roughness = path("roughness_file_path")?
+        .map(|p| dataset::load_float(&p, &camera, 1, "a roughness map"))
+        .transpose()?;
+    let name = image_path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    Ok(Frame {
+        name,
+        split,
+        camera,
+        image_path,
+        rgb,
+        hdr,
+        depth,
+        normal,
+        emitter_mask,
+        albedo,
+        specular,
+        roughness,
+    })
+}
+
+fn normalize_name(s: &str) -> String {
+    s.trim_start_matches("./").to_string()
+}
+
+fn filename_set(
+    top: &Map<String, Value>,
+    key: &str,
+    json: &Path,
+) -> Result<Option<HashSet<String>>> {
+    match top.get(key) {
+        None | Some(Value::Null) => Ok(None),
+        Some(Value::Array(a)) => a
+            .iter()
+            .enumerate()
+            .map(|(i, v)| {
+                v.as_str()
+                    .map(normalize_name)
+                    .ok_or_else(|| DataError::field(json, format!("{key}[{i}]"), "not a string"))
+            })
+            .collect::<Result<HashSet<_>>>()
+            .map(Some),
+        Some(v) => Err(DataError::field(
+            json,
+            key,
+            format!("expected a list of file names, found {v}"),
+        )),
+    }
+}
+
+/// Runs `f` over items in parallel and returns the results in order, or the first error in order
+/// (so the message a user sees does not depend on thread timing).
+fn par_load<T: Sync, R: Send>(
+    items: &[T],
+    f: impl Fn(usize, &T) -> Result<R> + Sync,
+) -> Result<Vec<R>> {
+    let results: Vec<Result<R>> = items.par_iter().enumerate().map(|(i, t)| f(i, t)).collect();
+    results.into_iter().collect()
+}
+
+pub fn load(root: &Path) -> Result<Dataset> {
+    let json_path = root.join("transforms.json");
+    let text = std::fs::read_to_string(&json_path)
+        .map_err(|e| DataError::file(&json_path, format!("cannot read: {e}")))?;
+    let value: Value = serde_json::from_str(&text)
+        .map_err(|e| DataError::file(&json_path, format!("invalid JSON: {e}")))?;
+    let top = value
+        .as_object()
+        .ok_or_else(|| DataError::file(&json_path, "the top level is not a JSON object"))?;
+    let frames_json = top
+        .get("frames")
+        .and_then(Value::as_array)
+        .ok_or_else(|| DataError::field(&json_path, "frames", "missing or not a list"))?;
+    if frames_json.is_empty() {
+        return Err(DataError::field(&json_path, "frames", "the list is empty"));
+    }
+    let png_depth_scale = match top.get("depth_unit_scale_factor") {
+        None => 1e-3,
+        Some(v) => v
+            .as_f64()
+            .filter(|s| s.is_finite() && *s > 0.0)
+            .ok_or_else(|| {
+                DataError::field(
+                    &json_path,
+                    "depth_unit_scale_factor",
+                    "not a positive number",
+                )
+            })?,
+    };
+    let train_names = filename_set(top, "train_filenames", &json_path)?;
+    let test_names = filename_set(top, "test_filenames", &json_path)?;
+    let any_split_key = frames_json.iter().any(|f| f.get("split").is_some());
+
+    // Resolve each frame's split before loading anything, so a split error costs no I/O.
+    let mut entries = Vec::with_capacity(frames_json.len());
+    for (i, fj) in frames_json.iter().enumerate() {
+        let ctx = Ctx {
+            json: &json_path,
+            entry: format!("frames[{i}]"),
+        };
+        let obj = fj
+            .as_object()
+            .ok_or_else(|| ctx.err("", "not a JSON object"))?;
+        let file = obj
+            .get("file_path")
+            .and_then(Value::as_str)
+            .map(normalize_name)
+            .ok_or_else(|| ctx.err("file_path", "missing or not a string"))?;
+        let split = if let Some(s) = obj.get("split") {
+            s.as_str().and_then(Split::parse).ok_or_else(|| {
+                ctx.err(
+                    "split",
+                    format!("expected \"train\" or \"test\", found {s}"),
+                )
+            })?
+        } else if train_names.is_some() || test_names.is_some() {
+            let in_train = train_names.as_ref().is_some_and(|s| s.contains(&file));
+            let in_test = test_names.as_ref().is_some_and(|s| s.contains(&file));
+            match (in_train, in_test) {
+                (true, false) => Split::Train,
+                (false, true) => Split::Test,
+                (true, true) => {
+                    return Err(ctx.err(
+                        "file_path",
+                        format!("'{file}' is in both train_filenames and test_filenames"),
+                    ))
+                }
+                (false, false) => {
+                    return Err(ctx.err(
+                        "file_path",
+                        format!("'{file}' is in neither train_filenames nor test_filenames"),
+                    ))
+                }
+            }
+        } else if any_split_key {
+            return Err(ctx.err("split", "missing while other frames have one"));
+        } else if i % 8 == 0 {
+            Split::Test
+        } else {
+            Split::Train
+        };
+        entries.push((obj, split));
+    }
+    let frames = par_load(&entries, |i, (obj, split)| {
+        let ctx = Ctx {
+            json: &json_path,
+            entry: format!("frames[{i}]"),
+        };
+        load_frame(root, obj, top, &ctx, *split, png_depth_scale)
+    })?;
+    dataset::check_splits(&json_path, &frames)?;
+
+    let mesh_path = match top.get("mesh_path") {
+        None | Some(Value::Null) => None,
+        Some(Value::String(s)) => {
+            let p = root.join(s);
+            if !p.is_file() {
+                return Err(DataError::field(
+                    &json_path,
+                    "mesh_path",
+                    format!("{} not found", p.display()),
+                ));
+            }
+            Some(p)
+        }
+        Some(v) => {
+            return Err(DataError::field(
+                &json_path,
+                "mesh_path",
+                format!("not a path: {v}"),
+            ))
+        }
+    };
+    let relight = load_relight(root, &json_path, top, png_depth_scale)?;
+    let ldr_transfer = top
+        .get("ldr")
+        .and_then(|l| l.get("transfer"))
+        .and_then(Value::as_str)
+        .unwrap_or("srgb")
+        .to_string();
+    if !matches!(ldr_transfer.as_str(), "srgb" | "linear") {
+        return Err(DataError::field(
+            &json_path,
+            "ldr.transfer",
+            format!("'{ldr_transfer}' is not \"srgb\" or \"linear\""),
+        ));
+    }
+    let (bounds, bounds_source, normalization) = dataset::measure_bounds(&frames);
+    Ok(Dataset {
+        root: root.to_path_buf(),
+        format: Format::Native,
+        frames,
+        ldr_transfer,
+        mesh_path,
+        relight,
+        bounds,
+        bounds_source,
+        normalization,
+    })
+}
+
+fn load_relight(
+    root: &Path,
+    json_path: &Path,
+    top: &Map<String, Value>,
+    png_depth_scale: f64,
+) -> Result<Vec<RelightSet>> {
+    let Some(list) = top.get("relight") else {
+        return Ok(Vec::new());
+    };
+    let list = list
+        .as_array()
+        .ok_or_else(|| DataError::field(json_path, "relight", "not a list"))?;
+    let mut sets = Vec::new();
+    for (k, entry) in list.iter().enumerate() {
+        let ctx = Ctx {
+            json: json_path,
+            entry: format!("relight[{k}]"),
+        };
+        let obj = entry
+            .as_object()
+            .ok_or_else(|| ctx.err("", "not a JSON object"))?;
+        let spec = opt_path(obj, "spec", root, &ctx)?.ok_or_else(|| ctx.err("spec", "missing"))?;
+        if !spec.is_file() {
+            return Err(ctx.err("spec", format!("{} not found", spec.display())));
+        }
+        let frames_json = obj
+            .get("frames")
+            .and_then(Value::as_array)
+            .ok_or_else(|| ctx.err("frames", "missing or not a list"))?;
+        let objs: Vec<&Map<String, Value>> = frames_json
+            .iter()
+            .enumerate()
+            .map(|(i, f)| {
+                f.as_object()
+                    .ok_or_else(|| ctx.err(&format!("frames[{i}]"), "not a JSON object"))
+            })
+            .collect::<Result<_>>()?;
+        let frames = par_load(&objs, |i, obj| {
+            let ctx = Ctx {
+                json: json_path,
+                entry: format!("relight[{k}].frames[{i}]"),
+            };
+            load_frame(root, obj, top, &ctx, Split::Test, png_depth_scale)
+        })?;
+        sets.push(RelightSet { spec, frames });
+    }
+    Ok(sets)
+}

@@ -1,0 +1,174 @@
+//! A dataset's summary, as `i2sdf check` prints it (and as JSON with `--json`).
+
+use crate::dataset::{Bounds, BoundsSource, Dataset, Format, Normalization, Split};
+use std::fmt;
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct MapCounts {
+    pub hdr: usize,
+    pub depth: usize,
+    pub normal: usize,
+    pub emitter_mask: usize,
+    pub albedo: usize,
+    pub specular: usize,
+    pub roughness: usize,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Summary {
+    pub root: String,
+    pub format: Format,
+    pub train_views: usize,
+    pub test_views: usize,
+    /// Distinct image sizes (width, height).
+    pub resolutions: Vec<(usize, usize)>,
+    /// How many frames carry each map.
+    pub maps: MapCounts,
+    /// Range of valid z-depths in world units, and the fraction of pixels with depth.
+    pub depth_range: Option<(f64, f64)>,
+    pub depth_coverage: Option<f64>,
+    pub bounds: Bounds,
+    pub bounds_source: BoundsSource,
+    pub normalization: Normalization,
+    pub ldr_transfer: String,
+    pub mesh_path: Option<String>,
+    pub relight_sets: Vec<(String, usize)>,
+}
+
+impl Summary {
+    pub fn of(ds: &Dataset) -> Summary {
+        let count = |f: &dyn Fn(&crate::Frame) -> bool| ds.frames.iter().filter(|fr| f(fr)).count();
+        let maps = MapCounts {
+            hdr: count(&|f| f.hdr.is_some()),
+            depth: count(&|f| f.depth.is_some()),
+            normal: count(&|f| f.normal.is_some()),
+            emitter_mask: count(&|f| f.emitter_mask.is_some()),
+            albedo: count(&|f| f.albedo.is_some()),
+            specular: count(&|f| f.specular.is_some()),
+            roughness: count(&|f| f.roughness.is_some()),
+        };
+        let mut resolutions: Vec<(usize, usize)> = ds
+            .frames
+            .iter()
+            .map(|f| (f.camera.width, f.camera.height))
+            .collect();
+        resolutions.sort();
+        resolutions.dedup();
+        let (mut lo, mut hi, mut valid, mut total) = (f64::INFINITY, 0.0f64, 0usize, 0usize);
+        for d in ds.frames.iter().filter_map(|f| f.depth.as_ref()) {
+            total += d.data.len();
+            for &v in &d.data {
+                if v > 0.0 {
+                    lo = lo.min(v as f64);
+                    hi = hi.max(v as f64);
+                    valid += 1;
+                }
+            }
+        }
+        Summary {
+            root: ds.root.display().to_string(),
+            format: ds.format,
+            train_views: ds.count(Split::Train),
+            test_views: ds.count(Split::Test),
+            resolutions,
+            maps,
+            depth_range: (valid > 0).then_some((lo, hi)),
+            depth_coverage: (total > 0).then(|| valid as f64 / total as f64),
+            bounds: ds.bounds,
+            bounds_source: ds.bounds_source,
+            normalization: ds.normalization,
+            ldr_transfer: ds.ldr_transfer.clone(),
+            mesh_path: ds.mesh_path.as_ref().map(|p| p.display().to_string()),
+            relight_sets: ds
+                .relight
+                .iter()
+                .map(|r| (r.spec.display().to_string(), r.frames.len()))
+                .collect(),
+        }
+    }
+}
+
+impl fmt::Display for Summary {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let format = match self.format {
+            Format::Native => "native (transforms.json)",
+            Format::Paper => "paper release (cameras_normalize.npz)",
+        };
+        let n = self.train_views + self.test_views;
+        writeln!(f, "dataset      {}", self.root)?;
+        writeln!(f, "format       {format}")?;
+        writeln!(
+            f,
+            "views        {} train, {} test",
+            self.train_views, self.test_views
+        )?;
+        let res: Vec<String> = self
+            .resolutions
+            .iter()
+            .map(|(w, h)| format!("{w}×{h}"))
+            .collect();
+        writeln!(f, "resolution   {}", res.join(", "))?;
+        let m = &self.maps;
+        let maps = [
+            ("hdr", m.hdr),
+            ("depth", m.depth),
+            ("normal", m.normal),
+            ("emitter_mask", m.emitter_mask),
+            ("albedo", m.albedo),
+            ("specular", m.specular),
+            ("roughness", m.roughness),
+        ];
+        let list: Vec<String> = maps
+            .iter()
+            .map(|(k, c)| {
+                if *c == 0 {
+                    format!("{k} –")
+                } else {
+                    format!("{k} {c}/{n}")
+                }
+            })
+            .collect();
+        writeln!(f, "maps         {}", list.join(", "))?;
+        match (self.depth_range, self.depth_coverage) {
+            (Some((lo, hi)), Some(cov)) => writeln!(
+                f,
+                "depth        {lo:.4} … {hi:.4} (world units, z-depth), {:.1} % of pixels valid",
+                cov * 100.0
+            )?,
+            _ => writeln!(f, "depth        none")?,
+        }
+        let b = &self.bounds;
+        let src = match self.bounds_source {
+            BoundsSource::Depth => "from depth and cameras",
+            BoundsSource::Cameras => "from cameras only (no depth): a guess",
+        };
+        writeln!(
+            f,
+            "bounds       [{:.3}, {:.3}, {:.3}] … [{:.3}, {:.3}, {:.3}] (world units, {src})",
+            b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2]
+        )?;
+        let c = &self.normalization.center;
+        writeln!(
+            f,
+            "normalized   x_n = (x − [{:.4}, {:.4}, {:.4}]) / {:.4}  (scene inside the unit sphere)",
+            c[0], c[1], c[2], self.normalization.scale
+        )?;
+        writeln!(f, "ldr          {}", self.ldr_transfer)?;
+        writeln!(
+            f,
+            "mesh         {}",
+            self.mesh_path.as_deref().unwrap_or("–")
+        )?;
+        if self.relight_sets.is_empty() {
+            write!(f, "relight      –")?;
+        } else {
+            let r: Vec<String> = self
+                .relight_sets
+                .iter()
+                .map(|(s, k)| format!("{s} ({k} views)"))
+                .collect();
+            write!(f, "relight      {}", r.join(", "))?;
+        }
+        Ok(())
+    }
+}

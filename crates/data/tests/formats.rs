@@ -1,0 +1,125 @@
+//! Both formats load from fixtures the tests write themselves, with the conventions right: a depth
+//! pixel back-projected from two views of a known geometry lands on the same world point.
+
+use glam::DVec3;
+use i2sdf_data::fixture::{self, DepthFormat, FixtureOptions};
+use i2sdf_data::{load, Dataset, Format, Split};
+
+const ANCHOR: DVec3 = DVec3::new(2.5, 0.3, 0.9); // a point on the +x wall
+
+fn anchored(depth: DepthFormat) -> FixtureOptions {
+    FixtureOptions {
+        depth,
+        anchor: Some(ANCHOR),
+        ..Default::default()
+    }
+}
+
+/// In every view with depth, the anchor projects onto a pixel centre; back-projecting that pixel's
+/// depth must give the anchor back (relative to the viewing distance), and the normal there must be
+/// the wall's.
+fn assert_views_agree_on_anchor(ds: &Dataset, rel_tol: f64) -> usize {
+    let mut checked = 0;
+    for f in ds.frames.iter().filter(|f| f.depth.is_some()) {
+        let (u, v, _) = f.camera.project(ANCHOR).unwrap();
+        assert!(
+            (u.fract() - 0.5).abs() < 1e-6 && (v.fract() - 0.5).abs() < 1e-6,
+            "{}: anchor at ({u}, {v})",
+            f.name
+        );
+        let (i, j) = (u.floor() as usize, v.floor() as usize);
+        let d = f.depth.as_ref().unwrap().pixel(i, j)[0] as f64;
+        let p = f.camera.backproject(i, j, d);
+        let dist = (ANCHOR - f.camera.center()).length();
+        let err = (p - ANCHOR).length() / dist;
+        assert!(
+            err < rel_tol,
+            "{}: back-projected {p:?}, expected {ANCHOR:?} (relative error {err:.2e})",
+            f.name
+        );
+        if let Some(n) = &f.normal {
+            let n = n.pixel(i, j);
+            assert!(
+                (n[0] + 1.0).abs() < 1e-5 && n[1].abs() < 1e-5 && n[2].abs() < 1e-5,
+                "{}: normal {n:?}",
+                f.name
+            );
+        }
+        checked += 1;
+    }
+    checked
+}
+
+#[test]
+fn native_format_loads_with_correct_conventions() {
+    for depth in [DepthFormat::Exr, DepthFormat::Npy] {
+        let dir = tempfile::tempdir().unwrap();
+        let truth = fixture::write_native(dir.path(), &anchored(depth));
+        let ds = load(dir.path()).unwrap();
+        assert_eq!(ds.format, Format::Native);
+        assert_eq!((ds.count(Split::Train), ds.count(Split::Test)), (4, 2));
+        for (f, c) in ds.frames.iter().zip(&truth) {
+            assert!(f.camera.c2w.abs_diff_eq(c.c2w, 1e-9));
+            assert!((f.camera.cx - c.cx).abs() < 1e-9);
+            assert_eq!(f.rgb.channels, 3);
+            assert!(f.emitter_mask.is_some() && f.normal.is_some());
+        }
+        assert_eq!(assert_views_agree_on_anchor(&ds, 1e-4), 6);
+    }
+}
+
+#[test]
+fn native_png16_depth_is_scaled_by_the_unit_factor() {
+    let dir = tempfile::tempdir().unwrap();
+    fixture::write_native(dir.path(), &anchored(DepthFormat::Png16));
+    let ds = load(dir.path()).unwrap();
+    // Millimetre quantization: half a millimetre over a few metres.
+    assert_views_agree_on_anchor(&ds, 5e-4);
+}
+
+#[test]
+fn paper_format_loads_with_its_integer_pixel_and_camera_space_conventions() {
+    let dir = tempfile::tempdir().unwrap();
+    let truth = fixture::write_paper(dir.path(), &anchored(DepthFormat::Exr));
+    let ds = load(dir.path()).unwrap();
+    assert_eq!(ds.format, Format::Paper);
+    assert_eq!((ds.count(Split::Train), ds.count(Split::Test)), (4, 2));
+    for (f, c) in ds.frames.iter().zip(&truth) {
+        assert!(
+            f.camera.c2w.abs_diff_eq(c.c2w, 1e-6),
+            "{}: {:?} vs {:?}",
+            f.name,
+            f.camera.c2w,
+            c.c2w
+        );
+        assert!((f.camera.cx - c.cx).abs() < 1e-6 && (f.camera.fy - c.fy).abs() < 1e-6);
+    }
+    assert_eq!(assert_views_agree_on_anchor(&ds, 1e-4), 4);
+    let f = &ds.frames[0];
+    assert!(f.emitter_mask.is_some() && f.normal.is_some() && f.depth.is_some());
+}
+
+#[test]
+fn normalization_puts_the_scene_in_the_unit_sphere() {
+    let dir = tempfile::tempdir().unwrap();
+    fixture::write_native(dir.path(), &FixtureOptions::default());
+    let ds = load(dir.path()).unwrap();
+    let n = ds.normalization;
+    for f in &ds.frames {
+        let d = f.depth.as_ref().unwrap();
+        for j in 0..f.camera.height {
+            for i in 0..f.camera.width {
+                let p = f.camera.backproject(i, j, d.pixel(i, j)[0] as f64);
+                let q = n.to_normalized(p);
+                assert!(q.length() < 1.0, "{q:?}");
+                assert!((n.to_world(q) - p).length() < 1e-9);
+                assert!((n.world_to_normalized().transform_point3(p) - q).length() < 1e-9);
+            }
+        }
+    }
+    // The measured bounds are the room (the fixture sees every wall).
+    for a in 0..3 {
+        assert!(ds.bounds.min[a] >= fixture::ROOM_MIN[a] - 1e-3);
+        assert!(ds.bounds.max[a] <= fixture::ROOM_MAX[a] + 1e-3);
+    }
+}
