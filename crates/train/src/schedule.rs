@@ -1,0 +1,163 @@
+//! The three steps of stage 1 (paper Sec. 5 "Training of geometry and radiance fields", supp.
+//! "Implementation Details"): warm-up (no bubble), bubble (bubble loss and adaptive sampling on,
+//! eikonal and smoothness off), smooth (bubble off, eikonal and smoothness on). Step lengths scale
+//! with the total iteration count (paper: 50k / 100k / 50k of 200k).
+
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Phase {
+    WarmUp,
+    Bubble,
+    Smooth,
+}
+
+/// Loss weights (supp. "Implementation Details"): λ_geo = 1, λ_emi = 0.5, λ2 (depth) = 0.1,
+/// λ3 (normal) = 0.05; λ1 (eikonal), λ4 (smooth), λ5 (bubble) depend on the phase.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LossWeights {
+    pub rgb: f32,
+    pub eikonal: f32,
+    pub depth: f32,
+    pub normal: f32,
+    pub smooth: f32,
+    pub bubble: f32,
+    pub emitter: f32,
+}
+
+impl Default for LossWeights {
+    fn default() -> Self {
+        LossWeights {
+            rgb: 1.0,
+            eikonal: 0.1,
+            depth: 0.1,
+            normal: 0.05,
+            smooth: 0.01,
+            bubble: 0.5,
+            emitter: 0.5,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Schedule {
+    /// Fraction of the iterations spent in warm-up (paper: 50k of 200k).
+    pub warmup_fraction: f64,
+    /// Fraction spent in the bubble step (paper: 100k of 200k); the rest is the smooth step.
+    pub bubble_fraction: f64,
+    /// Turn the bubble step off entirely (ablation): the bubble step then trains like warm-up.
+    pub bubble: bool,
+}
+
+impl Default for Schedule {
+    fn default() -> Self {
+        Schedule {
+            warmup_fraction: 0.25,
+            bubble_fraction: 0.5,
+            bubble: true,
+        }
+    }
+}
+
+impl Schedule {
+    pub fn validate(&self) -> Result<(), String> {
+        let ok = |f: f64| (0.0..=1.0).contains(&f);
+        if !ok(self.warmup_fraction)
+            || !ok(self.bubble_fraction)
+            || self.warmup_fraction + self.bubble_fraction > 1.0
+        {
+            return Err(format!(
+                "warmup_fraction ({}) and bubble_fraction ({}) must be in [0, 1] and sum to at most 1",
+                self.warmup_fraction, self.bubble_fraction
+            ));
+        }
+        Ok(())
+    }
+
+    /// First iteration of the bubble and of the smooth step.
+    pub fn boundaries(&self, total: u64) -> (u64, u64) {
+        let b = (self.warmup_fraction * total as f64).round() as u64;
+        let s = ((self.warmup_fraction + self.bubble_fraction) * total as f64).round() as u64;
+        (b, s.max(b))
+    }
+
+    pub fn phase(&self, iteration: u64, total: u64) -> Phase {
+        let (b, s) = self.boundaries(total);
+        if iteration < b {
+            Phase::WarmUp
+        } else if iteration < s {
+            Phase::Bubble
+        } else {
+            Phase::Smooth
+        }
+    }
+
+    /// The weights in force in a phase (supp.: warm-up λ1 = 0.1, λ4 = λ5 = 0; bubble λ1 = λ4 = 0,
+    /// λ5 = 0.5; smooth λ1 = 0.1, λ4 = 0.01, λ5 = 0).
+    pub fn weights(&self, phase: Phase, base: &LossWeights) -> LossWeights {
+        let mut w = base.clone();
+        match phase {
+            Phase::WarmUp => {
+                w.smooth = 0.0;
+                w.bubble = 0.0;
+            }
+            Phase::Bubble if self.bubble => {
+                w.eikonal = 0.0;
+                w.smooth = 0.0;
+            }
+            Phase::Bubble => {
+                // Ablation without bubbles: the middle step is more warm-up.
+                w.smooth = 0.0;
+                w.bubble = 0.0;
+            }
+            Phase::Smooth => w.bubble = 0.0,
+        }
+        w
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn paper_step_lengths_and_weights() {
+        let s = Schedule::default();
+        assert_eq!(s.boundaries(200_000), (50_000, 150_000));
+        assert_eq!(s.phase(49_999, 200_000), Phase::WarmUp);
+        assert_eq!(s.phase(50_000, 200_000), Phase::Bubble);
+        assert_eq!(s.phase(150_000, 200_000), Phase::Smooth);
+        let base = LossWeights::default();
+        let w = s.weights(Phase::WarmUp, &base);
+        assert_eq!((w.eikonal, w.smooth, w.bubble), (0.1, 0.0, 0.0));
+        let w = s.weights(Phase::Bubble, &base);
+        assert_eq!((w.eikonal, w.smooth, w.bubble), (0.0, 0.0, 0.5));
+        let w = s.weights(Phase::Smooth, &base);
+        assert_eq!((w.eikonal, w.smooth, w.bubble), (0.1, 0.01, 0.0));
+        assert_eq!((w.depth, w.normal, w.emitter, w.rgb), (0.1, 0.05, 0.5, 1.0));
+    }
+
+    #[test]
+    fn ablation_without_bubbles_never_applies_them() {
+        let s = Schedule {
+            bubble: false,
+            ..Default::default()
+        };
+        for it in (0..1000).step_by(50) {
+            assert_eq!(
+                s.weights(s.phase(it, 1000), &LossWeights::default()).bubble,
+                0.0
+            );
+        }
+        assert!(Schedule {
+            warmup_fraction: 0.8,
+            bubble_fraction: 0.5,
+            bubble: true
+        }
+        .validate()
+        .is_err());
+    }
+}
