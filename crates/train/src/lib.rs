@@ -1,6 +1,7 @@
 //! i2sdf training: the stage-1 loop (geometry, radiance and emitter fields), its losses, the
 //! three-step schedule, error-guided adaptive sampling, checkpoints and the run directory.
 
+pub mod config;
 pub mod losses;
 pub mod pdf_map;
 pub mod schedule;
