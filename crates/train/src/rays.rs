@@ -1,0 +1,226 @@
+//! Training rays: the training pixels of a dataset as rays in the normalized frame (the scene inside
+//! the unit sphere) with their supervision — LDR colour, depth as distance along the unit ray, the
+//! world normal (the normalization is a similarity without rotation, so normals do not change) and
+//! the emitter mask.
+
+use i2sdf_data::{Dataset, Frame, Normalization, Split};
+use rand::Rng;
+
+/// One image's supervision in flat per-pixel arrays, ready for random access.
+pub struct TrainImage {
+    pub frame_index: usize,
+    pub width: usize,
+    pub height: usize,
+    /// Per pixel: ray origin is the camera centre (normalized); direction unit, normalized frame.
+    pub origin: [f32; 3],
+    pub dirs: Vec<[f32; 3]>,
+    /// Per pixel: cos θ between ray and optical axis (z-depth = t · cos θ).
+    pub cos: Vec<f32>,
+    pub rgb: Vec<[f32; 3]>,
+    /// Depth as distance along the unit ray in normalized units; 0 where there is none.
+    pub depth: Vec<f32>,
+    pub normal: Option<Vec<[f32; 3]>>,
+    pub emitter: Option<Vec<f32>>,
+}
+
+impl TrainImage {
+    pub fn new(frame_index: usize, frame: &Frame, norm: &Normalization) -> Self {
+        let cam = &frame.camera;
+        let (w, h) = (cam.width, cam.height);
+        let o = norm.to_normalized(cam.center());
+        let mut dirs = Vec::with_capacity(w * h);
+        let mut cos = Vec::with_capacity(w * h);
+        for j in 0..h {
+            for i in 0..w {
+                let (_, d, c) = cam.ray(i as f64 + 0.5, j as f64 + 0.5);
+                dirs.push([d.x as f32, d.y as f32, d.z as f32]);
+                cos.push(c as f32);
+            }
+        }
+        let rgb = frame
+            .rgb
+            .data
+            .chunks(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect();
+        let depth = match &frame.depth {
+            Some(d) => d
+                .data
+                .iter()
+                .zip(&cos)
+                .map(|(z, c)| {
+                    if *z > 0.0 {
+                        (*z as f64 / *c as f64 / norm.scale) as f32
+                    } else {
+                        0.0
+                    }
+                })
+                .collect(),
+            None => vec![0.0; w * h],
+        };
+        let normal = frame
+            .normal
+            .as_ref()
+            .map(|n| n.data.chunks(3).map(|c| [c[0], c[1], c[2]]).collect());
+        let emitter = frame.emitter_mask.as_ref().map(|m| m.data.clone());
+        TrainImage {
+            frame_index,
+            width: w,
+            height: h,
+            origin: [o.x as f32, o.y as f32, o.z as f32],
+            dirs,
+            cos,
+            rgb,
+            depth,
+            normal,
+            emitter,
+        }
+    }
+
+    pub fn pixels(&self) -> usize {
+        self.width * self.height
+    }
+
+    /// The surface point seen at a pixel according to its depth (paper eq. 6), normalized frame.
+    pub fn surface_point(&self, pixel: usize) -> Option<[f32; 3]> {
+        let t = self.depth[pixel];
+        (t > 0.0).then(|| {
+            let d = self.dirs[pixel];
+            [
+                self.origin[0] + t * d[0],
+                self.origin[1] + t * d[1],
+                self.origin[2] + t * d[2],
+            ]
+        })
+    }
+}
+
+/// All training images of a dataset.
+pub fn train_images(ds: &Dataset) -> Vec<TrainImage> {
+    ds.frames
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.split == Split::Train)
+        .map(|(i, f)| TrainImage::new(i, f, &ds.normalization))
+        .collect()
+}
+
+/// A batch of rays with their supervision, structure-of-arrays.
+#[derive(Default)]
+pub struct RayBatch {
+    pub image: Vec<u32>,
+    pub pixel: Vec<u32>,
+    pub origin: Vec<[f32; 3]>,
+    pub dir: Vec<[f32; 3]>,
+    pub rgb: Vec<[f32; 3]>,
+    pub depth: Vec<f32>,
+    pub has_depth: Vec<bool>,
+    pub normal: Vec<[f32; 3]>,
+    pub has_normal: Vec<bool>,
+    pub emitter: Vec<f32>,
+    pub has_emitter: bool,
+}
+
+impl RayBatch {
+    pub fn len(&self) -> usize {
+        self.origin.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.origin.is_empty()
+    }
+
+    pub fn clear(&mut self) {
+        self.image.clear();
+        self.pixel.clear();
+        self.origin.clear();
+        self.dir.clear();
+        self.rgb.clear();
+        self.depth.clear();
+        self.has_depth.clear();
+        self.normal.clear();
+        self.has_normal.clear();
+        self.emitter.clear();
+    }
+
+    pub fn push(&mut self, images: &[TrainImage], image: usize, pixel: usize) {
+        let im = &images[image];
+        self.image.push(image as u32);
+        self.pixel.push(pixel as u32);
+        self.origin.push(im.origin);
+        self.dir.push(im.dirs[pixel]);
+        self.rgb.push(im.rgb[pixel]);
+        self.depth.push(im.depth[pixel]);
+        self.has_depth.push(im.depth[pixel] > 0.0);
+        let n = im.normal.as_ref().map_or([0.0; 3], |n| n[pixel]);
+        self.normal.push(n);
+        self.has_normal.push(n != [0.0; 3]);
+        self.emitter
+            .push(im.emitter.as_ref().map_or(0.0, |e| e[pixel]));
+    }
+
+    /// Fills the batch with `n` pixels drawn uniformly over all training pixels.
+    pub fn sample_uniform(&mut self, images: &[TrainImage], n: usize, rng: &mut impl Rng) {
+        self.clear();
+        let total: usize = images.iter().map(|i| i.pixels()).sum();
+        self.has_emitter = images.iter().all(|i| i.emitter.is_some());
+        for _ in 0..n {
+            let mut k = rng.gen_range(0..total);
+            let mut image = 0;
+            while k >= images[image].pixels() {
+                k -= images[image].pixels();
+                image += 1;
+            }
+            self.push(images, image, k);
+        }
+    }
+}
+
+/// Distance along a unit ray from `o` (inside the sphere) to where it leaves the sphere of radius
+/// `r` about the origin.
+pub fn sphere_exit(o: [f32; 3], d: [f32; 3], r: f32) -> f32 {
+    let b = o[0] * d[0] + o[1] * d[1] + o[2] * d[2];
+    let c = o[0] * o[0] + o[1] * o[1] + o[2] * o[2] - r * r;
+    let disc = (b * b - c).max(0.0);
+    (-b + disc.sqrt()).max(0.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use i2sdf_data::fixture::{self, FixtureOptions};
+    use rand::SeedableRng;
+
+    #[test]
+    fn depth_supervision_lands_on_the_surface() {
+        let dir = tempfile::tempdir().unwrap();
+        fixture::write_native(dir.path(), &FixtureOptions::default());
+        let ds = i2sdf_data::load(dir.path()).unwrap();
+        let images = train_images(&ds);
+        assert_eq!(images.len(), 4);
+        // Every depth pixel's surface point maps back (in world units) onto a wall of the room.
+        for im in &images {
+            for p in 0..im.pixels() {
+                let q = im.surface_point(p).unwrap();
+                let w = ds.normalization.to_world(glam::DVec3::new(
+                    q[0] as f64,
+                    q[1] as f64,
+                    q[2] as f64,
+                ));
+                let to_wall = (0..3)
+                    .map(|a| {
+                        (w[a] - fixture::ROOM_MIN[a])
+                            .abs()
+                            .min((w[a] - fixture::ROOM_MAX[a]).abs())
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                assert!(to_wall < 1e-4, "{w:?}");
+                assert!(sphere_exit(im.origin, im.dirs[p], 1.0) >= im.depth[p]);
+            }
+        }
+        let mut batch = RayBatch::default();
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
+        batch.sample_uniform(&images, 100, &mut rng);
+        assert_eq!(batch.len(), 100);
+        assert!(batch.has_emitter && batch.has_depth.iter().all(|v| *v));
+    }
+}
