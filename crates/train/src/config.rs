@@ -5,6 +5,7 @@
 
 use crate::schedule::{LossWeights, Schedule};
 use i2sdf_data::DataError;
+pub use i2sdf_model::{Backbone, ModelConfig};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -74,66 +75,6 @@ impl Default for TrainLoop {
             checkpoint_every: 500,
             log_every: 10,
             threads: 0,
-        }
-    }
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Backbone {
-    /// Multi-resolution hash grid + small MLPs (default; trains in minutes on a CPU).
-    HashGrid,
-    /// The paper's backbone: 8×256 SDF MLP with a skip at layer 4 on PE(6) positions, 4×256
-    /// radiance MLP (supp. "Architecture"). For fidelity and comparison; slow on a CPU.
-    Mlp,
-}
-
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct ModelConfig {
-    pub backbone: Backbone,
-    pub hash_levels: usize,
-    pub hash_features: usize,
-    pub hash_log2_table: u32,
-    pub hash_base_resolution: usize,
-    pub hash_finest_resolution: usize,
-    pub sdf_hidden: usize,
-    pub sdf_layers: usize,
-    /// Dimension of the geometry feature z (besides the SDF value).
-    pub feature_dim: usize,
-    pub color_hidden: usize,
-    pub color_layers: usize,
-    pub emitter_hidden: usize,
-    pub emitter_layers: usize,
-    /// Spherical-harmonics degree of the view-direction encoding.
-    pub sh_degree: usize,
-    /// Radius of the initial inverted sphere in normalized units (the scene is in the unit sphere).
-    pub init_radius: f32,
-    /// Initial and minimum β of the VolSDF density.
-    pub beta_init: f32,
-    pub beta_min: f32,
-}
-
-impl Default for ModelConfig {
-    fn default() -> Self {
-        ModelConfig {
-            backbone: Backbone::HashGrid,
-            hash_levels: 16,
-            hash_features: 2,
-            hash_log2_table: 19,
-            hash_base_resolution: 16,
-            hash_finest_resolution: 2048,
-            sdf_hidden: 64,
-            sdf_layers: 2,
-            feature_dim: 15,
-            color_hidden: 64,
-            color_layers: 2,
-            emitter_hidden: 64,
-            emitter_layers: 1,
-            sh_degree: 4,
-            init_radius: 1.0,
-            beta_init: 0.1,
-            beta_min: 1e-4,
         }
     }
 }
@@ -221,12 +162,7 @@ impl TrainConfig {
         if self.sampling.samples < 2 || self.sampling.coarse < 2 {
             return bad("sampling.samples and sampling.coarse must be at least 2".into());
         }
-        if !(self.model.beta_init > self.model.beta_min && self.model.beta_min > 0.0) {
-            return bad("model.beta_init must exceed model.beta_min > 0".into());
-        }
-        if !(self.model.init_radius > 0.0) {
-            return bad("model.init_radius must be positive".into());
-        }
+        self.model.validate().map_err(DataError::invalid)?;
         if self.adaptive.p_min < 0.0 || self.adaptive.p_max <= self.adaptive.p_min {
             return bad("adaptive: need 0 ≤ p_min < p_max".into());
         }
