@@ -5,4 +5,5 @@ pub mod config;
 pub mod losses;
 pub mod pdf_map;
 pub mod rays;
+pub mod run_dir;
 pub mod schedule;
