@@ -1,0 +1,605 @@
+//! Volume rendering of a [`NeuralScene`] (paper eqs. 3–5 and the emitter mask of Sec. 4.2), with
+//! the backward pass beside the forward: rays → VolSDF error-bounded samples → F_d (distance,
+//! feature, gradient) → F_c and F_e → composited colour, depth, normal and emitter probability.
+//! Training and inference (`render`, `eval`, PDF-map initialisation) share this one path.
+//!
+//! Extra points (eikonal, bubble and smoothness points of stage 1) ride in the same SDF batch as
+//! the ray samples, so one SDF forward and one SDF backward serve every loss term.
+
+use crate::scene::NeuralScene;
+use i2sdf_nn::{MlpWorkspace, SdfGrad, SdfWorkspace};
+use i2sdf_render::volume::{
+    composite_batch, composite_batch_backward, error_bounded_samples, laplace_density_backward,
+    laplace_density_batch, CompositeGrads, CompositeOutputs, ErrorBoundedSamplerConfig,
+    PackedSamples, RaySampleSet,
+};
+use rand::Rng;
+
+/// Channels composited per sample: RGB, unit normal, emitter probability.
+pub const CHANNELS: usize = 7;
+
+#[derive(Clone, Debug)]
+pub struct RenderSettings {
+    pub sampler: ErrorBoundedSamplerConfig,
+    /// Rays start this far from the camera (normalized units).
+    pub near: f32,
+    /// Rays end where they leave the sphere of this radius (the scene is inside the unit sphere).
+    pub bound_radius: f32,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        RenderSettings {
+            sampler: ErrorBoundedSamplerConfig {
+                num_samples: 48,
+                num_samples_eval: 48,
+                num_samples_extra: 8,
+                max_total_iters: 3,
+                ..Default::default()
+            },
+            near: 0.01,
+            bound_radius: 1.0,
+        }
+    }
+}
+
+/// Per-ray results of a forward pass.
+#[derive(Clone, Debug, Default)]
+pub struct RayOutputs {
+    /// rays × 3
+    pub rgb: Vec<f32>,
+    pub depth: Vec<f32>,
+    /// rays × 3, Σ w n̂ (not renormalized)
+    pub normal: Vec<f32>,
+    pub emitter: Vec<f32>,
+    pub opacity: Vec<f32>,
+}
+
+/// Gradients of the parameters of a [`NeuralScene`].
+pub struct SceneGrads {
+    pub sdf: SdfGrad,
+    pub radiance: Vec<f32>,
+    pub emitter: Vec<f32>,
+    /// dL/dβ (the caller chains it into β's parametrization).
+    pub beta: f32,
+}
+
+impl SceneGrads {
+    pub fn new(scene: &NeuralScene) -> Self {
+        SceneGrads {
+            sdf: SdfGrad::new(&scene.sdf),
+            radiance: vec![0.0; scene.radiance.params.len()],
+            emitter: vec![0.0; scene.emitter.params.len()],
+            beta: 0.0,
+        }
+    }
+}
+
+/// Buffers of one batch, kept between iterations; after [`forward`] they hold every per-sample
+/// quantity the backward needs.
+#[derive(Default)]
+pub struct RenderWorkspace {
+    pub samples: RaySampleSet,
+    /// Number of ray samples; points `n_samples..` are the extra points.
+    pub n_samples: usize,
+    /// All points (ray samples, then extra points), flat xyz.
+    pub points: Vec<f32>,
+    pub sdf: Vec<f32>,
+    pub feature: Vec<f32>,
+    /// ∇d at every point, flat xyz.
+    pub gradient: Vec<f32>,
+    sigma: Vec<f32>,
+    sample_dirs: Vec<f32>,
+    radiance_input: Vec<f32>,
+    radiance_out: Vec<f32>,
+    emitter_out: Vec<f32>,
+    channels: Vec<f32>,
+    pub weights: Vec<f32>,
+    pub out: RayOutputs,
+    sdf_ws: SdfWorkspace,
+    sampler_ws: SdfWorkspace,
+    radiance_ws: MlpWorkspace,
+    emitter_ws: MlpWorkspace,
+    // backward scratch
+    grad_sigma: Vec<f32>,
+    grad_channels: Vec<f32>,
+    grad_radiance_in: Vec<f32>,
+    grad_feature: Vec<f32>,
+    grad_emitter_out: Vec<f32>,
+    grad_radiance_out: Vec<f32>,
+    grad_emitter_in: Vec<f32>,
+    scratch_sdf: Vec<f32>,
+    scratch_feature: Vec<f32>,
+}
+
+/// Distance along the unit ray from `o` to where it leaves the sphere of radius `r`.
+pub fn sphere_exit(o: [f32; 3], d: [f32; 3], r: f32) -> f32 {
+    let b = o[0] * d[0] + o[1] * d[1] + o[2] * d[2];
+    let c = o[0] * o[0] + o[1] * o[1] + o[2] * o[2] - r * r;
+    (-b + (b * b - c).max(0.0).sqrt()).max(0.0)
+}
+
+/// Renders `origins`/`dirs` (unit directions, normalized frame) and evaluates the SDF at
+/// `extra_points` too. With an RNG the samples are stochastic (training); without, deterministic.
+pub fn forward<R: Rng + ?Sized>(
+    scene: &NeuralScene,
+    settings: &RenderSettings,
+    origins: &[[f32; 3]],
+    dirs: &[[f32; 3]],
+    extra_points: &[f32],
+    ws: &mut RenderWorkspace,
+    rng: Option<&mut R>,
+) {
+    sample(scene, settings, origins, dirs, ws, rng);
+    forward_with_samples(scene, origins, dirs, extra_points, ws);
+}
+
+/// Places the samples along the rays (VolSDF's error-bounded sampler, SDF forward only) into
+/// `ws.samples`. The samples depend on the SDF but are not differentiated (as in VolSDF).
+pub fn sample<R: Rng + ?Sized>(
+    scene: &NeuralScene,
+    settings: &RenderSettings,
+    origins: &[[f32; 3]],
+    dirs: &[[f32; 3]],
+    ws: &mut RenderWorkspace,
+    rng: Option<&mut R>,
+) {
+    let rays = origins.len();
+    let beta = scene.beta.value();
+    let near = vec![settings.near; rays];
+    let far: Vec<f32> = origins
+        .iter()
+        .zip(dirs)
+        .map(|(o, d)| sphere_exit(*o, *d, settings.bound_radius).max(settings.near * 2.0))
+        .collect();
+    let (sampler_ws, scratch_sdf, scratch_feature) = (
+        &mut ws.sampler_ws,
+        &mut ws.scratch_sdf,
+        &mut ws.scratch_feature,
+    );
+    let fdim = scene.feature_dim();
+    let sdf_eval = |pts: &[[f32; 3]], out: &mut [f32]| {
+        let flat: &[f32] = bytemuck_flat(pts);
+        scratch_sdf.resize(pts.len(), 0.0);
+        scratch_feature.resize(pts.len() * fdim, 0.0);
+        scene
+            .sdf
+            .forward(flat, sampler_ws, scratch_sdf, scratch_feature);
+        out.copy_from_slice(&scratch_sdf[..pts.len()]);
+    };
+    ws.samples = error_bounded_samples(
+        &settings.sampler,
+        origins,
+        dirs,
+        &near,
+        &far,
+        beta,
+        sdf_eval,
+        rng,
+    );
+}
+
+/// The differentiable part of [`forward`], at the samples already in `ws.samples`.
+pub fn forward_with_samples(
+    scene: &NeuralScene,
+    origins: &[[f32; 3]],
+    dirs: &[[f32; 3]],
+    extra_points: &[f32],
+    ws: &mut RenderWorkspace,
+) {
+    let rays = origins.len();
+    let beta = scene.beta.value();
+    let n_s = ws.samples.t.len();
+    let n_e = extra_points.len() / 3;
+    let n = n_s + n_e;
+    ws.n_samples = n_s;
+    // 2. Points: samples, then extra points.
+    ws.points.clear();
+    ws.sample_dirs.clear();
+    for r in 0..rays {
+        let (a, b) = (
+            ws.samples.ray_offsets[r] as usize,
+            ws.samples.ray_offsets[r + 1] as usize,
+        );
+        let (o, d) = (origins[r], dirs[r]);
+        for &t in &ws.samples.t[a..b] {
+            ws.points
+                .extend_from_slice(&[o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]);
+            ws.sample_dirs.extend_from_slice(&d);
+        }
+    }
+    ws.points.extend_from_slice(extra_points);
+    // 3. F_d with its spatial gradient.
+    let fdim = scene.feature_dim();
+    ws.sdf.resize(n, 0.0);
+    ws.feature.resize(n * fdim, 0.0);
+    ws.gradient.resize(n * 3, 0.0);
+    scene.sdf.forward_with_gradient(
+        &ws.points,
+        &mut ws.sdf_ws,
+        &mut ws.sdf,
+        &mut ws.feature,
+        &mut ws.gradient,
+    );
+    // 4. Density (eq. 2), F_c (eq. "c(x) = F_c(z, v)", with the normal as VolSDF), F_e.
+    ws.sigma.resize(n_s, 0.0);
+    laplace_density_batch(&ws.sdf[..n_s], beta, &mut ws.sigma);
+    scene.radiance_input(
+        &ws.feature[..n_s * fdim],
+        &ws.sample_dirs,
+        &ws.gradient[..n_s * 3],
+        &mut ws.radiance_input,
+    );
+    ws.radiance_out.resize(n_s * 3, 0.0);
+    scene.radiance.forward(
+        &ws.radiance_input,
+        &mut ws.radiance_ws,
+        &mut ws.radiance_out,
+    );
+    ws.emitter_out.resize(n_s, 0.0);
+    scene.emitter.forward(
+        &ws.feature[..n_s * fdim],
+        &mut ws.emitter_ws,
+        &mut ws.emitter_out,
+    );
+    // 5. Channels and compositing (eqs. 3–5, emitter mask).
+    ws.channels.resize(n_s * CHANNELS, 0.0);
+    for i in 0..n_s {
+        let c = &mut ws.channels[i * CHANNELS..(i + 1) * CHANNELS];
+        c[..3].copy_from_slice(&ws.radiance_out[i * 3..i * 3 + 3]);
+        let g = &ws.gradient[i * 3..i * 3 + 3];
+        let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-8);
+        c[3] = g[0] / len;
+        c[4] = g[1] / len;
+        c[5] = g[2] / len;
+        c[6] = ws.emitter_out[i];
+    }
+    let mut out_channels = vec![0.0f32; rays * CHANNELS];
+    ws.out.depth.resize(rays, 0.0);
+    ws.out.opacity.resize(rays, 0.0);
+    ws.weights.resize(n_s, 0.0);
+    composite_batch(
+        &PackedSamples {
+            ray_offsets: &ws.samples.ray_offsets,
+            t: &ws.samples.t,
+            delta: &ws.samples.delta,
+            sigma: &ws.sigma,
+            channels: &ws.channels,
+            num_channels: CHANNELS,
+        },
+        CompositeOutputs {
+            channels: &mut out_channels,
+            depth: &mut ws.out.depth,
+            opacity: &mut ws.out.opacity,
+            weights: &mut ws.weights,
+        },
+    );
+    ws.out.rgb.resize(rays * 3, 0.0);
+    ws.out.normal.resize(rays * 3, 0.0);
+    ws.out.emitter.resize(rays, 0.0);
+    for r in 0..rays {
+        let c = &out_channels[r * CHANNELS..(r + 1) * CHANNELS];
+        ws.out.rgb[r * 3..r * 3 + 3].copy_from_slice(&c[..3]);
+        ws.out.normal[r * 3..r * 3 + 3].copy_from_slice(&c[3..6]);
+        ws.out.emitter[r] = c[6];
+    }
+}
+
+/// Upstream gradients of a [`forward`]'s per-ray outputs.
+pub struct RayGrads<'a> {
+    pub rgb: &'a [f32],
+    pub depth: &'a [f32],
+    pub normal: &'a [f32],
+    pub emitter: &'a [f32],
+    pub opacity: &'a [f32],
+}
+
+/// Backward of [`forward`]: accumulates parameter gradients into `grads`. `d_sdf` and
+/// `d_gradient` hold, per point (samples then extra points), the gradients of point-level loss
+/// terms (eikonal, bubble, smoothness) w.r.t. d and ∇d; the rendering gradients are added to them
+/// here (they are used as scratch and left modified).
+pub fn backward(
+    scene: &NeuralScene,
+    ws: &mut RenderWorkspace,
+    ray_grads: &RayGrads,
+    d_sdf: &mut [f32],
+    d_gradient: &mut [f32],
+    grads: &mut SceneGrads,
+) {
+    let rays = ws.samples.ray_offsets.len() - 1;
+    let n_s = ws.n_samples;
+    let fdim = scene.feature_dim();
+    let beta = scene.beta.value();
+    // Compositing backward.
+    let mut g_out = vec![0.0f32; rays * CHANNELS];
+    for r in 0..rays {
+        let g = &mut g_out[r * CHANNELS..(r + 1) * CHANNELS];
+        g[..3].copy_from_slice(&ray_grads.rgb[r * 3..r * 3 + 3]);
+        g[3..6].copy_from_slice(&ray_grads.normal[r * 3..r * 3 + 3]);
+        g[6] = ray_grads.emitter[r];
+    }
+    ws.grad_sigma.resize(n_s, 0.0);
+    ws.grad_channels.resize(n_s * CHANNELS, 0.0);
+    composite_batch_backward(
+        &PackedSamples {
+            ray_offsets: &ws.samples.ray_offsets,
+            t: &ws.samples.t,
+            delta: &ws.samples.delta,
+            sigma: &ws.sigma,
+            channels: &ws.channels,
+            num_channels: CHANNELS,
+        },
+        &CompositeGrads {
+            channels: &g_out,
+            depth: ray_grads.depth,
+            opacity: ray_grads.opacity,
+        },
+        &mut ws.grad_sigma,
+        &mut ws.grad_channels,
+    );
+    // Density backward: dL/dd for the samples and dL/dβ.
+    let mut d_sdf_render = vec![0.0f32; n_s];
+    grads.beta += laplace_density_backward(&ws.sdf[..n_s], beta, &ws.grad_sigma, &mut d_sdf_render);
+    for i in 0..n_s {
+        d_sdf[i] += d_sdf_render[i];
+    }
+    // F_c backward: into z and ∇d (the normal input).
+    ws.grad_radiance_out.resize(n_s * 3, 0.0);
+    ws.grad_emitter_out.resize(n_s, 0.0);
+    for i in 0..n_s {
+        ws.grad_radiance_out[i * 3..i * 3 + 3]
+            .copy_from_slice(&ws.grad_channels[i * CHANNELS..i * CHANNELS + 3]);
+        ws.grad_emitter_out[i] = ws.grad_channels[i * CHANNELS + 6];
+    }
+    let w_in = scene.radiance.input_dim();
+    ws.grad_radiance_in.resize(n_s * w_in, 0.0);
+    scene.radiance.backward(
+        &mut ws.radiance_ws,
+        &ws.grad_radiance_out,
+        &mut grads.radiance,
+        Some(&mut ws.grad_radiance_in),
+    );
+    ws.grad_emitter_in.resize(n_s * fdim, 0.0);
+    scene.emitter.backward(
+        &mut ws.emitter_ws,
+        &ws.grad_emitter_out,
+        &mut grads.emitter,
+        Some(&mut ws.grad_emitter_in),
+    );
+    let n = ws.sdf.len();
+    ws.grad_feature.clear();
+    ws.grad_feature.resize(n * fdim, 0.0);
+    let e = scene.direction.output_dim();
+    for i in 0..n_s {
+        let row = &ws.grad_radiance_in[i * w_in..(i + 1) * w_in];
+        let gf = &mut ws.grad_feature[i * fdim..(i + 1) * fdim];
+        for k in 0..fdim {
+            gf[k] = row[k] + ws.grad_emitter_in[i * fdim + k];
+        }
+        // ∇d enters F_c raw and the normal channel as n̂ = ∇d/‖∇d‖: dn̂ = (I − n̂n̂ᵀ) d∇d / ‖∇d‖.
+        let g = &ws.gradient[i * 3..i * 3 + 3];
+        let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-8);
+        let nh = [g[0] / len, g[1] / len, g[2] / len];
+        let dn = &ws.grad_channels[i * CHANNELS + 3..i * CHANNELS + 6];
+        let dot = nh[0] * dn[0] + nh[1] * dn[1] + nh[2] * dn[2];
+        for c in 0..3 {
+            d_gradient[i * 3 + c] += row[fdim + e + c] + (dn[c] - dot * nh[c]) / len;
+        }
+    }
+    scene.sdf.backward(
+        &mut ws.sdf_ws,
+        d_sdf,
+        Some(&ws.grad_feature),
+        Some(d_gradient),
+        &mut grads.sdf,
+    );
+}
+
+/// Views a slice of points as flat floats.
+fn bytemuck_flat(pts: &[[f32; 3]]) -> &[f32] {
+    // SAFETY: [f32; 3] has the layout of three consecutive f32 and no padding.
+    unsafe { std::slice::from_raw_parts(pts.as_ptr() as *const f32, pts.len() * 3) }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::ModelConfig;
+    use i2sdf_data::Normalization;
+    use rand::SeedableRng;
+
+    fn scene() -> NeuralScene {
+        let c = ModelConfig {
+            hash_levels: 4,
+            hash_log2_table: 12,
+            hash_finest_resolution: 64,
+            init_radius: 0.7,
+            ..Default::default()
+        };
+        let mut s = NeuralScene::new(
+            &c,
+            Normalization {
+                center: [0.0; 3],
+                scale: 1.0,
+            },
+            1,
+        );
+        // Break the symmetry of the fresh init so every parameter matters.
+        for (i, p) in s.radiance.params.iter_mut().enumerate() {
+            *p += 0.01 * ((i as f32) * 0.37).sin();
+        }
+        s
+    }
+
+    /// L = Σ a·rgb + b·depth + c·normal + e·emitter + Σ_extra (p·d + q·∇d), a deterministic
+    /// scalar of every output.
+    fn loss(
+        s: &NeuralScene,
+        samples: &RaySampleSet,
+        o: &[[f32; 3]],
+        d: &[[f32; 3]],
+        extra: &[f32],
+    ) -> f64 {
+        let mut ws = RenderWorkspace {
+            samples: samples.clone(),
+            ..Default::default()
+        };
+        forward_with_samples(s, o, d, extra, &mut ws);
+        let mut l = 0.0f64;
+        for r in 0..o.len() {
+            for c in 0..3 {
+                l += (0.3 + 0.1 * c as f64) * ws.out.rgb[r * 3 + c] as f64;
+                l += (0.2 - 0.15 * c as f64) * ws.out.normal[r * 3 + c] as f64;
+            }
+            l += 0.7 * ws.out.depth[r] as f64 + 0.4 * ws.out.emitter[r] as f64;
+        }
+        let ns = ws.n_samples;
+        for j in 0..extra.len() / 3 {
+            l += 0.5 * ws.sdf[ns + j] as f64 + 0.25 * ws.gradient[(ns + j) * 3 + 1] as f64;
+        }
+        l
+    }
+
+    #[test]
+    fn backward_matches_finite_differences() {
+        let s = scene();
+        // The sample positions depend on the SDF but are not differentiated (as in VolSDF), so
+        // the finite differences reuse the same samples.
+        let settings = RenderSettings {
+            near: 0.05,
+            ..Default::default()
+        };
+        let o = [[0.1f32, -0.05, 0.0], [-0.2, 0.1, 0.05]];
+        let d = [[0.6f32, 0.8, 0.0], [0.0, -0.6, 0.8]];
+        let extra = [0.3f32, 0.2, -0.1, -0.4, 0.1, 0.5];
+        let mut ws = RenderWorkspace::default();
+        forward::<rand_pcg::Pcg64>(&s, &settings, &o, &d, &extra, &mut ws, None);
+        let samples = ws.samples.clone();
+        let n = ws.sdf.len();
+        let ns = ws.n_samples;
+        let rgb_g: Vec<f32> = (0..6).map(|k| 0.3 + 0.1 * (k % 3) as f32).collect();
+        let nrm_g: Vec<f32> = (0..6).map(|k| 0.2 - 0.15 * (k % 3) as f32).collect();
+        let mut d_sdf = vec![0.0f32; n];
+        let mut d_grad = vec![0.0f32; n * 3];
+        for j in 0..2 {
+            d_sdf[ns + j] = 0.5;
+            d_grad[(ns + j) * 3 + 1] = 0.25;
+        }
+        let mut grads = SceneGrads::new(&s);
+        backward(
+            &s,
+            &mut ws,
+            &RayGrads {
+                rgb: &rgb_g,
+                depth: &[0.7, 0.7],
+                normal: &nrm_g,
+                emitter: &[0.4, 0.4],
+                opacity: &[0.0, 0.0],
+            },
+            &mut d_sdf,
+            &mut d_grad,
+            &mut grads,
+        );
+        // Check a spread of parameters of every network, and β.
+        let h = 1e-3f32;
+        let mut checked = 0;
+        let mut check = |analytic: f32, plus: f64, minus: f64, what: &str| {
+            let numeric = (plus - minus) / (2.0 * h as f64);
+            let tol = 2e-2 * numeric.abs().max(analytic.abs() as f64) + 2e-3;
+            assert!(
+                (analytic as f64 - numeric).abs() < tol,
+                "{what}: analytic {analytic} vs numeric {numeric}"
+            );
+            checked += 1;
+        };
+        for k in (0..s.radiance.params.len()).step_by(97) {
+            let (mut a, mut b) = (s.clone(), s.clone());
+            a.radiance.params[k] += h;
+            b.radiance.params[k] -= h;
+            check(
+                grads.radiance[k],
+                loss(&a, &samples, &o, &d, &extra),
+                loss(&b, &samples, &o, &d, &extra),
+                "radiance",
+            );
+        }
+        for k in (0..s.emitter.params.len()).step_by(41) {
+            let (mut a, mut b) = (s.clone(), s.clone());
+            a.emitter.params[k] += h;
+            b.emitter.params[k] -= h;
+            check(
+                grads.emitter[k],
+                loss(&a, &samples, &o, &d, &extra),
+                loss(&b, &samples, &o, &d, &extra),
+                "emitter",
+            );
+        }
+        for k in (0..s.sdf.mlp.params.len()).step_by(211) {
+            let (mut a, mut b) = (s.clone(), s.clone());
+            a.sdf.mlp.params[k] += h;
+            b.sdf.mlp.params[k] -= h;
+            check(
+                grads.sdf.mlp[k],
+                loss(&a, &samples, &o, &d, &extra),
+                loss(&b, &samples, &o, &d, &extra),
+                "sdf mlp",
+            );
+        }
+        // The hash table: the entries with the largest gradients.
+        let hg = grads.sdf.hash_grid.as_ref().unwrap();
+        let mut idx: Vec<usize> = (0..hg.values.len())
+            .filter(|&k| hg.values[k] != 0.0)
+            .collect();
+        idx.sort_by(|&x, &y| hg.values[y].abs().total_cmp(&hg.values[x].abs()));
+        for &k in idx.iter().take(6) {
+            let (mut a, mut b) = (s.clone(), s.clone());
+            fn table(sc: &mut NeuralScene) -> &mut Vec<f32> {
+                match &mut sc.sdf.encoding {
+                    i2sdf_nn::SdfEncoding::HashGrid(g) => &mut g.params,
+                    _ => unreachable!(),
+                }
+            }
+            table(&mut a)[k] += h;
+            table(&mut b)[k] -= h;
+            check(
+                hg.values[k],
+                loss(&a, &samples, &o, &d, &extra),
+                loss(&b, &samples, &o, &d, &extra),
+                "hash grid",
+            );
+        }
+        let (mut a, mut b) = (s.clone(), s.clone());
+        a.beta.raw[0] += h;
+        b.beta.raw[0] -= h;
+        check(
+            grads.beta * s.beta.dvalue(),
+            loss(&a, &samples, &o, &d, &extra),
+            loss(&b, &samples, &o, &d, &extra),
+            "beta",
+        );
+        assert!(checked > 10);
+    }
+
+    #[test]
+    fn renders_the_initial_inverted_sphere_at_its_radius() {
+        let s = scene();
+        let settings = RenderSettings::default();
+        let o = [[0.0f32; 3]; 3];
+        let d = [[1.0f32, 0.0, 0.0], [0.0, 0.6, 0.8], [0.0, 0.0, -1.0]];
+        let mut ws = RenderWorkspace::default();
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
+        forward(&s, &settings, &o, &d, &[], &mut ws, Some(&mut rng));
+        for r in 0..3 {
+            // The geometric init is only approximately a sphere of radius 0.7 for a small MLP.
+            assert!(
+                (ws.out.depth[r] - 0.7).abs() < 0.2,
+                "depth {:?}",
+                ws.out.depth
+            );
+            assert!(ws.out.opacity[r] > 0.99);
+            // Inverted sphere: the surface normal (∇d) points inwards, against the ray.
+            let dot: f32 = (0..3).map(|c| ws.out.normal[r * 3 + c] * d[r][c]).sum();
+            assert!(dot < -0.8, "normal {:?}", ws.out.normal);
+        }
+    }
+}
