@@ -1,0 +1,476 @@
+//! Marching cubes over a scalar field given by a batched sampler callback, so that a neural SDF is
+//! evaluated in large batches and a 512³ grid never has to be held in memory: the grid is swept one
+//! z-plane at a time (two planes of values and their edge vertices alive at once), planes are
+//! evaluated in blocks that fill one sampler batch, and each grid edge owns a single vertex shared by
+//! every cell that uses it, so a closed surface comes out watertight without welding.
+
+use crate::mc_tables::case_table;
+use crate::mesh::TriangleMesh;
+use i2sdf_data::DataError;
+
+/// A regular grid of samples over an axis-aligned box (`samples` points per axis, corners included).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct McGrid {
+    pub min: [f32; 3],
+    pub max: [f32; 3],
+    pub samples: [usize; 3],
+}
+
+impl McGrid {
+    /// Cubic cells: `resolution` samples along the box's longest axis, the same spacing on the
+    /// others (the box's max corner grows by less than one cell to fit a whole number of cells).
+    pub fn cubic(min: [f32; 3], max: [f32; 3], resolution: usize) -> Result<McGrid, DataError> {
+        if resolution < 2 {
+            return Err(DataError::invalid(format!(
+                "marching cubes resolution must be at least 2, got {resolution}"
+            )));
+        }
+        let extent: [f64; 3] = std::array::from_fn(|k| max[k] as f64 - min[k] as f64);
+        if extent.iter().any(|e| !e.is_finite() || *e <= 0.0) {
+            return Err(DataError::invalid(format!(
+                "marching cubes box is empty or not finite: min {min:?}, max {max:?}"
+            )));
+        }
+        let step = extent.iter().cloned().fold(0.0, f64::max) / (resolution - 1) as f64;
+        let samples: [usize; 3] =
+            std::array::from_fn(|k| ((extent[k] / step - 1e-9).ceil() as usize + 1).max(2));
+        let max = std::array::from_fn(|k| (min[k] as f64 + (samples[k] - 1) as f64 * step) as f32);
+        Ok(McGrid { min, max, samples })
+    }
+
+    pub fn step(&self) -> [f64; 3] {
+        std::array::from_fn(|k| {
+            (self.max[k] as f64 - self.min[k] as f64) / (self.samples[k] - 1) as f64
+        })
+    }
+
+    pub fn point(&self, i: usize, j: usize, k: usize) -> [f64; 3] {
+        let step = self.step();
+        let idx = [i, j, k];
+        std::array::from_fn(|a| self.min[a] as f64 + idx[a] as f64 * step[a])
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct McOptions {
+    /// The level set to extract (0 for an SDF).
+    pub iso: f32,
+    /// Points per sampler call (the last call of a block may be smaller).
+    pub batch_points: usize,
+    /// When set, drop connected components with less than this fraction of the largest one's area
+    /// (floaters). Off by default.
+    pub min_component_area_fraction: Option<f64>,
+}
+
+impl Default for McOptions {
+    fn default() -> Self {
+        McOptions {
+            iso: 0.0,
+            batch_points: 65536,
+            min_component_area_fraction: None,
+        }
+    }
+}
+
+/// Evaluates whole z-planes of the grid in blocks of about one sampler batch.
+struct PlaneSource<'g, F> {
+    grid: &'g McGrid,
+    sampler: F,
+    batch_points: usize,
+    block_first_plane: usize,
+    block_planes: usize,
+    block_values: Vec<f32>,
+    points: Vec<[f32; 3]>,
+}
+
+impl<F: FnMut(&[[f32; 3]], &mut [f32])> PlaneSource<'_, F> {
+    fn plane_len(&self) -> usize {
+        self.grid.samples[0] * self.grid.samples[1]
+    }
+
+    /// Copies plane `k`'s values (x fastest) into `out`.
+    fn plane(&mut self, k: usize, out: &mut [f32]) -> Result<(), DataError> {
+        let plane_len = self.plane_len();
+        if k < self.block_first_plane || k >= self.block_first_plane + self.block_planes {
+            let planes_per_block = (self.batch_points / plane_len).max(1);
+            self.block_first_plane = k;
+            self.block_planes = planes_per_block.min(self.grid.samples[2] - k);
+            let total = self.block_planes * plane_len;
+            self.block_values.resize(total, 0.0);
+            let mut start = 0;
+            while start < total {
+                let end = (start + self.batch_points).min(total);
+                self.points.clear();
+                for flat in start..end {
+                    let kk = k + flat / plane_len;
+                    let rem = flat % plane_len;
+                    let p =
+                        self.grid
+                            .point(rem % self.grid.samples[0], rem / self.grid.samples[0], kk);
+                    self.points.push([p[0] as f32, p[1] as f32, p[2] as f32]);
+                }
+                (self.sampler)(&self.points, &mut self.block_values[start..end]);
+                if let Some(bad) = self.block_values[start..end]
+                    .iter()
+                    .position(|v| !v.is_finite())
+                {
+                    return Err(DataError::invalid(format!(
+                        "marching cubes: the field is not finite ({}) at {:?}",
+                        self.block_values[start + bad],
+                        self.points[bad]
+                    )));
+                }
+                start = end;
+            }
+        }
+        let offset = (k - self.block_first_plane) * plane_len;
+        out.copy_from_slice(&self.block_values[offset..offset + plane_len]);
+        Ok(())
+    }
+}
+
+const NO_VERTEX: u32 = u32::MAX;
+
+/// Extracts the `options.iso` level set of the field as a triangle mesh whose faces point toward
+/// the positive side of the field (outward from the surface into free space for an SDF).
+/// `sampler(points, values)` must fill `values[i]` with the field at `points[i]`.
+pub fn marching_cubes<F>(
+    grid: &McGrid,
+    options: &McOptions,
+    sampler: F,
+) -> Result<TriangleMesh, DataError>
+where
+    F: FnMut(&[[f32; 3]], &mut [f32]),
+{
+    let [nx, ny, nz] = grid.samples;
+    if nx < 2 || ny < 2 || nz < 2 {
+        return Err(DataError::invalid(format!(
+            "marching cubes grid needs at least 2 samples per axis, got {:?}",
+            grid.samples
+        )));
+    }
+    if options.batch_points == 0 {
+        return Err(DataError::invalid(
+            "marching cubes batch size must be positive",
+        ));
+    }
+    let iso = options.iso;
+    let mut source = PlaneSource {
+        grid,
+        sampler,
+        batch_points: options.batch_points,
+        block_first_plane: 0,
+        block_planes: 0,
+        block_values: Vec::new(),
+        points: Vec::new(),
+    };
+    let plane_len = nx * ny;
+    let mut mesh = TriangleMesh::default();
+    let mut values = [vec![0.0f32; plane_len], vec![0.0f32; plane_len]];
+    // Vertex ids of the x- and y-edges of the two live planes, and of the z-edges between them.
+    let mut x_edges = [vec![NO_VERTEX; plane_len], vec![NO_VERTEX; plane_len]];
+    let mut y_edges = [vec![NO_VERTEX; plane_len], vec![NO_VERTEX; plane_len]];
+    let mut z_edges = vec![NO_VERTEX; plane_len];
+    let idx = |i: usize, j: usize| i + nx * j;
+
+    let add_vertex = |mesh: &mut TriangleMesh, pa: [f64; 3], va: f32, pb: [f64; 3], vb: f32| {
+        let t = (iso as f64 - va as f64) / (vb as f64 - va as f64);
+        mesh.positions.push(std::array::from_fn(|a| {
+            (pa[a] + t * (pb[a] - pa[a])) as f32
+        }));
+        (mesh.positions.len() - 1) as u32
+    };
+    // Creates the vertices on plane k's crossing x- and y-edges.
+    let plane_vertices = |mesh: &mut TriangleMesh,
+                          k: usize,
+                          vals: &[f32],
+                          xe: &mut [u32],
+                          ye: &mut [u32]| {
+        xe.fill(NO_VERTEX);
+        ye.fill(NO_VERTEX);
+        for j in 0..ny {
+            for i in 0..nx {
+                let v = vals[idx(i, j)];
+                if i + 1 < nx {
+                    let w = vals[idx(i + 1, j)];
+                    if (v < iso) != (w < iso) {
+                        xe[idx(i, j)] =
+                            add_vertex(mesh, grid.point(i, j, k), v, grid.point(i + 1, j, k), w);
+                    }
+                }
+                if j + 1 < ny {
+                    let w = vals[idx(i, j + 1)];
+                    if (v < iso) != (w < iso) {
+                        ye[idx(i, j)] =
+                            add_vertex(mesh, grid.point(i, j, k), v, grid.point(i, j + 1, k), w);
+                    }
+                }
+            }
+        }
+    };
+
+    let table = case_table();
+    source.plane(0, &mut values[0])?;
+    {
+        let (xe, ye) = (&mut x_edges[0], &mut y_edges[0]);
+        plane_vertices(&mut mesh, 0, &values[0], xe, ye);
+    }
+    for k in 0..nz - 1 {
+        let (lo, hi) = (k % 2, (k + 1) % 2);
+        source.plane(k + 1, &mut values[hi])?;
+        {
+            let (xe, ye) = (&mut x_edges[hi], &mut y_edges[hi]);
+            plane_vertices(&mut mesh, k + 1, &values[hi], xe, ye);
+        }
+        z_edges.fill(NO_VERTEX);
+        for j in 0..ny {
+            for i in 0..nx {
+                let (v, w) = (values[lo][idx(i, j)], values[hi][idx(i, j)]);
+                if (v < iso) != (w < iso) {
+                    z_edges[idx(i, j)] = add_vertex(
+                        &mut mesh,
+                        grid.point(i, j, k),
+                        v,
+                        grid.point(i, j, k + 1),
+                        w,
+                    );
+                }
+            }
+        }
+        for j in 0..ny - 1 {
+            for i in 0..nx - 1 {
+                let mut config = 0usize;
+                for c in 0..8 {
+                    let plane = if c & 4 != 0 { hi } else { lo };
+                    let v = values[plane][idx(i + (c & 1), j + ((c >> 1) & 1))];
+                    if v < iso {
+                        config |= 1 << c;
+                    }
+                }
+                if config == 0 || config == 255 {
+                    continue;
+                }
+                // Cell edge id → the grid edge's vertex, in the order of EDGE_CORNERS.
+                let edge_vertex = [
+                    x_edges[lo][idx(i, j)],
+                    x_edges[lo][idx(i, j + 1)],
+                    x_edges[hi][idx(i, j)],
+                    x_edges[hi][idx(i, j + 1)],
+                    y_edges[lo][idx(i, j)],
+                    y_edges[lo][idx(i + 1, j)],
+                    y_edges[hi][idx(i, j)],
+                    y_edges[hi][idx(i + 1, j)],
+                    z_edges[idx(i, j)],
+                    z_edges[idx(i + 1, j)],
+                    z_edges[idx(i, j + 1)],
+                    z_edges[idx(i + 1, j + 1)],
+                ];
+                for case_loop in &table[config] {
+                    if !case_loop.needs_center {
+                        for tri in case_loop.fan() {
+                            mesh.faces.push(tri.map(|e| edge_vertex[e as usize]));
+                        }
+                        continue;
+                    }
+                    let n = case_loop.edges.len();
+                    let mut center = [0.0f32; 3];
+                    for &e in &case_loop.edges {
+                        let p = mesh.positions[edge_vertex[e as usize] as usize];
+                        (0..3).for_each(|a| center[a] += p[a] / n as f32);
+                    }
+                    mesh.positions.push(center);
+                    let c = (mesh.positions.len() - 1) as u32;
+                    for k in 0..n {
+                        let (a, b) = (case_loop.edges[k], case_loop.edges[(k + 1) % n]);
+                        mesh.faces
+                            .push([c, edge_vertex[a as usize], edge_vertex[b as usize]]);
+                    }
+                }
+            }
+        }
+    }
+    if let Some(fraction) = options.min_component_area_fraction {
+        mesh.remove_small_components(fraction);
+    }
+    Ok(mesh)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::PI;
+
+    fn norm(p: [f32; 3]) -> f64 {
+        p.iter().map(|&x| (x as f64).powi(2)).sum::<f64>().sqrt()
+    }
+
+    fn sphere_sdf(center: [f32; 3], radius: f32) -> impl Fn(&[[f32; 3]], &mut [f32]) {
+        move |points, out| {
+            for (p, o) in points.iter().zip(out.iter_mut()) {
+                let d = [p[0] - center[0], p[1] - center[1], p[2] - center[2]];
+                *o = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() - radius;
+            }
+        }
+    }
+
+    #[test]
+    fn sphere_area_volume_watertight_and_outward() {
+        let r = 0.6f32;
+        let grid = McGrid::cubic([-1.0; 3], [1.0; 3], 96).unwrap();
+        let mut calls = 0;
+        let sdf = sphere_sdf([0.0; 3], r);
+        let options = McOptions {
+            batch_points: 20000,
+            ..Default::default()
+        };
+        let mesh = marching_cubes(&grid, &options, |p, v| {
+            calls += 1;
+            assert!(p.len() <= 20000);
+            sdf(p, v)
+        })
+        .unwrap();
+        assert!(calls > 1, "batched evaluation");
+        let (r64, h) = (r as f64, 2.0 / 95.0);
+        let area = mesh.surface_area();
+        let volume = mesh.signed_volume();
+        let (true_area, true_volume) = (4.0 * PI * r64 * r64, 4.0 / 3.0 * PI * r64.powi(3));
+        assert!(
+            (area / true_area - 1.0).abs() < 0.01,
+            "area {area} vs {true_area}"
+        );
+        assert!(volume > 0.0, "outward orientation gives positive volume");
+        assert!(
+            (volume / true_volume - 1.0).abs() < 0.01,
+            "volume {volume} vs {true_volume}"
+        );
+        for &p in &mesh.positions {
+            assert!(
+                (norm(p) - r64).abs() < 0.02 * h,
+                "vertex off the surface: {}",
+                norm(p) - r64
+            );
+        }
+        assert!(mesh.is_watertight_and_consistently_oriented());
+        // Each face's normal points away from the centre (the positive side).
+        for f in 0..mesh.num_faces() {
+            let n = mesh.face_area_vector(f);
+            let c = mesh.triangle(f);
+            let centroid: [f64; 3] =
+                std::array::from_fn(|a| (c[0][a] + c[1][a] + c[2][a]) as f64 / 3.0);
+            assert!(crate::mesh::dot(n, centroid) > 0.0);
+        }
+    }
+
+    #[test]
+    fn inverted_sphere_points_inward() {
+        // An indoor-style SDF (positive inside the room): normals face the free space inside.
+        let grid = McGrid::cubic([-1.0; 3], [1.0; 3], 40).unwrap();
+        let sdf = sphere_sdf([0.0; 3], 0.7);
+        let mesh = marching_cubes(&grid, &McOptions::default(), |p, v| {
+            sdf(p, v);
+            v.iter_mut().for_each(|x| *x = -*x);
+        })
+        .unwrap();
+        assert!(mesh.signed_volume() < 0.0);
+        assert!(mesh.is_watertight_and_consistently_oriented());
+    }
+
+    #[test]
+    fn noisy_field_is_still_watertight() {
+        // A bumpy closed surface with many ambiguous faces: watertightness comes from the face rule.
+        let grid = McGrid::cubic([-1.0; 3], [1.0; 3], 33).unwrap();
+        let field = |p: &[[f32; 3]], v: &mut [f32]| {
+            for (p, o) in p.iter().zip(v.iter_mut()) {
+                let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                let bumps = 0.15 * (17.0 * p[0]).sin() * (19.0 * p[1]).sin() * (23.0 * p[2]).sin();
+                *o = r - 0.6 + bumps;
+            }
+        };
+        let mesh = marching_cubes(&grid, &McOptions::default(), field).unwrap();
+        assert!(mesh.num_faces() > 1000);
+        assert!(mesh.is_watertight_and_consistently_oriented());
+        assert!(mesh.signed_volume() > 0.0);
+    }
+
+    #[test]
+    fn random_field_closed_by_positive_border_is_watertight() {
+        // White noise hits every ambiguous configuration; the positive border closes the surface.
+        use rand::{Rng, SeedableRng};
+        let grid = McGrid::cubic([0.0; 3], [1.0; 3], 24).unwrap();
+        let n = grid.samples[0];
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+        let noise: Vec<f32> = (0..n * n * n).map(|_| rng.gen_range(-1.0..1.0)).collect();
+        let field = |p: &[[f32; 3]], v: &mut [f32]| {
+            for (p, o) in p.iter().zip(v.iter_mut()) {
+                let ijk = p.map(|x| (x * (n - 1) as f32).round() as usize);
+                let border = ijk.iter().any(|&i| i == 0 || i == n - 1);
+                *o = if border {
+                    1.0
+                } else {
+                    noise[ijk[0] + n * (ijk[1] + n * ijk[2])]
+                };
+            }
+        };
+        let mesh = marching_cubes(&grid, &McOptions::default(), field).unwrap();
+        assert!(mesh.num_faces() > 10000);
+        assert!(mesh.is_watertight_and_consistently_oriented());
+    }
+
+    #[test]
+    fn blocks_and_batches_do_not_change_the_mesh() {
+        let grid = McGrid::cubic([-1.0, -0.5, -1.0], [1.0, 0.5, 1.0], 30).unwrap();
+        let sdf = sphere_sdf([0.1, 0.0, -0.1], 0.45);
+        let a = marching_cubes(
+            &grid,
+            &McOptions {
+                batch_points: 7,
+                ..Default::default()
+            },
+            &sdf,
+        )
+        .unwrap();
+        let b = marching_cubes(
+            &grid,
+            &McOptions {
+                batch_points: 1 << 20,
+                ..Default::default()
+            },
+            &sdf,
+        )
+        .unwrap();
+        assert_eq!(a, b);
+        assert_eq!(grid.samples[1], 16);
+    }
+
+    #[test]
+    fn floaters_removed_on_request() {
+        let grid = McGrid::cubic([-1.0; 3], [1.0; 3], 48).unwrap();
+        let two_spheres = |p: &[[f32; 3]], v: &mut [f32]| {
+            let big = sphere_sdf([-0.3, 0.0, 0.0], 0.5);
+            let small = sphere_sdf([0.7, 0.0, 0.0], 0.12);
+            let mut w = vec![0.0; v.len()];
+            big(p, v);
+            small(p, &mut w);
+            v.iter_mut().zip(&w).for_each(|(a, b)| *a = a.min(*b));
+        };
+        let all = marching_cubes(&grid, &McOptions::default(), two_spheres).unwrap();
+        assert_eq!(all.face_components().1, 2);
+        let options = McOptions {
+            min_component_area_fraction: Some(0.2),
+            ..Default::default()
+        };
+        let kept = marching_cubes(&grid, &options, two_spheres).unwrap();
+        assert_eq!(kept.face_components().1, 1);
+        assert!(kept.positions.iter().all(|p| p[0] < 0.3));
+        assert!(kept.is_watertight_and_consistently_oriented());
+    }
+
+    #[test]
+    fn non_finite_field_is_an_error() {
+        let grid = McGrid::cubic([-1.0; 3], [1.0; 3], 4).unwrap();
+        let err =
+            marching_cubes(&grid, &McOptions::default(), |_, v| v.fill(f32::NAN)).unwrap_err();
+        assert!(err.to_string().contains("not finite"));
+        assert!(McGrid::cubic([0.0; 3], [1.0; 3], 1).is_err());
+    }
+}
