@@ -14,12 +14,7 @@ pub struct ImageRef<'a> {
 }
 
 impl<'a> ImageRef<'a> {
-    pub fn new(
-        data: &'a [f32],
-        width: usize,
-        height: usize,
-        channels: usize,
-    ) -> Result<Self, DataError> {
+    pub fn new(data: &'a [f32], width: usize, height: usize, channels: usize) -> Result<Self, DataError> {
         if data.len() != width * height * channels || channels == 0 {
             return Err(DataError::invalid(format!(
                 "image buffer has {} values, expected {width}×{height}×{channels}",
@@ -39,12 +34,7 @@ impl<'a> ImageRef<'a> {
     }
 }
 
-fn check_pair(
-    what: &str,
-    a: &ImageRef,
-    b: &ImageRef,
-    mask: Option<&[bool]>,
-) -> Result<(), DataError> {
+fn check_pair(what: &str, a: &ImageRef, b: &ImageRef, mask: Option<&[bool]>) -> Result<(), DataError> {
     if (a.width, a.height, a.channels) != (b.width, b.height, b.channels) {
         return Err(DataError::invalid(format!(
             "{what}: prediction is {}×{}×{}, ground truth {}×{}×{}",
@@ -112,14 +102,7 @@ pub fn ssim_window() -> [f64; 11] {
 }
 
 /// Valid-mode separable filtering of one channel: out is (h − 10) × (w − 10).
-fn filter_valid(
-    src: &[f64],
-    width: usize,
-    height: usize,
-    window: &[f64; 11],
-    tmp: &mut [f64],
-    out: &mut [f64],
-) {
+fn filter_valid(src: &[f64], width: usize, height: usize, window: &[f64; 11], tmp: &mut [f64], out: &mut [f64]) {
     let ow = width - 10;
     let oh = height - 10;
     for y in 0..height {
@@ -213,13 +196,8 @@ pub fn depth_l1(pred: &[f32], gt: &[f32], mask: Option<&[bool]>) -> Result<Optio
 /// Mean of 1 − n̂·n over the masked pixels with a valid (non-zero, finite) ground-truth normal;
 /// both normals are normalized first, a zero predicted normal counts as 1 (orthogonal). Inputs
 /// are 3 values per pixel. `None` when no pixel counts.
-pub fn normal_angular_l1(
-    pred: &[f32],
-    gt: &[f32],
-    mask: Option<&[bool]>,
-) -> Result<Option<f64>, DataError> {
-    if pred.len() != gt.len() || gt.len() % 3 != 0 || mask.is_some_and(|m| m.len() * 3 != gt.len())
-    {
+pub fn normal_angular_l1(pred: &[f32], gt: &[f32], mask: Option<&[bool]>) -> Result<Option<f64>, DataError> {
+    if pred.len() != gt.len() || gt.len() % 3 != 0 || mask.is_some_and(|m| m.len() * 3 != gt.len()) {
         return Err(DataError::invalid(format!(
             "normal angular L1: prediction has {} values, ground truth {}, mask {:?} pixels",
             pred.len(),
@@ -240,8 +218,7 @@ pub fn normal_angular_l1(
         let Some(n) = unit(&gt[3 * p..3 * p + 3]) else {
             continue;
         };
-        let cos =
-            unit(&pred[3 * p..3 * p + 3]).map_or(0.0, |m| m[0] * n[0] + m[1] * n[1] + m[2] * n[2]);
+        let cos = unit(&pred[3 * p..3 * p + 3]).map_or(0.0, |m| m[0] * n[0] + m[1] * n[1] + m[2] * n[2]);
         sum += 1.0 - cos;
         count += 1;
     }
@@ -263,9 +240,7 @@ mod tests {
                 for c in 0..3 {
                     let (xf, yf, cf) = (x as f64, y as f64, c as f64);
                     let av = (0.5 + 0.4 * (0.37 * xf + 0.21 * yf + cf).sin()) as f32;
-                    let bv = 0.5
-                        + 0.3 * (0.33 * xf - 0.17 * yf + 0.5 * cf).sin()
-                        + 0.1 * (0.9 * xf * yf / 7.0).cos();
+                    let bv = 0.5 + 0.3 * (0.33 * xf - 0.17 * yf + 0.5 * cf).sin() + 0.1 * (0.9 * xf * yf / 7.0).cos();
                     let b2v = av as f64 + 0.1 * (1.3 * xf).sin() * (0.7 * yf).cos();
                     a.push(av);
                     b.push(bv.clamp(0.0, 1.0) as f32);
@@ -344,10 +319,7 @@ mod tests {
         let tenth = vec![0.1f32; W * H * 3];
         let p = psnr(img(&zeros, 3), img(&tenth, 3), None).unwrap().unwrap();
         assert!((p - 20.0).abs() < 1e-5, "{p}");
-        assert_eq!(
-            psnr(img(&zeros, 3), img(&zeros, 3), None).unwrap(),
-            Some(f64::INFINITY)
-        );
+        assert_eq!(psnr(img(&zeros, 3), img(&zeros, 3), None).unwrap(), Some(f64::INFINITY));
         // The mask selects the half where the error is 0.01 → 40 dB.
         let mut half = tenth.clone();
         let mask: Vec<bool> = (0..W * H).map(|p| p < W * H / 2).collect();
@@ -355,9 +327,7 @@ mod tests {
             let v = if mask[p] { 0.01 } else { 0.5 };
             half[3 * p..3 * p + 3].fill(v);
         }
-        let p = psnr(img(&zeros, 3), img(&half, 3), Some(&mask))
-            .unwrap()
-            .unwrap();
+        let p = psnr(img(&zeros, 3), img(&half, 3), Some(&mask)).unwrap().unwrap();
         assert!((p - 40.0).abs() < 1e-4, "{p}");
         assert_eq!(
             psnr(img(&zeros, 3), img(&half, 3), Some(&vec![false; W * H])).unwrap(),
@@ -390,9 +360,7 @@ mod tests {
             .unwrap();
         assert!((v - 1.0).abs() < 1e-12);
         // A zero prediction counts as orthogonal.
-        let v = normal_angular_l1(&[0.0; 3], &gt[..3], None)
-            .unwrap()
-            .unwrap();
+        let v = normal_angular_l1(&[0.0; 3], &gt[..3], None).unwrap().unwrap();
         assert_eq!(v, 1.0);
     }
 }

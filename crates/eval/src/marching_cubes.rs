@@ -32,16 +32,13 @@ impl McGrid {
             )));
         }
         let step = extent.iter().cloned().fold(0.0, f64::max) / (resolution - 1) as f64;
-        let samples: [usize; 3] =
-            std::array::from_fn(|k| ((extent[k] / step - 1e-9).ceil() as usize + 1).max(2));
+        let samples: [usize; 3] = std::array::from_fn(|k| ((extent[k] / step - 1e-9).ceil() as usize + 1).max(2));
         let max = std::array::from_fn(|k| (min[k] as f64 + (samples[k] - 1) as f64 * step) as f32);
         Ok(McGrid { min, max, samples })
     }
 
     pub fn step(&self) -> [f64; 3] {
-        std::array::from_fn(|k| {
-            (self.max[k] as f64 - self.min[k] as f64) / (self.samples[k] - 1) as f64
-        })
+        std::array::from_fn(|k| (self.max[k] as f64 - self.min[k] as f64) / (self.samples[k] - 1) as f64)
     }
 
     pub fn point(&self, i: usize, j: usize, k: usize) -> [f64; 3] {
@@ -104,16 +101,13 @@ impl<F: FnMut(&[[f32; 3]], &mut [f32])> PlaneSource<'_, F> {
                 for flat in start..end {
                     let kk = k + flat / plane_len;
                     let rem = flat % plane_len;
-                    let p =
-                        self.grid
-                            .point(rem % self.grid.samples[0], rem / self.grid.samples[0], kk);
+                    let p = self
+                        .grid
+                        .point(rem % self.grid.samples[0], rem / self.grid.samples[0], kk);
                     self.points.push([p[0] as f32, p[1] as f32, p[2] as f32]);
                 }
                 (self.sampler)(&self.points, &mut self.block_values[start..end]);
-                if let Some(bad) = self.block_values[start..end]
-                    .iter()
-                    .position(|v| !v.is_finite())
-                {
+                if let Some(bad) = self.block_values[start..end].iter().position(|v| !v.is_finite()) {
                     return Err(DataError::invalid(format!(
                         "marching cubes: the field is not finite ({}) at {:?}",
                         self.block_values[start + bad],
@@ -134,11 +128,7 @@ const NO_VERTEX: u32 = u32::MAX;
 /// Extracts the `options.iso` level set of the field as a triangle mesh whose faces point toward
 /// the positive side of the field (outward from the surface into free space for an SDF).
 /// `sampler(points, values)` must fill `values[i]` with the field at `points[i]`.
-pub fn marching_cubes<F>(
-    grid: &McGrid,
-    options: &McOptions,
-    sampler: F,
-) -> Result<TriangleMesh, DataError>
+pub fn marching_cubes<F>(grid: &McGrid, options: &McOptions, sampler: F) -> Result<TriangleMesh, DataError>
 where
     F: FnMut(&[[f32; 3]], &mut [f32]),
 {
@@ -150,9 +140,7 @@ where
         )));
     }
     if options.batch_points == 0 {
-        return Err(DataError::invalid(
-            "marching cubes batch size must be positive",
-        ));
+        return Err(DataError::invalid("marching cubes batch size must be positive"));
     }
     let iso = options.iso;
     let mut source = PlaneSource {
@@ -175,17 +163,12 @@ where
 
     let add_vertex = |mesh: &mut TriangleMesh, pa: [f64; 3], va: f32, pb: [f64; 3], vb: f32| {
         let t = (iso as f64 - va as f64) / (vb as f64 - va as f64);
-        mesh.positions.push(std::array::from_fn(|a| {
-            (pa[a] + t * (pb[a] - pa[a])) as f32
-        }));
+        mesh.positions
+            .push(std::array::from_fn(|a| (pa[a] + t * (pb[a] - pa[a])) as f32));
         (mesh.positions.len() - 1) as u32
     };
     // Creates the vertices on plane k's crossing x- and y-edges.
-    let plane_vertices = |mesh: &mut TriangleMesh,
-                          k: usize,
-                          vals: &[f32],
-                          xe: &mut [u32],
-                          ye: &mut [u32]| {
+    let plane_vertices = |mesh: &mut TriangleMesh, k: usize, vals: &[f32], xe: &mut [u32], ye: &mut [u32]| {
         xe.fill(NO_VERTEX);
         ye.fill(NO_VERTEX);
         for j in 0..ny {
@@ -194,15 +177,13 @@ where
                 if i + 1 < nx {
                     let w = vals[idx(i + 1, j)];
                     if (v < iso) != (w < iso) {
-                        xe[idx(i, j)] =
-                            add_vertex(mesh, grid.point(i, j, k), v, grid.point(i + 1, j, k), w);
+                        xe[idx(i, j)] = add_vertex(mesh, grid.point(i, j, k), v, grid.point(i + 1, j, k), w);
                     }
                 }
                 if j + 1 < ny {
                     let w = vals[idx(i, j + 1)];
                     if (v < iso) != (w < iso) {
-                        ye[idx(i, j)] =
-                            add_vertex(mesh, grid.point(i, j, k), v, grid.point(i, j + 1, k), w);
+                        ye[idx(i, j)] = add_vertex(mesh, grid.point(i, j, k), v, grid.point(i, j + 1, k), w);
                     }
                 }
             }
@@ -227,13 +208,7 @@ where
             for i in 0..nx {
                 let (v, w) = (values[lo][idx(i, j)], values[hi][idx(i, j)]);
                 if (v < iso) != (w < iso) {
-                    z_edges[idx(i, j)] = add_vertex(
-                        &mut mesh,
-                        grid.point(i, j, k),
-                        v,
-                        grid.point(i, j, k + 1),
-                        w,
-                    );
+                    z_edges[idx(i, j)] = add_vertex(&mut mesh, grid.point(i, j, k), v, grid.point(i, j, k + 1), w);
                 }
             }
         }
@@ -282,8 +257,7 @@ where
                     let c = (mesh.positions.len() - 1) as u32;
                     for k in 0..n {
                         let (a, b) = (case_loop.edges[k], case_loop.edges[(k + 1) % n]);
-                        mesh.faces
-                            .push([c, edge_vertex[a as usize], edge_vertex[b as usize]]);
+                        mesh.faces.push([c, edge_vertex[a as usize], edge_vertex[b as usize]]);
                     }
                 }
             }
@@ -334,10 +308,7 @@ mod tests {
         let area = mesh.surface_area();
         let volume = mesh.signed_volume();
         let (true_area, true_volume) = (4.0 * PI * r64 * r64, 4.0 / 3.0 * PI * r64.powi(3));
-        assert!(
-            (area / true_area - 1.0).abs() < 0.01,
-            "area {area} vs {true_area}"
-        );
+        assert!((area / true_area - 1.0).abs() < 0.01, "area {area} vs {true_area}");
         assert!(volume > 0.0, "outward orientation gives positive volume");
         assert!(
             (volume / true_volume - 1.0).abs() < 0.01,
@@ -355,8 +326,7 @@ mod tests {
         for f in 0..mesh.num_faces() {
             let n = mesh.face_area_vector(f);
             let c = mesh.triangle(f);
-            let centroid: [f64; 3] =
-                std::array::from_fn(|a| (c[0][a] + c[1][a] + c[2][a]) as f64 / 3.0);
+            let centroid: [f64; 3] = std::array::from_fn(|a| (c[0][a] + c[1][a] + c[2][a]) as f64 / 3.0);
             assert!(crate::mesh::dot(n, centroid) > 0.0);
         }
     }
@@ -468,8 +438,7 @@ mod tests {
     #[test]
     fn non_finite_field_is_an_error() {
         let grid = McGrid::cubic([-1.0; 3], [1.0; 3], 4).unwrap();
-        let err =
-            marching_cubes(&grid, &McOptions::default(), |_, v| v.fill(f32::NAN)).unwrap_err();
+        let err = marching_cubes(&grid, &McOptions::default(), |_, v| v.fill(f32::NAN)).unwrap_err();
         assert!(err.to_string().contains("not finite"));
         assert!(McGrid::cubic([0.0; 3], [1.0; 3], 1).is_err());
     }

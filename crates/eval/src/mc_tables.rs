@@ -87,8 +87,8 @@ fn build_case(config: u8) -> Vec<CaseLoop> {
             let mut normal = [0.0f64; 3];
             normal[axis] = if side == 1 { 1.0 } else { -1.0 };
             // The face's corners in cyclic order.
-            let cycle: [usize; 4] = [(0, 0), (1, 0), (1, 1), (0, 1)]
-                .map(|(du, dv)| (side << axis) | (du << u) | (dv << v));
+            let cycle: [usize; 4] =
+                [(0, 0), (1, 0), (1, 1), (0, 1)].map(|(du, dv)| (side << axis) | (du << u) | (dv << v));
             let crossing: Vec<usize> = (0..4)
                 .filter(|&k| inside(cycle[k]) != inside(cycle[(k + 1) % 4]))
                 .collect();
@@ -125,11 +125,7 @@ fn build_case(config: u8) -> Vec<CaseLoop> {
                 // Positive corners on the left of the direction, inside corners on the right.
                 let forward = (side_of_reference > 0.0) != inside(reference);
                 let (from, to) = if forward { (e1, e2) } else { (e2, e1) };
-                assert_eq!(
-                    next_edge[from],
-                    usize::MAX,
-                    "case {config}: edge {from} leaves twice"
-                );
+                assert_eq!(next_edge[from], usize::MAX, "case {config}: edge {from} leaves twice");
                 next_edge[from] = to;
             }
         }
@@ -152,10 +148,7 @@ fn build_case(config: u8) -> Vec<CaseLoop> {
         let needs_center = (0..n).any(|a| {
             (a + 2..n).any(|b| {
                 let adjacent = a == 0 && b == n - 1;
-                let (fa, fb) = (
-                    faces_of_edge(polygon[a] as usize),
-                    faces_of_edge(polygon[b] as usize),
-                );
+                let (fa, fb) = (faces_of_edge(polygon[a] as usize), faces_of_edge(polygon[b] as usize));
                 !adjacent && fa.iter().any(|f| fb.contains(f))
             })
         });

@@ -147,10 +147,7 @@ impl TriangleMesh {
             area[label as usize] += self.face_area(f);
         }
         let largest = area.iter().cloned().fold(0.0, f64::max);
-        let keep_component: Vec<bool> = area
-            .iter()
-            .map(|&a| a >= min_area_fraction * largest)
-            .collect();
+        let keep_component: Vec<bool> = area.iter().map(|&a| a >= min_area_fraction * largest).collect();
         let keep_face: Vec<bool> = labels.iter().map(|&l| keep_component[l as usize]).collect();
         self.retain_faces(&keep_face);
     }
@@ -227,11 +224,8 @@ pub(crate) mod test_shapes {
         for m in meshes {
             let base = out.positions.len() as u32;
             out.positions.extend_from_slice(&m.positions);
-            out.faces.extend(
-                m.faces
-                    .iter()
-                    .map(|f| [f[0] + base, f[1] + base, f[2] + base]),
-            );
+            out.faces
+                .extend(m.faces.iter().map(|f| [f[0] + base, f[1] + base, f[2] + base]));
             if all_ids {
                 ids.extend_from_slice(m.face_object_ids.as_ref().unwrap());
             }

@@ -59,8 +59,7 @@ impl<'a> Projector<'a> {
             [m[1][0], m[1][1], m[1][2]],
             [m[2][0], m[2][1], m[2][2]],
         ];
-        let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1])
-            - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
+        let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
             + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
         if !det.is_finite() || det.abs() < 1e-12 {
             return Err(bad("camera-to-world rotation is singular".into()));
@@ -86,9 +85,8 @@ impl<'a> Projector<'a> {
     /// camera and inside the image.
     fn project(&self, p: [f32; 3]) -> Option<(f64, f32)> {
         let p = p.map(|x| x as f64);
-        let c: [f64; 3] = std::array::from_fn(|i| {
-            (0..3).map(|j| self.rotation[i][j] * p[j]).sum::<f64>() + self.translation[i]
-        });
+        let c: [f64; 3] =
+            std::array::from_fn(|i| (0..3).map(|j| self.rotation[i][j] * p[j]).sum::<f64>() + self.translation[i]);
         if c[2] <= 1e-6 {
             return None;
         }
@@ -118,11 +116,7 @@ fn valid_depth(d: f32) -> bool {
 /// depth by more than the tolerance, which for a point on the GT surface happens only through pixel
 /// discretization at silhouettes and grazing angles, where the point is in fact visible. Using one
 /// rule also makes identical meshes cull identically (F-score exactly 1).
-pub fn visible_from_views(
-    points: &[[f32; 3]],
-    views: &[CullingView],
-    tolerance: f64,
-) -> Result<Vec<bool>, DataError> {
+pub fn visible_from_views(points: &[[f32; 3]], views: &[CullingView], tolerance: f64) -> Result<Vec<bool>, DataError> {
     let projectors = views
         .iter()
         .enumerate()
@@ -219,14 +213,12 @@ pub struct MeshMetrics {
 }
 
 fn mean(values: &[f32]) -> Option<f64> {
-    (!values.is_empty())
-        .then(|| values.iter().map(|&v| v as f64).sum::<f64>() / values.len() as f64)
+    (!values.is_empty()).then(|| values.iter().map(|&v| v as f64).sum::<f64>() / values.len() as f64)
 }
 
 fn fraction_under(values: &[f32], threshold: f64) -> Option<f64> {
-    (!values.is_empty()).then(|| {
-        values.iter().filter(|&&v| (v as f64) < threshold).count() as f64 / values.len() as f64
-    })
+    (!values.is_empty())
+        .then(|| values.iter().filter(|&&v| (v as f64) < threshold).count() as f64 / values.len() as f64)
 }
 
 /// Compares a predicted mesh with the ground truth. With no views, no culling is done.
@@ -269,14 +261,8 @@ pub fn mesh_metrics(
         .unzip();
     let pred_tree = KdTree::new(&pred_points);
     let gt_tree = KdTree::new(&gt_points);
-    let pred_to_gt: Vec<f32> = pred_points
-        .par_iter()
-        .map(|&p| gt_tree.nearest_distance(p))
-        .collect();
-    let gt_to_pred: Vec<f32> = gt_points
-        .par_iter()
-        .map(|&p| pred_tree.nearest_distance(p))
-        .collect();
+    let pred_to_gt: Vec<f32> = pred_points.par_iter().map(|&p| gt_tree.nearest_distance(p)).collect();
+    let gt_to_pred: Vec<f32> = gt_points.par_iter().map(|&p| pred_tree.nearest_distance(p)).collect();
     let t = options.threshold;
     let mut metrics = MeshMetrics {
         accuracy: None,
@@ -302,11 +288,7 @@ pub fn mesh_metrics(
         metrics.precision = fraction_under(&pred_to_gt, t);
         metrics.recall = fraction_under(&gt_to_pred, t);
         let (p, r) = (metrics.precision.unwrap(), metrics.recall.unwrap());
-        metrics.fscore = Some(if p + r > 0.0 {
-            2.0 * p * r / (p + r)
-        } else {
-            0.0
-        });
+        metrics.fscore = Some(if p + r > 0.0 { 2.0 * p * r / (p + r) } else { 0.0 });
     }
     if let Some(ids) = &gt.face_object_ids {
         let mut per_object: BTreeMap<i32, (usize, usize)> = BTreeMap::new();
@@ -373,9 +355,7 @@ mod tests {
         for j in 0..H {
             for i in 0..W {
                 let dc = [(i as f32 + 0.5 - cx) / fx, (j as f32 + 0.5 - cy) / fy, 1.0];
-                let dir: [f64; 3] = std::array::from_fn(|a| {
-                    (0..3).map(|b| (cam_to_world[a][b] * dc[b]) as f64).sum()
-                });
+                let dir: [f64; 3] = std::array::from_fn(|a| (0..3).map(|b| (cam_to_world[a][b] * dc[b]) as f64).sum());
                 let o = eye.map(|x| x as f64);
                 for f in 0..gt.num_faces() {
                     let [a, b, c] = gt.triangle(f).map(|p| p.map(|x| x as f64));
@@ -415,18 +395,8 @@ mod tests {
     }
 
     fn room_views(gt: &TriangleMesh) -> Vec<CullingView> {
-        let eyes = [
-            [1.0, 1.0, 1.2],
-            [3.0, 2.0, 1.5],
-            [2.0, 0.5, 2.0],
-            [3.5, 2.5, 0.8],
-        ];
-        let targets = [
-            [4.0, 3.0, 0.5],
-            [0.0, 0.0, 1.0],
-            [2.0, 3.0, 0.0],
-            [0.0, 1.0, 2.5],
-        ];
+        let eyes = [[1.0, 1.0, 1.2], [3.0, 2.0, 1.5], [2.0, 0.5, 2.0], [3.5, 2.5, 0.8]];
+        let targets = [[4.0, 3.0, 0.5], [0.0, 0.0, 1.0], [2.0, 3.0, 0.0], [0.0, 1.0, 2.5]];
         eyes.iter()
             .zip(&targets)
             .map(|(&e, &t)| render_view(gt, e, t))
@@ -444,9 +414,7 @@ mod tests {
 
     fn shifted(mesh: &TriangleMesh, by: [f32; 3]) -> TriangleMesh {
         let mut m = mesh.clone();
-        m.positions
-            .iter_mut()
-            .for_each(|p| (0..3).for_each(|a| p[a] += by[a]));
+        m.positions.iter_mut().for_each(|p| (0..3).for_each(|a| p[a] += by[a]));
         m
     }
 

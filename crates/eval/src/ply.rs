@@ -95,17 +95,16 @@ impl BodyReader<'_> {
         if start == self.pos {
             return Err(self.truncated());
         }
-        std::str::from_utf8(&b[start..self.pos])
-            .map_err(|_| DataError::file(self.path, "PLY ASCII body is not text"))
+        std::str::from_utf8(&b[start..self.pos]).map_err(|_| DataError::file(self.path, "PLY ASCII body is not text"))
     }
 
     fn read(&mut self, scalar: Scalar) -> Result<f64, DataError> {
         if self.encoding == Encoding::Ascii {
             let path = self.path;
             let token = self.next_token()?;
-            return token.parse::<f64>().map_err(|_| {
-                DataError::file(path, format!("PLY ASCII body: '{token}' is not a number"))
-            });
+            return token
+                .parse::<f64>()
+                .map_err(|_| DataError::file(path, format!("PLY ASCII body: '{token}' is not a number")));
         }
         let n = scalar.size();
         if self.pos + n > self.bytes.len() {
@@ -151,10 +150,7 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<(Encoding, Vec<Element>, us
         }
     }
     if lines.first().map(String::as_str) != Some("ply") {
-        return Err(DataError::file(
-            path,
-            "not a PLY file (no 'ply' magic line)",
-        ));
+        return Err(DataError::file(path, "not a PLY file (no 'ply' magic line)"));
     }
     let mut encoding = None;
     let mut elements: Vec<Element> = Vec::new();
@@ -181,8 +177,7 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<(Encoding, Vec<Element>, us
                 let element = elements
                     .last_mut()
                     .ok_or_else(|| bad(format!("property '{name}' before any element")))?;
-                let parse =
-                    |t: &str| Scalar::parse(t).ok_or_else(|| bad(format!("unknown type '{t}'")));
+                let parse = |t: &str| Scalar::parse(t).ok_or_else(|| bad(format!("unknown type '{t}'")));
                 element.properties.push(Property {
                     name: name.to_string(),
                     list_count: Some(parse(count_type)?),
@@ -196,8 +191,7 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<(Encoding, Vec<Element>, us
                 element.properties.push(Property {
                     name: name.to_string(),
                     list_count: None,
-                    value: Scalar::parse(value_type)
-                        .ok_or_else(|| bad(format!("unknown type '{value_type}'")))?,
+                    value: Scalar::parse(value_type).ok_or_else(|| bad(format!("unknown type '{value_type}'")))?,
                 });
             }
             _ => return Err(bad(format!("cannot parse line '{line}'"))),
@@ -210,8 +204,7 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<(Encoding, Vec<Element>, us
 /// Reads a triangle mesh (see the module doc for what is understood).
 pub fn read_ply(path: impl AsRef<Path>) -> Result<TriangleMesh, DataError> {
     let path = path.as_ref();
-    let bytes =
-        std::fs::read(path).map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
+    let bytes = std::fs::read(path).map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
     let (encoding, elements, body_start) = parse_header(path, &bytes)?;
     let mut body = BodyReader {
         encoding,
@@ -227,19 +220,12 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<TriangleMesh, DataError> {
         match element.name.as_str() {
             "vertex" => {
                 saw_vertex = true;
-                let coord = ["x", "y", "z"]
-                    .map(|axis| element.properties.iter().position(|p| p.name == axis));
+                let coord = ["x", "y", "z"].map(|axis| element.properties.iter().position(|p| p.name == axis));
                 for (axis, c) in ["x", "y", "z"].iter().zip(coord) {
                     match c {
-                        None => {
-                            return Err(DataError::field(path, format!("vertex.{axis}"), "missing"))
-                        }
+                        None => return Err(DataError::field(path, format!("vertex.{axis}"), "missing")),
                         Some(i) if element.properties[i].list_count.is_some() => {
-                            return Err(DataError::field(
-                                path,
-                                format!("vertex.{axis}"),
-                                "is a list",
-                            ))
+                            return Err(DataError::field(path, format!("vertex.{axis}"), "is a list"))
                         }
                         Some(_) => {}
                     }
@@ -277,23 +263,12 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<TriangleMesh, DataError> {
                     .iter()
                     .position(|p| p.name == "vertex_indices" || p.name == "vertex_index")
                     .ok_or_else(|| {
-                        DataError::field(
-                            path,
-                            "face",
-                            "no 'vertex_indices' or 'vertex_index' list property",
-                        )
+                        DataError::field(path, "face", "no 'vertex_indices' or 'vertex_index' list property")
                     })?;
                 if element.properties[indices].list_count.is_none() {
-                    return Err(DataError::field(
-                        path,
-                        "face.vertex_indices",
-                        "is not a list",
-                    ));
+                    return Err(DataError::field(path, "face.vertex_indices", "is not a list"));
                 }
-                let object_id = element
-                    .properties
-                    .iter()
-                    .position(|p| p.name == "object_id");
+                let object_id = element.properties.iter().position(|p| p.name == "object_id");
                 has_object_id = object_id.is_some();
                 let mut polygon = Vec::new();
                 for f in 0..element.count {
@@ -316,21 +291,13 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<TriangleMesh, DataError> {
                             continue;
                         }
                         if n < 3 {
-                            return Err(DataError::field(
-                                path,
-                                "face",
-                                format!("face {f} has {n} vertices"),
-                            ));
+                            return Err(DataError::field(path, "face", format!("face {f} has {n} vertices")));
                         }
                         if polygon
                             .iter()
                             .any(|&x| x < 0.0 || x.fract() != 0.0 || x >= u32::MAX as f64)
                         {
-                            return Err(DataError::field(
-                                path,
-                                "face",
-                                format!("face {f} has a bad index"),
-                            ));
+                            return Err(DataError::field(path, "face", format!("face {f} has a bad index")));
                         }
                         // Polygons are fan-triangulated.
                         for k in 1..n - 1 {
@@ -368,10 +335,7 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<TriangleMesh, DataError> {
         return Err(DataError::field(
             path,
             "face",
-            format!(
-                "triangle {f} indexes past the {n} vertices: {:?}",
-                mesh.faces[f]
-            ),
+            format!("triangle {f} indexes past the {n} vertices: {:?}", mesh.faces[f]),
         ));
     }
     if has_object_id {
@@ -470,8 +434,7 @@ mod tests {
             property list uchar int vertex_indices\nend_header\n"
             .to_vec();
         for v in [[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 2.0, 0.0]] {
-            v.iter()
-                .for_each(|x| bytes.extend_from_slice(&x.to_be_bytes()));
+            v.iter().for_each(|x| bytes.extend_from_slice(&x.to_be_bytes()));
         }
         bytes.push(3);
         [0i32, 1, 2]
@@ -500,9 +463,7 @@ mod tests {
             let msg = read_ply(&path).unwrap_err().to_string();
             assert!(msg.contains(name) && msg.contains(expected), "{msg}");
         }
-        let missing = read_ply(dir.path().join("missing.ply"))
-            .unwrap_err()
-            .to_string();
+        let missing = read_ply(dir.path().join("missing.ply")).unwrap_err().to_string();
         assert!(missing.contains("missing.ply"), "{missing}");
     }
 }

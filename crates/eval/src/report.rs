@@ -48,8 +48,7 @@ impl From<&MeshMetrics> for MeshReport {
             recall: m.recall,
             fscore: m.fscore,
             threshold: Some(m.threshold),
-            per_object_recall: (!m.per_object_recall.is_empty())
-                .then(|| m.per_object_recall.clone()),
+            per_object_recall: (!m.per_object_recall.is_empty()).then(|| m.per_object_recall.clone()),
         }
     }
 }
@@ -92,14 +91,7 @@ mod tests {
         ("relight", &["psnr", "ssim"]),
         ("time_s", &["stage1", "stage2"]),
     ];
-    const MESH_KEYS: [&str; 6] = [
-        "accuracy",
-        "completeness",
-        "precision",
-        "recall",
-        "fscore",
-        "threshold",
-    ];
+    const MESH_KEYS: [&str; 6] = ["accuracy", "completeness", "precision", "recall", "fscore", "threshold"];
 
     #[test]
     fn empty_report_has_every_key_as_null() {
@@ -109,17 +101,11 @@ mod tests {
                 let value = &v[section][key];
                 if *key == "mesh" {
                     for mk in MESH_KEYS {
-                        assert!(
-                            value.as_object().unwrap().contains_key(mk),
-                            "geometry.mesh.{mk}"
-                        );
+                        assert!(value.as_object().unwrap().contains_key(mk), "geometry.mesh.{mk}");
                         assert!(value[mk].is_null());
                     }
                 } else {
-                    assert!(
-                        v[section].as_object().unwrap().contains_key(*key),
-                        "{section}.{key}"
-                    );
+                    assert!(v[section].as_object().unwrap().contains_key(*key), "{section}.{key}");
                     assert!(value.is_null(), "{section}.{key}");
                 }
             }
@@ -149,15 +135,9 @@ mod tests {
         });
         let json = report.to_json();
         let v: Value = serde_json::from_str(&json).unwrap();
-        assert!(
-            v["novel_view"]["psnr"].is_null(),
-            "infinity is written as null"
-        );
+        assert!(v["novel_view"]["psnr"].is_null(), "infinity is written as null");
         assert_eq!(v["geometry"]["mesh"]["threshold"], 0.05);
-        assert_eq!(
-            v["geometry"]["mesh"]["per_object_recall"][0]["object_id"],
-            3
-        );
+        assert_eq!(v["geometry"]["mesh"]["per_object_recall"][0]["object_id"], 3);
         let back: EvalReport = serde_json::from_str(&json).unwrap();
         assert_eq!(back.geometry, report.geometry);
         assert_eq!(back.novel_view.psnr, None);

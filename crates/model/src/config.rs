@@ -1,8 +1,6 @@
 //! The fields' shape: one struct for the TOML config, the CLI's `--set` and checkpoint metadata.
 
-use i2sdf_nn::{
-    Activation, GeometricInit, HashGridConfig, MlpConfig, SdfEncodingConfig, SdfNetworkConfig,
-};
+use i2sdf_nn::{Activation, GeometricInit, HashGridConfig, MlpConfig, SdfEncodingConfig, SdfNetworkConfig};
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]

@@ -4,6 +4,7 @@
 //! [`NeuralScene`]; saved and loaded as safetensors with the configuration in the metadata.
 
 pub mod config;
+pub mod images;
 pub mod renderer;
 pub mod scene;
 

@@ -9,9 +9,8 @@
 use crate::scene::NeuralScene;
 use i2sdf_nn::{MlpWorkspace, SdfGrad, SdfWorkspace};
 use i2sdf_render::volume::{
-    composite_batch, composite_batch_backward, error_bounded_samples, laplace_density_backward,
-    laplace_density_batch, CompositeGrads, CompositeOutputs, ErrorBoundedSamplerConfig,
-    PackedSamples, RaySampleSet,
+    composite_batch, composite_batch_backward, error_bounded_samples, laplace_density_backward, laplace_density_batch,
+    CompositeGrads, CompositeOutputs, ErrorBoundedSamplerConfig, PackedSamples, RaySampleSet,
 };
 use rand::Rng;
 
@@ -152,31 +151,16 @@ pub fn sample<R: Rng + ?Sized>(
         .zip(dirs)
         .map(|(o, d)| sphere_exit(*o, *d, settings.bound_radius).max(settings.near * 2.0))
         .collect();
-    let (sampler_ws, scratch_sdf, scratch_feature) = (
-        &mut ws.sampler_ws,
-        &mut ws.scratch_sdf,
-        &mut ws.scratch_feature,
-    );
+    let (sampler_ws, scratch_sdf, scratch_feature) = (&mut ws.sampler_ws, &mut ws.scratch_sdf, &mut ws.scratch_feature);
     let fdim = scene.feature_dim();
     let sdf_eval = |pts: &[[f32; 3]], out: &mut [f32]| {
         let flat: &[f32] = bytemuck_flat(pts);
         scratch_sdf.resize(pts.len(), 0.0);
         scratch_feature.resize(pts.len() * fdim, 0.0);
-        scene
-            .sdf
-            .forward(flat, sampler_ws, scratch_sdf, scratch_feature);
+        scene.sdf.forward(flat, sampler_ws, scratch_sdf, scratch_feature);
         out.copy_from_slice(&scratch_sdf[..pts.len()]);
     };
-    ws.samples = error_bounded_samples(
-        &settings.sampler,
-        origins,
-        dirs,
-        &near,
-        &far,
-        beta,
-        sdf_eval,
-        rng,
-    );
+    ws.samples = error_bounded_samples(&settings.sampler, origins, dirs, &near, &far, beta, sdf_eval, rng);
 }
 
 /// The differentiable part of [`forward`], at the samples already in `ws.samples`.
@@ -231,17 +215,13 @@ pub fn forward_with_samples(
         &mut ws.radiance_input,
     );
     ws.radiance_out.resize(n_s * 3, 0.0);
-    scene.radiance.forward(
-        &ws.radiance_input,
-        &mut ws.radiance_ws,
-        &mut ws.radiance_out,
-    );
+    scene
+        .radiance
+        .forward(&ws.radiance_input, &mut ws.radiance_ws, &mut ws.radiance_out);
     ws.emitter_out.resize(n_s, 0.0);
-    scene.emitter.forward(
-        &ws.feature[..n_s * fdim],
-        &mut ws.emitter_ws,
-        &mut ws.emitter_out,
-    );
+    scene
+        .emitter
+        .forward(&ws.feature[..n_s * fdim], &mut ws.emitter_ws, &mut ws.emitter_out);
     // 5. Channels and compositing (eqs. 3–5, emitter mask).
     ws.channels.resize(n_s * CHANNELS, 0.0);
     for i in 0..n_s {
@@ -347,8 +327,7 @@ pub fn backward(
     ws.grad_radiance_out.resize(n_s * 3, 0.0);
     ws.grad_emitter_out.resize(n_s, 0.0);
     for i in 0..n_s {
-        ws.grad_radiance_out[i * 3..i * 3 + 3]
-            .copy_from_slice(&ws.grad_channels[i * CHANNELS..i * CHANNELS + 3]);
+        ws.grad_radiance_out[i * 3..i * 3 + 3].copy_from_slice(&ws.grad_channels[i * CHANNELS..i * CHANNELS + 3]);
         ws.grad_emitter_out[i] = ws.grad_channels[i * CHANNELS + 6];
     }
     let w_in = scene.radiance.input_dim();
@@ -433,13 +412,7 @@ mod tests {
 
     /// L = Σ a·rgb + b·depth + c·normal + e·emitter + Σ_extra (p·d + q·∇d), a deterministic
     /// scalar of every output.
-    fn loss(
-        s: &NeuralScene,
-        samples: &RaySampleSet,
-        o: &[[f32; 3]],
-        d: &[[f32; 3]],
-        extra: &[f32],
-    ) -> f64 {
+    fn loss(s: &NeuralScene, samples: &RaySampleSet, o: &[[f32; 3]], d: &[[f32; 3]], extra: &[f32]) -> f64 {
         let mut ws = RenderWorkspace {
             samples: samples.clone(),
             ..Default::default()
@@ -547,9 +520,7 @@ mod tests {
         }
         // The hash table: the entries with the largest gradients.
         let hg = grads.sdf.hash_grid.as_ref().unwrap();
-        let mut idx: Vec<usize> = (0..hg.values.len())
-            .filter(|&k| hg.values[k] != 0.0)
-            .collect();
+        let mut idx: Vec<usize> = (0..hg.values.len()).filter(|&k| hg.values[k] != 0.0).collect();
         idx.sort_by(|&x, &y| hg.values[y].abs().total_cmp(&hg.values[x].abs()));
         for &k in idx.iter().take(6) {
             let (mut a, mut b) = (s.clone(), s.clone());
@@ -591,11 +562,7 @@ mod tests {
         forward(&s, &settings, &o, &d, &[], &mut ws, Some(&mut rng));
         for r in 0..3 {
             // The geometric init is only approximately a sphere of radius 0.7 for a small MLP.
-            assert!(
-                (ws.out.depth[r] - 0.7).abs() < 0.2,
-                "depth {:?}",
-                ws.out.depth
-            );
+            assert!((ws.out.depth[r] - 0.7).abs() < 0.2, "depth {:?}", ws.out.depth);
             assert!(ws.out.opacity[r] > 0.99);
             // Inverted sphere: the surface normal (∇d) points inwards, against the ray.
             let dot: f32 = (0..3).map(|c| ws.out.normal[r * 3 + c] * d[r][c]).sum();

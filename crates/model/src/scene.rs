@@ -3,8 +3,8 @@
 use crate::config::{Backbone, ModelConfig};
 use i2sdf_data::{DataError, Normalization};
 use i2sdf_nn::{
-    load_safetensors, save_safetensors, FrequencyEncoding, Mlp, MlpWorkspace, Parameters,
-    SdfNetwork, SdfWorkspace, SphericalHarmonics,
+    load_safetensors, save_safetensors, FrequencyEncoding, Mlp, MlpWorkspace, Parameters, SdfNetwork, SdfWorkspace,
+    SphericalHarmonics,
 };
 use std::collections::HashMap;
 use std::path::Path;
@@ -19,10 +19,7 @@ pub struct Beta {
 
 impl Beta {
     pub fn new(init: f32, min: f32) -> Self {
-        Beta {
-            raw: [init - min],
-            min,
-        }
+        Beta { raw: [init - min], min }
     }
     pub fn value(&self) -> f32 {
         self.min + self.raw[0].abs()
@@ -103,13 +100,7 @@ impl NeuralScene {
 
     /// Assembles F_c's input rows [z, enc(v), ∇d] for `n` points (`dirs`: unit view directions
     /// from the camera, `[n×3]`; `gradients`: ∇d, `[n×3]`, the raw SDF gradient as VolSDF feeds it).
-    pub fn radiance_input(
-        &self,
-        features: &[f32],
-        dirs: &[f32],
-        gradients: &[f32],
-        out: &mut Vec<f32>,
-    ) {
+    pub fn radiance_input(&self, features: &[f32], dirs: &[f32], gradients: &[f32], out: &mut Vec<f32>) {
         let f = self.feature_dim();
         let e = self.direction.output_dim();
         let n = dirs.len() / 3;
@@ -138,6 +129,16 @@ impl NeuralScene {
     /// Writes the fields' parameters (and the config and normalization as metadata) to a
     /// safetensors file, atomically. `extra` adds metadata entries.
     pub fn save(&self, path: &Path, extra: &[(&str, String)]) -> Result<(), DataError> {
+        self.save_with(path, extra, &[])
+    }
+
+    /// [`NeuralScene::save`] with more tensors in the same file (optimizer state).
+    pub fn save_with(
+        &self,
+        path: &Path,
+        extra: &[(&str, String)],
+        extra_modules: &[(&str, &dyn Parameters)],
+    ) -> Result<(), DataError> {
         let mut meta = HashMap::new();
         meta.insert(
             "model_config".to_string(),
@@ -150,56 +151,80 @@ impl NeuralScene {
         for (k, v) in extra {
             meta.insert(k.to_string(), v.clone());
         }
+        let mut modules = self.modules();
+        modules.extend_from_slice(extra_modules);
         i2sdf_data::imageio::write_atomic(path, |tmp| {
-            save_safetensors(tmp, &self.modules(), Some(meta)).map_err(|e| e.to_string())
+            save_safetensors(tmp, &modules, Some(meta)).map_err(|e| e.to_string())
         })
     }
 
     /// Reads a scene written by [`NeuralScene::save`]; returns it with the file's metadata.
     pub fn load(path: &Path) -> Result<(NeuralScene, HashMap<String, String>), DataError> {
-        let bytes =
-            std::fs::read(path).map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
+        let (scene, meta) = Self::load_config(path)?;
+        let mut scene = scene;
+        scene.load_params(path, &mut [])?;
+        Ok((scene, meta))
+    }
+
+    /// A fresh scene with the configuration and normalization stored in a checkpoint, and the
+    /// checkpoint's metadata (parameters not loaded yet: see [`NeuralScene::load_params`]).
+    pub fn load_config(path: &Path) -> Result<(NeuralScene, HashMap<String, String>), DataError> {
+        let bytes = std::fs::read(path).map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
         let (_, header) = safetensors_header(&bytes).map_err(|m| DataError::file(path, m))?;
         let config: ModelConfig = header
             .get("model_config")
             .ok_or_else(|| DataError::field(path, "model_config", "missing from the metadata"))
-            .and_then(|s| {
-                serde_json::from_str(s)
-                    .map_err(|e| DataError::field(path, "model_config", e.to_string()))
-            })?;
+            .and_then(|s| serde_json::from_str(s).map_err(|e| DataError::field(path, "model_config", e.to_string())))?;
         let normalization: Normalization = header
             .get("normalization")
             .ok_or_else(|| DataError::field(path, "normalization", "missing from the metadata"))
             .and_then(|s| {
-                serde_json::from_str(s)
-                    .map_err(|e| DataError::field(path, "normalization", e.to_string()))
+                serde_json::from_str(s).map_err(|e| DataError::field(path, "normalization", e.to_string()))
             })?;
-        let mut scene = NeuralScene::new(&config, normalization, 0);
-        {
-            let NeuralScene {
-                sdf,
-                radiance,
-                emitter,
-                beta,
-                ..
-            } = &mut scene;
-            let mut modules: Vec<(&str, &mut dyn Parameters)> = vec![
-                ("sdf", sdf),
-                ("radiance", radiance),
-                ("emitter", emitter),
-                ("density", beta),
-            ];
-            load_safetensors(path, &mut modules)
-                .map_err(|e| DataError::file(path, e.to_string()))?;
+        Ok((NeuralScene::new(&config, normalization, 0), header))
+    }
+
+    /// Loads the fields' parameters (and `extra_modules`, e.g. optimizer state) from a checkpoint
+    /// written with this scene's configuration.
+    pub fn load_params(
+        &mut self,
+        path: &Path,
+        extra_modules: &mut [(&str, &mut dyn Parameters)],
+    ) -> Result<(), DataError> {
+        let NeuralScene {
+            sdf,
+            radiance,
+            emitter,
+            beta,
+            ..
+        } = self;
+        let mut modules: Vec<(&str, &mut dyn Parameters)> = vec![
+            ("sdf", sdf),
+            ("radiance", radiance),
+            ("emitter", emitter),
+            ("density", beta),
+        ];
+        for (name, m) in extra_modules.iter_mut() {
+            modules.push((name, &mut **m));
         }
-        Ok((scene, header))
+        load_safetensors(path, &mut modules).map_err(|e| DataError::file(path, e.to_string()))?;
+        Ok(())
+    }
+
+    /// Are all parameters finite? (Checked before a checkpoint is written.)
+    pub fn is_finite(&self) -> bool {
+        let mut ok = true;
+        for (_, m) in self.modules() {
+            m.visit("", &mut |_, _, v| ok &= v.iter().all(|x| x.is_finite()));
+        }
+        ok
     }
 }
 
 /// The metadata of a safetensors file without loading its tensors.
 fn safetensors_header(bytes: &[u8]) -> Result<((), HashMap<String, String>), String> {
-    let (_, meta) = safetensors::SafeTensors::read_metadata(bytes)
-        .map_err(|e| format!("not a safetensors file: {e}"))?;
+    let (_, meta) =
+        safetensors::SafeTensors::read_metadata(bytes).map_err(|e| format!("not a safetensors file: {e}"))?;
     Ok(((), meta.metadata().clone().unwrap_or_default()))
 }
 
@@ -232,13 +257,7 @@ impl<'a> SceneQuery<'a> {
     }
 
     /// Distance, feature and gradient at `points`.
-    pub fn sdf_full(
-        &mut self,
-        points: &[f32],
-        sdf: &mut [f32],
-        feature: &mut [f32],
-        gradient: &mut [f32],
-    ) {
+    pub fn sdf_full(&mut self, points: &[f32], sdf: &mut [f32], feature: &mut [f32], gradient: &mut [f32]) {
         self.scene
             .sdf
             .forward_with_gradient(points, &mut self.sdf_ws, sdf, feature, gradient);
@@ -247,8 +266,7 @@ impl<'a> SceneQuery<'a> {
     /// F_c at points with features and gradients already computed: `rgb` is `[n×3]`.
     pub fn radiance(&mut self, features: &[f32], dirs: &[f32], gradients: &[f32], rgb: &mut [f32]) {
         let mut input = std::mem::take(&mut self.input);
-        self.scene
-            .radiance_input(features, dirs, gradients, &mut input);
+        self.scene.radiance_input(features, dirs, gradients, &mut input);
         self.scene.radiance.forward(&input, &mut self.mlp_ws, rgb);
         self.input = input;
     }
@@ -289,10 +307,7 @@ mod tests {
         q.sdf(&pts, &mut d);
         // ≈ r − ‖x‖ (a small softplus MLP only approximates the cone at the centre): free space
         // inside, decreasing outwards, negative outside the sphere.
-        assert!(
-            d[0] > 0.5 && d[0] > d[1] && d[1] > d[2] && d[3] < 0.0,
-            "{d:?}"
-        );
+        assert!(d[0] > 0.5 && d[0] > d[1] && d[1] > d[2] && d[3] < 0.0, "{d:?}");
         assert!((d[1] - 0.3).abs() < 0.1, "{d:?}");
     }
 

@@ -130,8 +130,7 @@ impl TrainConfig {
     pub fn load(file: Option<&Path>, overrides: &[String]) -> Result<TrainConfig, DataError> {
         let mut table: toml::Table = match file {
             Some(p) => {
-                let text = std::fs::read_to_string(p)
-                    .map_err(|e| DataError::file(p, format!("cannot read: {e}")))?;
+                let text = std::fs::read_to_string(p).map_err(|e| DataError::file(p, format!("cannot read: {e}")))?;
                 text.parse()
                     .map_err(|e| DataError::file(p, format!("invalid TOML: {e}")))?
             }
@@ -141,12 +140,9 @@ impl TrainConfig {
             apply_override(&mut table, o)?;
         }
         let what = file.map_or("--set".to_string(), |p| p.display().to_string());
-        let config: TrainConfig =
-            toml::Value::Table(table)
-                .try_into()
-                .map_err(|e: toml::de::Error| {
-                    DataError::invalid(format!("{what}: {}", e.message().trim()))
-                })?;
+        let config: TrainConfig = toml::Value::Table(table)
+            .try_into()
+            .map_err(|e: toml::de::Error| DataError::invalid(format!("{what}: {}", e.message().trim())))?;
         config.validate()?;
         Ok(config)
     }
@@ -216,11 +212,7 @@ mod tests {
     fn file_and_overrides() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("c.toml");
-        std::fs::write(
-            &p,
-            "[train]\niterations = 77\n[model]\nbackbone = \"mlp\"\n",
-        )
-        .unwrap();
+        std::fs::write(&p, "[train]\niterations = 77\n[model]\nbackbone = \"mlp\"\n").unwrap();
         let c = TrainConfig::load(
             Some(&p),
             &[

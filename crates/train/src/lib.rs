@@ -2,8 +2,10 @@
 //! three-step schedule, error-guided adaptive sampling, checkpoints and the run directory.
 
 pub mod config;
+pub mod driver;
 pub mod losses;
 pub mod pdf_map;
 pub mod rays;
 pub mod run_dir;
 pub mod schedule;
+pub mod stage1;

@@ -37,13 +37,7 @@ pub fn depth_l1(pred: &[f32], target: &[f32], valid: &[bool], w: f32, grad: &mut
 
 /// L_normal = mean over rays with a normal of 1 − n̂·n with n̂ = N̂/‖N̂‖ (eq. "normal"; the rendered
 /// normal is normalized first, as MonoSDF does, so the term measures only the angle).
-pub fn normal_angular(
-    pred: &[[f32; 3]],
-    target: &[[f32; 3]],
-    valid: &[bool],
-    w: f32,
-    grad: &mut [[f32; 3]],
-) -> f32 {
+pub fn normal_angular(pred: &[[f32; 3]], target: &[[f32; 3]], valid: &[bool], w: f32, grad: &mut [[f32; 3]]) -> f32 {
     let n = valid.iter().filter(|v| **v).count();
     if n == 0 {
         return 0.0;
@@ -101,13 +95,7 @@ pub fn eikonal(gradients: &[[f32; 3]], w: f32, grad: &mut [[f32; 3]]) -> f32 {
 }
 
 /// L_smooth = mean over pairs of ‖∇d(x) − ∇d(x + ε)‖₂ (eq. 8). Adds gradients for both members.
-pub fn smoothness(
-    a: &[[f32; 3]],
-    b: &[[f32; 3]],
-    w: f32,
-    grad_a: &mut [[f32; 3]],
-    grad_b: &mut [[f32; 3]],
-) -> f32 {
+pub fn smoothness(a: &[[f32; 3]], b: &[[f32; 3]], w: f32, grad_a: &mut [[f32; 3]], grad_b: &mut [[f32; 3]]) -> f32 {
     let n = a.len().max(1) as f32;
     let mut loss = 0.0f64;
     for i in 0..a.len() {
@@ -197,13 +185,7 @@ mod tests {
         normal_angular(&v3(&P), &t, &valid, 1.0, &mut g);
         close(&g.concat(), &numeric(&f, &P), 2e-3);
         // Aligned normals of any length cost nothing.
-        let v = normal_angular(
-            &[[0.0, 0.0, 3.0]],
-            &[[0.0, 0.0, 1.0]],
-            &[true],
-            1.0,
-            &mut [[0.0; 3]],
-        );
+        let v = normal_angular(&[[0.0, 0.0, 3.0]], &[[0.0, 0.0, 1.0]], &[true], 1.0, &mut [[0.0; 3]]);
         assert!(v.abs() < 1e-6);
     }
 
@@ -227,31 +209,15 @@ mod tests {
         assert!(eikonal(&[[0.6, 0.0, 0.8]], 1.0, &mut [[0.0; 3]]).abs() < 1e-6);
 
         let b = v3(&T);
-        let f = |x: &[f32]| {
-            smoothness(
-                &v3(x),
-                &b,
-                1.0,
-                &mut vec![[0.0; 3]; 2],
-                &mut vec![[0.0; 3]; 2],
-            )
-        };
+        let f = |x: &[f32]| smoothness(&v3(x), &b, 1.0, &mut vec![[0.0; 3]; 2], &mut vec![[0.0; 3]; 2]);
         let (mut ga, mut gb) = (vec![[0.0; 3]; 2], vec![[0.0; 3]; 2]);
         smoothness(&v3(&P), &b, 1.0, &mut ga, &mut gb);
         close(&ga.concat(), &numeric(&f, &P), 1e-3);
-        close(
-            &gb.concat(),
-            &ga.concat().iter().map(|x| -x).collect::<Vec<_>>(),
-            1e-6,
-        );
+        close(&gb.concat(), &ga.concat().iter().map(|x| -x).collect::<Vec<_>>(), 1e-6);
 
         let f = |x: &[f32]| bubble(x, 0.5, &mut [0.0; 6]);
         let mut g = [0.0; 6];
         bubble(&P, 0.5, &mut g);
-        close(
-            &g.iter().map(|x| x / 0.5).collect::<Vec<_>>(),
-            &numeric(&f, &P),
-            1e-3,
-        );
+        close(&g.iter().map(|x| x / 0.5).collect::<Vec<_>>(), &numeric(&f, &P), 1e-3);
     }
 }

@@ -223,13 +223,7 @@ mod tests {
             m.update(PixelRef { image, pixel }, e);
         }
         // A pruned pixel never shows up.
-        m.update(
-            PixelRef {
-                image: 2,
-                pixel: 10,
-            },
-            0.01,
-        );
+        m.update(PixelRef { image: 2, pixel: 10 }, 0.01);
         assert_eq!(m.active(), 5);
         assert!((m.total() - 10.0).abs() < 1e-9);
         let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
@@ -239,10 +233,7 @@ mod tests {
         assert_eq!(out.len(), n);
         let mut chi2 = 0.0;
         for &(image, pixel, e) in &picks {
-            let count = out
-                .iter()
-                .filter(|p| **p == PixelRef { image, pixel })
-                .count() as f64;
+            let count = out.iter().filter(|p| **p == PixelRef { image, pixel }).count() as f64;
             let expected = n as f64 * e as f64 / 10.0;
             chi2 += (count - expected).powi(2) / expected;
         }
@@ -260,10 +251,7 @@ mod tests {
     fn updates_move_the_mass() {
         let mut m = maps(&[300]);
         let a = PixelRef { image: 0, pixel: 5 };
-        let b = PixelRef {
-            image: 0,
-            pixel: 290,
-        };
+        let b = PixelRef { image: 0, pixel: 290 };
         m.update(a, 1.0);
         m.update(b, 1.0);
         m.update(a, 0.0); // fixed: pruned away

@@ -37,12 +37,7 @@ impl TrainImage {
                 cos.push(c as f32);
             }
         }
-        let rgb = frame
-            .rgb
-            .data
-            .chunks(3)
-            .map(|c| [c[0], c[1], c[2]])
-            .collect();
+        let rgb = frame.rgb.data.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
         let depth = match &frame.depth {
             Some(d) => d
                 .data
@@ -154,8 +149,7 @@ impl RayBatch {
         let n = im.normal.as_ref().map_or([0.0; 3], |n| n[pixel]);
         self.normal.push(n);
         self.has_normal.push(n != [0.0; 3]);
-        self.emitter
-            .push(im.emitter.as_ref().map_or(0.0, |e| e[pixel]));
+        self.emitter.push(im.emitter.as_ref().map_or(0.0, |e| e[pixel]));
     }
 
     /// Fills the batch with `n` pixels drawn uniformly over all training pixels.
@@ -201,11 +195,9 @@ mod tests {
         for im in &images {
             for p in 0..im.pixels() {
                 let q = im.surface_point(p).unwrap();
-                let w = ds.normalization.to_world(glam::DVec3::new(
-                    q[0] as f64,
-                    q[1] as f64,
-                    q[2] as f64,
-                ));
+                let w = ds
+                    .normalization
+                    .to_world(glam::DVec3::new(q[0] as f64, q[1] as f64, q[2] as f64));
                 let to_wall = (0..3)
                     .map(|a| {
                         (w[a] - fixture::ROOM_MIN[a])

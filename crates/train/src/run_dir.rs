@@ -9,7 +9,7 @@
 //! ```
 
 use crate::config::TrainConfig;
-use i2sdf_data::{imageio, DataError, Normalization};
+use i2sdf_data::{imageio, Bounds, DataError, Normalization};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -19,6 +19,8 @@ pub struct RunInfo {
     /// The dataset the run was trained on (as given on the command line).
     pub data: String,
     pub normalization: Option<Normalization>,
+    /// The dataset's scene bounds in world units (where `mesh` looks for the surface).
+    pub bounds: Option<Bounds>,
     /// Iterations of stage 1 completed (the checkpoint's).
     pub stage1_iterations: u64,
     pub stage1_done: bool,
@@ -56,9 +58,8 @@ impl RunDir {
     }
 
     pub fn create(&self) -> Result<(), DataError> {
-        std::fs::create_dir_all(&self.root).map_err(|e| {
-            DataError::file(&self.root, format!("cannot create the run directory: {e}"))
-        })
+        std::fs::create_dir_all(&self.root)
+            .map_err(|e| DataError::file(&self.root, format!("cannot create the run directory: {e}")))
     }
 
     pub fn write_config(&self, c: &TrainConfig) -> Result<(), DataError> {
@@ -76,11 +77,9 @@ impl RunDir {
 
     pub fn read_info(&self) -> Result<RunInfo, DataError> {
         let p = self.info_path();
-        let text = std::fs::read_to_string(&p).map_err(|e| {
-            DataError::file(&p, format!("cannot read (is this a run directory?): {e}"))
-        })?;
-        serde_json::from_str(&text)
-            .map_err(|e| DataError::file(&p, format!("invalid run info: {e}")))
+        let text = std::fs::read_to_string(&p)
+            .map_err(|e| DataError::file(&p, format!("cannot read (is this a run directory?): {e}")))?;
+        serde_json::from_str(&text).map_err(|e| DataError::file(&p, format!("invalid run info: {e}")))
     }
 
     /// Appends one record to the loss log. The log is advisory: a resumed run appends after the
@@ -121,13 +120,7 @@ mod tests {
         assert_eq!(run.read_info().unwrap(), info);
         run.append_log(&serde_json::json!({"it": 1})).unwrap();
         run.append_log(&serde_json::json!({"it": 2})).unwrap();
-        assert_eq!(
-            std::fs::read_to_string(run.log_path())
-                .unwrap()
-                .lines()
-                .count(),
-            2
-        );
+        assert_eq!(std::fs::read_to_string(run.log_path()).unwrap().lines().count(), 2);
         let e = RunDir::new(dir.path()).read_info().unwrap_err().to_string();
         assert!(e.contains("run.json"), "{e}");
     }

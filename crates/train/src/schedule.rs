@@ -65,10 +65,7 @@ impl Default for Schedule {
 impl Schedule {
     pub fn validate(&self) -> Result<(), String> {
         let ok = |f: f64| (0.0..=1.0).contains(&f);
-        if !ok(self.warmup_fraction)
-            || !ok(self.bubble_fraction)
-            || self.warmup_fraction + self.bubble_fraction > 1.0
-        {
+        if !ok(self.warmup_fraction) || !ok(self.bubble_fraction) || self.warmup_fraction + self.bubble_fraction > 1.0 {
             return Err(format!(
                 "warmup_fraction ({}) and bubble_fraction ({}) must be in [0, 1] and sum to at most 1",
                 self.warmup_fraction, self.bubble_fraction
@@ -147,10 +144,7 @@ mod tests {
             ..Default::default()
         };
         for it in (0..1000).step_by(50) {
-            assert_eq!(
-                s.weights(s.phase(it, 1000), &LossWeights::default()).bubble,
-                0.0
-            );
+            assert_eq!(s.weights(s.phase(it, 1000), &LossWeights::default()).bubble, 0.0);
         }
         assert!(Schedule {
             warmup_fraction: 0.8,

@@ -1,0 +1,42 @@
+//! `i2sdf eval --run RUN --data SCENE --out METRICS.json`: the DESIGN.md metrics JSON (every
+//! figure that cannot be computed is null). Also writes the extracted mesh beside the JSON.
+
+use clap::Args as ClapArgs;
+use i2sdf_data::imageio;
+use i2sdf_eval::neural::{evaluate, EvalOptions};
+use std::path::PathBuf;
+
+#[derive(ClapArgs)]
+pub struct Args {
+    #[arg(long)]
+    pub run: PathBuf,
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Output JSON file.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Marching-cubes resolution of the evaluated mesh.
+    #[arg(long, default_value_t = 256)]
+    pub mesh_resolution: usize,
+    /// F-score threshold in scene (world) units.
+    #[arg(long, default_value_t = 0.05)]
+    pub threshold: f64,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let (scene, info) = super::load_run(&args.run)?;
+    let dataset = i2sdf_data::load(&args.data)?;
+    let mut options = EvalOptions {
+        mesh_resolution: args.mesh_resolution,
+        ..Default::default()
+    };
+    options.mesh.threshold = args.threshold;
+    let (mut report, mesh) = evaluate(&scene, &dataset, &dataset.bounds, &options)?;
+    report.time_s.stage1 = (info.stage1_iterations > 0).then_some(info.stage1_seconds);
+    report.time_s.stage2 = info.stage2_seconds;
+    let json = report.to_json();
+    imageio::write_bytes_atomic(&args.out, json.as_bytes())?;
+    i2sdf_eval::write_ply(&args.out.with_extension("ply"), &mesh)?;
+    println!("{json}");
+    Ok(())
+}

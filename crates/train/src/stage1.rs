@@ -1,0 +1,535 @@
+//! Stage 1 (paper Sec. 5 "Training of geometry and radiance fields"; supp. B–C): F_d, F_c and F_e
+//! trained end to end by volume rendering with L_1 = L_rgb + λ_geo L_geo + λ_emi L_emi (eq. 13),
+//! L_geo = λ1 eikonal + λ2 depth + λ3 normal + λ4 smooth + λ5 bubble (eq. 9), over the three steps
+//! of [`crate::schedule`], with error-guided adaptive sampling of the bubble points.
+//!
+//! An iteration: draw rays uniformly over the training pixels; draw the extra points of the point
+//! losses (uniform eikonal points, bubble points from the PDF maps, smoothness pairs near the
+//! depth surface); one forward of the renderer over rays and points; the losses and their
+//! gradients; one backward; Adam. The RNG of iteration i is seeded from (seed, i), so a resumed
+//! run draws exactly what the uninterrupted one would have.
+
+use crate::config::TrainConfig;
+use crate::losses;
+use crate::pdf_map::{PdfMaps, PixelRef};
+use crate::rays::{train_images, RayBatch, TrainImage};
+use crate::schedule::Phase;
+use i2sdf_data::{DataError, Dataset};
+use i2sdf_model::renderer::{self, RayGrads, RenderSettings, RenderWorkspace, SceneGrads};
+use i2sdf_model::NeuralScene;
+use i2sdf_nn::{Adam, AdamConfig, GroupId, LrSchedule, Parameters, SdfEncoding};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use serde::Serialize;
+use std::path::Path;
+
+/// Half-width of the random perturbation ε of the smoothness loss (eq. 8), normalized units.
+const SMOOTH_EPS: f32 = 0.01;
+/// Consecutive non-finite steps tolerated before training stops.
+const MAX_NONFINITE_STREAK: u32 = 20;
+
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct StepStats {
+    pub iteration: u64,
+    pub phase: Option<Phase>,
+    pub loss: f32,
+    pub rgb: f32,
+    pub depth: f32,
+    pub normal: f32,
+    pub emitter: f32,
+    pub eikonal: f32,
+    pub smooth: f32,
+    pub bubble: f32,
+    /// PSNR of the batch's rendered colours.
+    pub psnr: f32,
+    pub beta: f32,
+    pub samples_per_ray: f32,
+    /// Pixels the PDF maps can currently draw from (bubble step).
+    pub pdf_active: usize,
+    /// The step produced a non-finite loss and was skipped.
+    pub skipped: bool,
+    /// Milliseconds spent placing samples, in the forward, and in backward + Adam.
+    pub ms_sampling: f32,
+    pub ms_forward: f32,
+    pub ms_backward: f32,
+}
+
+struct Groups {
+    sdf_mlp: GroupId,
+    hash: Option<GroupId>,
+    radiance: GroupId,
+    emitter: GroupId,
+    beta: GroupId,
+}
+
+/// Adam's moments as named tensors, so they travel in the checkpoint.
+struct AdamState<'a>(&'a Adam);
+struct AdamStateMut<'a>(&'a mut Adam);
+
+impl Parameters for AdamState<'_> {
+    fn visit(&self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &[f32])) {
+        for (i, g) in self.0.groups.iter().enumerate() {
+            let (m, v) = self.0.moments(i);
+            f(format!("{prefix}.{}.m", g.name), vec![m.len()], m);
+            f(format!("{prefix}.{}.v", g.name), vec![v.len()], v);
+        }
+    }
+    fn visit_mut(&mut self, _: &str, _: &mut dyn FnMut(String, Vec<usize>, &mut [f32])) {
+        unreachable!("read-only view")
+    }
+}
+
+impl Parameters for AdamStateMut<'_> {
+    fn visit(&self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &[f32])) {
+        AdamState(self.0).visit(prefix, f)
+    }
+    fn visit_mut(&mut self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &mut [f32])) {
+        for i in 0..self.0.groups.len() {
+            let name = self.0.groups[i].name.clone();
+            let (m, v) = self.0.moments_mut(i);
+            let len = m.len();
+            f(format!("{prefix}.{name}.m"), vec![len], m);
+            f(format!("{prefix}.{name}.v"), vec![len], v);
+        }
+    }
+}
+
+pub struct Stage1 {
+    pub config: TrainConfig,
+    pub scene: NeuralScene,
+    pub iteration: u64,
+    images: Vec<TrainImage>,
+    adam: Adam,
+    groups: Groups,
+    grads: SceneGrads,
+    ws: RenderWorkspace,
+    settings: RenderSettings,
+    pdf: Option<PdfMaps>,
+    batch: RayBatch,
+    extra: Vec<f32>,
+    nonfinite_streak: u32,
+}
+
+fn hash_grid_params(scene: &mut NeuralScene) -> Option<&mut Vec<f32>> {
+    match &mut scene.sdf.encoding {
+        SdfEncoding::HashGrid(g) => Some(&mut g.params),
+        SdfEncoding::Frequency(_) => None,
+    }
+}
+
+impl Stage1 {
+    pub fn new(dataset: &Dataset, config: TrainConfig) -> Self {
+        let scene = NeuralScene::new(&config.model, dataset.normalization, config.train.seed);
+        Self::with_scene(dataset, config, scene)
+    }
+
+    fn with_scene(dataset: &Dataset, config: TrainConfig, scene: NeuralScene) -> Self {
+        let t = &config.train;
+        let schedule = |lr_warmup: u64| LrSchedule::WarmupCosine {
+            warmup: lr_warmup,
+            total: t.iterations,
+            min_factor: t.lr_final_fraction,
+        };
+        let mut adam = Adam::new(AdamConfig {
+            eps: 1e-15,
+            ..Default::default()
+        });
+        let sdf_mlp = adam.add_group("sdf_mlp", scene.sdf.mlp.params.len(), t.lr_mlp, schedule(t.lr_warmup));
+        let hash = match &scene.sdf.encoding {
+            SdfEncoding::HashGrid(g) => {
+                Some(adam.add_group("hash_grid", g.params.len(), t.lr_grid, schedule(t.lr_warmup)))
+            }
+            SdfEncoding::Frequency(_) => None,
+        };
+        let radiance = adam.add_group("radiance", scene.radiance.params.len(), t.lr_mlp, schedule(t.lr_warmup));
+        let emitter = adam.add_group("emitter", scene.emitter.params.len(), t.lr_mlp, schedule(t.lr_warmup));
+        let beta = adam.add_group("beta", 1, t.lr_mlp, schedule(0));
+        let mut settings = RenderSettings::default();
+        settings.sampler.num_samples = config.sampling.samples;
+        settings.sampler.num_samples_eval = config.sampling.coarse;
+        settings.sampler.eps = config.sampling.epsilon;
+        let grads = SceneGrads::new(&scene);
+        Stage1 {
+            images: train_images(dataset),
+            adam,
+            groups: Groups {
+                sdf_mlp,
+                hash,
+                radiance,
+                emitter,
+                beta,
+            },
+            grads,
+            ws: RenderWorkspace::default(),
+            settings,
+            pdf: None,
+            batch: RayBatch::default(),
+            extra: Vec::new(),
+            nonfinite_streak: 0,
+            iteration: 0,
+            config,
+            scene,
+        }
+    }
+
+    /// Resumes from a checkpoint written by [`Stage1::save`].
+    pub fn resume(dataset: &Dataset, config: TrainConfig, checkpoint: &Path) -> Result<Self, DataError> {
+        let (scene, meta) = NeuralScene::load_config(checkpoint)?;
+        let mut s = Self::with_scene(dataset, config, scene);
+        {
+            let Stage1 { scene, adam, .. } = &mut s;
+            let mut state = AdamStateMut(adam);
+            scene.load_params(checkpoint, &mut [("adam", &mut state)])?;
+        }
+        let get = |k: &str| -> Result<u64, DataError> {
+            meta.get(k)
+                .and_then(|v| v.parse().ok())
+                .ok_or_else(|| DataError::field(checkpoint, k, "missing or not an integer"))
+        };
+        s.iteration = get("iteration")?;
+        s.adam.step = get("adam_step")?;
+        Ok(s)
+    }
+
+    /// Writes the checkpoint atomically; refuses parameters that are not finite.
+    pub fn save(&self, path: &Path) -> Result<(), DataError> {
+        if !self.scene.is_finite() {
+            return Err(DataError::invalid(
+                "training diverged: non-finite parameters; checkpoint not written",
+            ));
+        }
+        let state = AdamState(&self.adam);
+        self.scene.save_with(
+            path,
+            &[
+                ("iteration", self.iteration.to_string()),
+                ("adam_step", self.adam.step.to_string()),
+            ],
+            &[("adam", &state)],
+        )
+    }
+
+    pub fn done(&self) -> bool {
+        self.iteration >= self.config.train.iterations
+    }
+
+    /// Will the next step initialise the PDF maps (a pause of a few seconds)?
+    pub fn needs_pdf(&self) -> bool {
+        let w = self.config.schedule.weights(self.phase(), &self.config.loss);
+        w.bubble > 0.0 && self.pdf.is_none()
+    }
+
+    pub fn phase(&self) -> Phase {
+        self.config.schedule.phase(self.iteration, self.config.train.iterations)
+    }
+
+    fn rng(&self) -> Pcg64 {
+        Pcg64::seed_from_u64(self.config.train.seed ^ self.iteration.wrapping_mul(0x9e37_79b9_7f4a_7c15))
+    }
+
+    /// Error maps at the end of warm-up (paper Sec. 4.1.2): each training image's depth error,
+    /// rendered on a grid of stride s (≤ ~200k rays in all) and spread over the s×s block.
+    pub fn init_pdf(&mut self) {
+        let c = &self.config.adaptive;
+        let valid: Vec<Vec<bool>> = self
+            .images
+            .iter()
+            .map(|im| im.depth.iter().map(|d| *d > 0.0).collect())
+            .collect();
+        let mut pdf = PdfMaps::new(valid, c.p_min, c.p_max);
+        if c.enabled {
+            let total: usize = self.images.iter().map(|i| i.pixels()).sum();
+            let stride = ((total as f64 / 200_000.0).sqrt().ceil() as usize).max(1);
+            let mut ws = RenderWorkspace::default();
+            for (k, im) in self.images.iter().enumerate() {
+                let mut pixels = Vec::new();
+                for j in (0..im.height).step_by(stride) {
+                    for i in (0..im.width).step_by(stride) {
+                        pixels.push(j * im.width + i);
+                    }
+                }
+                let mut err = vec![0.0f32; im.pixels()];
+                for chunk in pixels.chunks(4096) {
+                    let origins = vec![im.origin; chunk.len()];
+                    let dirs: Vec<[f32; 3]> = chunk.iter().map(|&p| im.dirs[p]).collect();
+                    renderer::forward::<Pcg64>(&self.scene, &self.settings, &origins, &dirs, &[], &mut ws, None);
+                    for (q, &p) in chunk.iter().enumerate() {
+                        let e = (ws.out.depth[q] - im.depth[p]).abs();
+                        let (pi, pj) = (p % im.width, p / im.width);
+                        for j in pj..(pj + stride).min(im.height) {
+                            for i in pi..(pi + stride).min(im.width) {
+                                err[j * im.width + i] = e;
+                            }
+                        }
+                    }
+                }
+                pdf.set_image(k, &err);
+            }
+        } else {
+            // Uniform sampling over the depth pixels (the paper's ablation).
+            for (k, im) in self.images.iter().enumerate() {
+                pdf.set_image(k, &vec![c.p_max; im.pixels()]);
+            }
+        }
+        self.pdf = Some(pdf);
+    }
+
+    /// One iteration. Returns its statistics; a non-finite loss skips the update.
+    pub fn step(&mut self) -> Result<StepStats, DataError> {
+        let total = self.config.train.iterations;
+        let phase = self.config.schedule.phase(self.iteration, total);
+        let w = self.config.schedule.weights(phase, &self.config.loss);
+        let mut rng = self.rng();
+        if w.bubble > 0.0 && self.pdf.is_none() {
+            self.init_pdf();
+        }
+        if w.bubble == 0.0 && phase == Phase::Smooth {
+            self.pdf = None;
+        }
+        let t = &self.config.train;
+        self.batch.sample_uniform(&self.images, t.rays, &mut rng);
+
+        // Extra points: [eikonal | bubble | smooth x | smooth x + ε].
+        self.extra.clear();
+        let n_eik = t.eikonal_points;
+        for _ in 0..n_eik {
+            let p: [f32; 3] = [
+                rng.gen_range(-1.0..1.0),
+                rng.gen_range(-1.0..1.0),
+                rng.gen_range(-1.0..1.0),
+            ];
+            self.extra.extend_from_slice(&p);
+        }
+        let mut n_bub = 0;
+        if w.bubble > 0.0 {
+            let mut picks = Vec::new();
+            if let Some(pdf) = &self.pdf {
+                pdf.sample(t.bubble_points, &mut rng, &mut picks);
+            }
+            for p in &picks {
+                if let Some(x) = self.images[p.image as usize].surface_point(p.pixel as usize) {
+                    self.extra.extend_from_slice(&x);
+                    n_bub += 1;
+                }
+            }
+        }
+        let mut n_smooth = 0;
+        if w.smooth > 0.0 {
+            let mut pairs = Vec::new();
+            for (r, &has) in self.batch.has_depth.iter().enumerate() {
+                if has {
+                    let im = &self.images[self.batch.image[r] as usize];
+                    if let Some(x) = im.surface_point(self.batch.pixel[r] as usize) {
+                        pairs.push(x);
+                    }
+                }
+            }
+            pairs.truncate(t.eikonal_points);
+            n_smooth = pairs.len();
+            for x in &pairs {
+                self.extra.extend_from_slice(x);
+            }
+            for x in &pairs {
+                let e: [f32; 3] = std::array::from_fn(|_| rng.gen_range(-SMOOTH_EPS..SMOOTH_EPS));
+                self.extra.extend_from_slice(&[x[0] + e[0], x[1] + e[1], x[2] + e[2]]);
+            }
+        }
+
+        let t0 = std::time::Instant::now();
+        renderer::sample(
+            &self.scene,
+            &self.settings,
+            &self.batch.origin,
+            &self.batch.dir,
+            &mut self.ws,
+            Some(&mut rng),
+        );
+        let t1 = std::time::Instant::now();
+        renderer::forward_with_samples(
+            &self.scene,
+            &self.batch.origin,
+            &self.batch.dir,
+            &self.extra,
+            &mut self.ws,
+        );
+        let t2 = std::time::Instant::now();
+
+        // Losses on the rays.
+        let rays = self.batch.len();
+        let out = &self.ws.out;
+        let pred_rgb: Vec<[f32; 3]> = out.rgb.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let pred_n: Vec<[f32; 3]> = out.normal.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let mut g_rgb = vec![[0.0f32; 3]; rays];
+        let mut g_depth = vec![0.0f32; rays];
+        let mut g_normal = vec![[0.0f32; 3]; rays];
+        let mut g_emitter = vec![0.0f32; rays];
+        let mut st = StepStats {
+            iteration: self.iteration,
+            phase: Some(phase),
+            beta: self.scene.beta.value(),
+            ..Default::default()
+        };
+        st.rgb = losses::rgb_l1(&pred_rgb, &self.batch.rgb, w.rgb, &mut g_rgb);
+        st.depth = losses::depth_l1(
+            &out.depth,
+            &self.batch.depth,
+            &self.batch.has_depth,
+            w.depth,
+            &mut g_depth,
+        );
+        st.normal = losses::normal_angular(
+            &pred_n,
+            &self.batch.normal,
+            &self.batch.has_normal,
+            w.normal,
+            &mut g_normal,
+        );
+        if self.batch.has_emitter {
+            st.emitter = losses::emitter_bce(&out.emitter, &self.batch.emitter, w.emitter, &mut g_emitter);
+        }
+        let mse: f32 = pred_rgb
+            .iter()
+            .zip(&self.batch.rgb)
+            .map(|(p, q)| (0..3).map(|c| (p[c] - q[c]).powi(2)).sum::<f32>())
+            .sum::<f32>()
+            / (3 * rays.max(1)) as f32;
+        st.psnr = -10.0 * mse.max(1e-10).log10();
+
+        // Losses on points: eikonal on every ray sample and the uniform points; bubble; smooth.
+        let n_s = self.ws.n_samples;
+        let n = self.ws.sdf.len();
+        let mut d_sdf = vec![0.0f32; n];
+        let mut d_grad = vec![0.0f32; n * 3];
+        let grads3: &[[f32; 3]] = as_vec3(&self.ws.gradient);
+        let d_grad3: &mut [[f32; 3]] = as_vec3_mut(&mut d_grad);
+        if w.eikonal > 0.0 {
+            st.eikonal = losses::eikonal(&grads3[..n_s + n_eik], w.eikonal, &mut d_grad3[..n_s + n_eik]);
+        }
+        let b0 = n_s + n_eik;
+        if n_bub > 0 {
+            st.bubble = losses::bubble(&self.ws.sdf[b0..b0 + n_bub], w.bubble, &mut d_sdf[b0..b0 + n_bub]);
+        }
+        if n_smooth > 0 {
+            let s0 = b0 + n_bub;
+            let (ga, gb) = d_grad3[s0..s0 + 2 * n_smooth].split_at_mut(n_smooth);
+            st.smooth = losses::smoothness(
+                &grads3[s0..s0 + n_smooth],
+                &grads3[s0 + n_smooth..s0 + 2 * n_smooth],
+                w.smooth,
+                ga,
+                gb,
+            );
+        }
+        st.loss = w.rgb * st.rgb
+            + w.depth * st.depth
+            + w.normal * st.normal
+            + w.emitter * st.emitter
+            + w.eikonal * st.eikonal
+            + w.smooth * st.smooth
+            + w.bubble * st.bubble;
+        st.samples_per_ray = n_s as f32 / rays.max(1) as f32;
+
+        // PDF maps learn from this batch's depth errors (Sec. 4.1.2).
+        if let Some(pdf) = &mut self.pdf {
+            if self.config.adaptive.enabled {
+                for r in 0..rays {
+                    if self.batch.has_depth[r] {
+                        let e = (self.ws.out.depth[r] - self.batch.depth[r]).abs();
+                        pdf.update(
+                            PixelRef {
+                                image: self.batch.image[r],
+                                pixel: self.batch.pixel[r],
+                            },
+                            e,
+                        );
+                    }
+                }
+            }
+            st.pdf_active = pdf.active();
+        }
+
+        if !st.loss.is_finite() || !self.ws.out.rgb.iter().all(|v| v.is_finite()) {
+            st.skipped = true;
+            self.nonfinite_streak += 1;
+            self.iteration += 1;
+            if self.nonfinite_streak > MAX_NONFINITE_STREAK {
+                return Err(DataError::invalid(format!(
+                    "training diverged: {} consecutive non-finite losses at iteration {}",
+                    self.nonfinite_streak, self.iteration
+                )));
+            }
+            return Ok(st);
+        }
+        self.nonfinite_streak = 0;
+
+        // Backward and update.
+        let flat = |v: &[[f32; 3]]| -> Vec<f32> { v.iter().flatten().copied().collect() };
+        let (g_rgb, g_normal) = (flat(&g_rgb), flat(&g_normal));
+        let zeros = vec![0.0f32; rays];
+        self.grads.beta = 0.0;
+        renderer::backward(
+            &self.scene,
+            &mut self.ws,
+            &RayGrads {
+                rgb: &g_rgb,
+                depth: &g_depth,
+                normal: &g_normal,
+                emitter: &g_emitter,
+                opacity: &zeros,
+            },
+            &mut d_sdf,
+            &mut d_grad,
+            &mut self.grads,
+        );
+        self.apply_adam();
+        st.ms_sampling = (t1 - t0).as_secs_f32() * 1e3;
+        st.ms_forward = (t2 - t1).as_secs_f32() * 1e3;
+        st.ms_backward = t2.elapsed().as_secs_f32() * 1e3;
+        self.iteration += 1;
+        Ok(st)
+    }
+
+    fn apply_adam(&mut self) {
+        let g = &self.groups;
+        self.adam.begin_step();
+        self.adam
+            .update(g.sdf_mlp, &mut self.scene.sdf.mlp.params, &mut self.grads.sdf.mlp);
+        if let (Some(h), Some(hg)) = (g.hash, self.grads.sdf.hash_grid.as_mut()) {
+            let row = self.scene.sdf.config_features_per_level();
+            if let Some(params) = hash_grid_params(&mut self.scene) {
+                self.adam.update_sparse(h, params, hg, row);
+            }
+        }
+        self.adam
+            .update(g.radiance, &mut self.scene.radiance.params, &mut self.grads.radiance);
+        self.adam
+            .update(g.emitter, &mut self.scene.emitter.params, &mut self.grads.emitter);
+        let mut gb = [self.grads.beta * self.scene.beta.dvalue()];
+        self.adam.update(g.beta, &mut self.scene.beta.raw, &mut gb);
+    }
+}
+
+trait FeaturesPerLevel {
+    fn config_features_per_level(&self) -> usize;
+}
+
+impl FeaturesPerLevel for i2sdf_nn::SdfNetwork {
+    fn config_features_per_level(&self) -> usize {
+        match &self.encoding {
+            SdfEncoding::HashGrid(g) => g.config.features_per_level,
+            SdfEncoding::Frequency(_) => 0,
+        }
+    }
+}
+
+fn as_vec3(v: &[f32]) -> &[[f32; 3]] {
+    assert_eq!(v.len() % 3, 0);
+    // SAFETY: [f32; 3] is three consecutive f32 without padding.
+    unsafe { std::slice::from_raw_parts(v.as_ptr() as *const [f32; 3], v.len() / 3) }
+}
+
+fn as_vec3_mut(v: &mut [f32]) -> &mut [[f32; 3]] {
+    assert_eq!(v.len() % 3, 0);
+    // SAFETY: as above; the borrow is unique.
+    unsafe { std::slice::from_raw_parts_mut(v.as_mut_ptr() as *mut [f32; 3], v.len() / 3) }
+}
