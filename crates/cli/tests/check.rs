@@ -63,9 +63,7 @@ fn good_datasets_pass_with_a_summary() {
     let (code, out, err) = check(dir.path());
     assert_eq!(code, 0, "{err}");
     assert!(
-        out.contains("paper release")
-            && out.contains("4 train, 2 test")
-            && out.contains("depth 4/6"),
+        out.contains("paper release") && out.contains("4 train, 2 test") && out.contains("depth 4/6"),
         "{out}"
     );
 }
@@ -93,11 +91,7 @@ fn unreadable_files() {
 #[test]
 fn wrong_image_size() {
     let dir = native();
-    imageio::write_exr(
-        &dir.path().join("depth/frame_003.exr"),
-        &ImageF32::new(10, 18, 1),
-    )
-    .unwrap();
+    imageio::write_exr(&dir.path().join("depth/frame_003.exr"), &ImageF32::new(10, 18, 1)).unwrap();
     assert_bad(dir.path(), &["frame_003.exr", "10×18", "24×18"]);
 }
 
@@ -122,17 +116,11 @@ fn degenerate_poses() {
     });
     assert_bad(
         dir.path(),
-        &[
-            "transforms.json",
-            "frames[2].transform_matrix",
-            "not invertible",
-        ],
+        &["transforms.json", "frames[2].transform_matrix", "not invertible"],
     );
     let dir = native();
     edit_json(dir.path(), |v| {
-        let row = v["frames"][0]["transform_matrix"][1]
-            .as_array_mut()
-            .unwrap();
+        let row = v["frames"][0]["transform_matrix"][1].as_array_mut().unwrap();
         for x in row.iter_mut().take(3) {
             *x = Value::from(x.as_f64().unwrap() * 1.5);
         }
@@ -153,9 +141,7 @@ fn empty_split_and_bad_split() {
     });
     assert_bad(dir.path(), &["transforms.json", "'test' split is empty"]);
     let dir = native();
-    edit_json(dir.path(), |v| {
-        v["frames"][0]["split"] = Value::from("validation")
-    });
+    edit_json(dir.path(), |v| v["frames"][0]["split"] = Value::from("validation"));
     assert_bad(dir.path(), &["frames[0].split"]);
     let dir = tempfile::tempdir().unwrap();
     fixture::write_paper(dir.path(), &FixtureOptions::default());
@@ -170,16 +156,10 @@ fn nerfstudio_filename_lists_are_honoured() {
         for f in v["frames"].as_array_mut().unwrap() {
             f.as_object_mut().unwrap().remove("split");
         }
-        v["train_filenames"] = serde_json::json!([
-            "images/frame_000.png",
-            "images/frame_001.png",
-            "./images/frame_002.png"
-        ]);
-        v["test_filenames"] = serde_json::json!([
-            "images/frame_003.png",
-            "images/frame_004.png",
-            "images/frame_005.png"
-        ]);
+        v["train_filenames"] =
+            serde_json::json!(["images/frame_000.png", "images/frame_001.png", "./images/frame_002.png"]);
+        v["test_filenames"] =
+            serde_json::json!(["images/frame_003.png", "images/frame_004.png", "images/frame_005.png"]);
     });
     let (code, out, err) = check(dir.path());
     assert_eq!(code, 0, "{err}");

@@ -30,15 +30,7 @@ pub const GL_TO_CV: DMat4 = DMat4::from_cols(
 
 impl Camera {
     /// From an OpenGL/nerfstudio camera-to-world matrix (camera looks down −z, y up).
-    pub fn from_opengl_c2w(
-        width: usize,
-        height: usize,
-        fx: f64,
-        fy: f64,
-        cx: f64,
-        cy: f64,
-        c2w_gl: DMat4,
-    ) -> Self {
+    pub fn from_opengl_c2w(width: usize, height: usize, fx: f64, fy: f64, cx: f64, cy: f64, c2w_gl: DMat4) -> Self {
         Camera {
             width,
             height,
@@ -119,27 +111,15 @@ impl Camera {
         if pc.z <= 1e-12 {
             return None;
         }
-        Some((
-            self.fx * pc.x / pc.z + self.cx,
-            self.fy * pc.y / pc.z + self.cy,
-            pc.z,
-        ))
+        Some((self.fx * pc.x / pc.z + self.cx, self.fy * pc.y / pc.z + self.cy, pc.z))
     }
 
     /// Checks intrinsics and pose; the message says what is wrong (the caller names the file).
     pub fn validate(&self) -> Result<(), String> {
         if self.width == 0 || self.height == 0 {
-            return Err(format!(
-                "image size {}×{} is empty",
-                self.width, self.height
-            ));
+            return Err(format!("image size {}×{} is empty", self.width, self.height));
         }
-        for (name, v) in [
-            ("fx", self.fx),
-            ("fy", self.fy),
-            ("cx", self.cx),
-            ("cy", self.cy),
-        ] {
+        for (name, v) in [("fx", self.fx), ("fy", self.fy), ("cx", self.cx), ("cy", self.cy)] {
             if !v.is_finite() {
                 return Err(format!("intrinsic {name} = {v} is not finite"));
             }
@@ -162,9 +142,7 @@ pub fn validate_rigid(m: &DMat4) -> Result<(), String> {
     }
     let row3 = m.row(3);
     if (row3 - DVec4::new(0.0, 0.0, 0.0, 1.0)).abs().max_element() > 1e-6 {
-        return Err(format!(
-            "pose's last row is {row3:?}, expected [0, 0, 0, 1]"
-        ));
+        return Err(format!("pose's last row is {row3:?}, expected [0, 0, 0, 1]"));
     }
     let r = DMat3::from_mat4(*m);
     let det = r.determinant();
@@ -271,11 +249,7 @@ mod tests {
             fy: 52.0,
             cx: 32.0,
             cy: 24.0,
-            c2w: look_at(
-                DVec3::new(0.3, -0.2, 1.0),
-                DVec3::new(1.0, 2.0, 0.5),
-                DVec3::Z,
-            ),
+            c2w: look_at(DVec3::new(0.3, -0.2, 1.0), DVec3::new(1.0, 2.0, 0.5), DVec3::Z),
         }
     }
 

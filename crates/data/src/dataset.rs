@@ -97,8 +97,7 @@ impl Normalization {
     }
     /// The 4×4 matrix mapping world → normalized coordinates.
     pub fn world_to_normalized(&self) -> DMat4 {
-        DMat4::from_scale(DVec3::splat(1.0 / self.scale))
-            * DMat4::from_translation(-DVec3::from(self.center))
+        DMat4::from_scale(DVec3::splat(1.0 / self.scale)) * DMat4::from_translation(-DVec3::from(self.center))
     }
 }
 
@@ -198,17 +197,12 @@ fn to_channels(path: &Path, img: ImageF32, n: usize, what: &str) -> Result<Image
     if img.channels > n {
         let mut out = ImageF32::new(img.width, img.height, n);
         for p in 0..img.width * img.height {
-            out.data[p * n..(p + 1) * n]
-                .copy_from_slice(&img.data[p * img.channels..p * img.channels + n]);
+            out.data[p * n..(p + 1) * n].copy_from_slice(&img.data[p * img.channels..p * img.channels + n]);
         }
         return Ok(out);
     }
     if img.channels == 1 {
-        let data = img
-            .data
-            .iter()
-            .flat_map(|v| std::iter::repeat_n(*v, n))
-            .collect();
+        let data = img.data.iter().flat_map(|v| std::iter::repeat_n(*v, n)).collect();
         return Ok(ImageF32::from_data(img.width, img.height, n, data));
     }
     Err(DataError::file(
@@ -228,14 +222,10 @@ pub fn load_rgb(path: &Path, cam: &Camera) -> Result<ImageF32> {
 /// A depth map: EXR (first colour channel, or the single channel) or `.npy` in world units, or a
 /// 16-bit PNG of integers times `png_scale`. Non-positive values mean "no depth" and become 0.
 pub fn load_depth(path: &Path, cam: &Camera, png_scale: f64) -> Result<ImageF32> {
-    let is_png = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    let is_png = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
     let img = if is_png {
         let mut raw = imageio::read_png_raw_gray(path)?;
-        raw.data
-            .iter_mut()
-            .for_each(|v| *v = (*v as f64 * png_scale) as f32);
+        raw.data.iter_mut().for_each(|v| *v = (*v as f64 * png_scale) as f32);
         raw
     } else {
         imageio::read_float_map(path)?
@@ -291,9 +281,7 @@ pub fn load_mask(path: &Path, cam: &Camera) -> Result<ImageF32> {
     check_size(path, &img, cam)?;
     check_finite(path, &img)?;
     let mut m = img.channel(0);
-    m.data
-        .iter_mut()
-        .for_each(|v| *v = if *v > 0.5 { 1.0 } else { 0.0 });
+    m.data.iter_mut().for_each(|v| *v = if *v > 0.5 { 1.0 } else { 0.0 });
     Ok(m)
 }
 
@@ -370,10 +358,7 @@ pub fn check_splits(root: &Path, frames: &[Frame]) -> Result<()> {
             return Err(DataError::field(
                 root,
                 "split",
-                format!(
-                    "the '{}' split is empty: no frame belongs to it",
-                    split.name()
-                ),
+                format!("the '{}' split is empty: no frame belongs to it", split.name()),
             ));
         }
     }

@@ -10,11 +10,7 @@ pub enum DataError {
     File { path: PathBuf, msg: String },
     /// One field (a JSON key, an npz array, a frame entry, an image channel) of a file is wrong.
     #[error("{}: {field}: {msg}", path.display())]
-    Field {
-        path: PathBuf,
-        field: String,
-        msg: String,
-    },
+    Field { path: PathBuf, field: String, msg: String },
     /// Bad input not tied to one file (a command-line value, an empty split).
     #[error("{0}")]
     Invalid(String),

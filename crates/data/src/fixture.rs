@@ -92,11 +92,9 @@ pub fn cameras(opts: &FixtureOptions) -> Vec<Camera> {
         .map(|i| {
             let a = i as f64 * 2.399; // golden angle: spread the views
             let eye = DVec3::new(0.6 * a.cos(), 0.5 * a.sin(), 1.0 + 0.2 * (i as f64).sin());
-            let target = opts.anchor.unwrap_or(DVec3::new(
-                2.0 * (a + 1.0).cos(),
-                1.5 * (a + 1.0).sin(),
-                0.8,
-            ));
+            let target = opts
+                .anchor
+                .unwrap_or(DVec3::new(2.0 * (a + 1.0).cos(), 1.5 * (a + 1.0).sin(), 0.8));
             let fx = 0.9 * opts.width as f64 + i as f64;
             let mut cam = Camera {
                 width: opts.width,
@@ -171,11 +169,7 @@ fn write_depth(path_stem: &Path, depth: &ImageF32, fmt: DepthFormat) -> String {
         }
         DepthFormat::Png16 => {
             let p = path_stem.with_extension("png");
-            let raw: Vec<u16> = depth
-                .data
-                .iter()
-                .map(|d| (d * 1000.0).round() as u16)
-                .collect();
+            let raw: Vec<u16> = depth.data.iter().map(|d| (d * 1000.0).round() as u16).collect();
             imageio::write_png16_raw(&p, depth.width, depth.height, 1, &raw).unwrap();
             p.file_name().unwrap().to_string_lossy().into_owned()
         }
@@ -191,11 +185,7 @@ pub fn write_native(dir: &Path, opts: &FixtureOptions) -> Vec<Camera> {
         let maps = render(cam, cam.cx, cam.cy, 0.5);
         imageio::write_png(&dir.join("images").join(format!("{name}.png")), &maps.rgb).unwrap();
         let depth_name = write_depth(&dir.join("depth").join(&name), &maps.depth, opts.depth);
-        imageio::write_npy(
-            &dir.join("normals").join(format!("{name}.npy")),
-            &maps.normal_world,
-        )
-        .unwrap();
+        imageio::write_npy(&dir.join("normals").join(format!("{name}.npy")), &maps.normal_world).unwrap();
         imageio::write_png(&dir.join("masks").join(format!("{name}.png")), &maps.mask).unwrap();
         let gl = cam.opengl_c2w();
         let rows: Vec<Vec<f64>> = (0..4).map(|r| gl.row(r).to_array().to_vec()).collect();
@@ -272,10 +262,7 @@ pub fn write_paper(dir: &Path, opts: &FixtureOptions) -> Vec<Camera> {
         p[3] = [0.0, 0.0, 0.0, 1.0];
         let is_train = k < opts.train_views;
         let idx = if is_train { k } else { k - opts.train_views };
-        put(
-            &format!("{}_{idx}", if is_train { "world_mat" } else { "val_mat" }),
-            p,
-        );
+        put(&format!("{}_{idx}", if is_train { "world_mat" } else { "val_mat" }), p);
         if is_train {
             put(
                 &format!("scale_mat_{idx}"),
@@ -307,11 +294,7 @@ pub fn write_paper(dir: &Path, opts: &FixtureOptions) -> Vec<Camera> {
                 px.copy_from_slice(&[n.x as f32, n.y as f32, n.z as f32]);
             }
             imageio::write_exr(&dir.join("normal").join(format!("{name}.exr")), &ncam).unwrap();
-            imageio::write_png(
-                &dir.join("light_mask").join(format!("{name}.png")),
-                &maps.mask,
-            )
-            .unwrap();
+            imageio::write_png(&dir.join("light_mask").join(format!("{name}.png")), &maps.mask).unwrap();
         } else {
             imageio::write_png(&dir.join("val").join(format!("{name}.png")), &maps.rgb).unwrap();
         }

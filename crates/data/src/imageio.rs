@@ -49,13 +49,7 @@ impl ImageF32 {
 
     /// One channel as its own image (channel `c` of every pixel).
     pub fn channel(&self, c: usize) -> ImageF32 {
-        let data = self
-            .data
-            .iter()
-            .skip(c)
-            .step_by(self.channels)
-            .copied()
-            .collect();
+        let data = self.data.iter().skip(c).step_by(self.channels).copied().collect();
         ImageF32::from_data(self.width, self.height, 1, data)
     }
 
@@ -170,12 +164,7 @@ pub fn read_png_raw_gray(path: &Path) -> Result<ImageF32> {
         ));
     }
     let (w, h) = (img.width() as usize, img.height() as usize);
-    let data = img
-        .to_luma16()
-        .into_raw()
-        .into_iter()
-        .map(|v| v as f32)
-        .collect();
+    let data = img.to_luma16().into_raw().into_iter().map(|v| v as f32).collect();
     Ok(ImageF32::from_data(w, h, 1, data))
 }
 
@@ -184,8 +173,8 @@ const EXR_ORDER: [&str; 8] = ["R", "G", "B", "A", "X", "Y", "Z", "D"];
 
 fn read_exr(path: &Path) -> Result<ImageF32> {
     use exr::prelude::*;
-    let image = read_first_flat_layer_from_file(path)
-        .map_err(|e| DataError::file(path, format!("cannot read EXR: {e}")))?;
+    let image =
+        read_first_flat_layer_from_file(path).map_err(|e| DataError::file(path, format!("cannot read EXR: {e}")))?;
     let layer = &image.layer_data;
     let (w, h) = (layer.size.width(), layer.size.height());
     // exr sorts channels alphabetically; reorder so RGB(A) / XYZ come out in their natural order.
@@ -197,10 +186,7 @@ fn read_exr(path: &Path) -> Result<ImageF32> {
         .collect();
     let rank = |name: &str| {
         let last = name.rsplit('.').next().unwrap_or(name).to_ascii_uppercase();
-        EXR_ORDER
-            .iter()
-            .position(|n| *n == last)
-            .unwrap_or(EXR_ORDER.len())
+        EXR_ORDER.iter().position(|n| *n == last).unwrap_or(EXR_ORDER.len())
     };
     chans.sort_by_key(|(n, _)| rank(n));
     if chans.is_empty() {
@@ -210,10 +196,7 @@ fn read_exr(path: &Path) -> Result<ImageF32> {
     let mut data = vec![0.0f32; w * h * c];
     for (ci, (_, values)) in chans.iter().enumerate() {
         if values.len() != w * h {
-            return Err(DataError::file(
-                path,
-                "EXR channel size does not match the image size",
-            ));
+            return Err(DataError::file(path, "EXR channel size does not match the image size"));
         }
         for (p, v) in values.iter().enumerate() {
             data[p * c + ci] = *v;
@@ -223,10 +206,9 @@ fn read_exr(path: &Path) -> Result<ImageF32> {
 }
 
 fn read_npy(path: &Path) -> Result<ImageF32> {
-    let bytes =
-        std::fs::read(path).map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
-    let npy = npyz::NpyFile::new(&bytes[..])
-        .map_err(|e| DataError::file(path, format!("not a valid .npy file: {e}")))?;
+    let bytes = std::fs::read(path).map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
+    let npy =
+        npyz::NpyFile::new(&bytes[..]).map_err(|e| DataError::file(path, format!("not a valid .npy file: {e}")))?;
     npy_to_image(path, npy)
 }
 
@@ -263,22 +245,13 @@ pub fn read_npy_values<R: std::io::Read>(path: &Path, npy: npyz::NpyFile<R>) -> 
             .into_vec::<f32>()
             .map_err(|e| DataError::file(path, format!("cannot read array data: {e}")));
     }
-    Ok(read_npy_f64(path, npy)?
-        .into_iter()
-        .map(|v| v as f32)
-        .collect())
+    Ok(read_npy_f64(path, npy)?.into_iter().map(|v| v as f32).collect())
 }
 
 fn npy_type<R: std::io::Read>(path: &Path, npy: &npyz::NpyFile<R>) -> Result<String> {
     match npy.dtype() {
-        npyz::DType::Plain(ts) => Ok(ts
-            .to_string()
-            .trim_start_matches(['<', '>', '|', '='])
-            .to_string()),
-        other => Err(DataError::file(
-            path,
-            format!("unsupported array dtype {other:?}"),
-        )),
+        npyz::DType::Plain(ts) => Ok(ts.to_string().trim_start_matches(['<', '>', '|', '=']).to_string()),
+        other => Err(DataError::file(path, format!("unsupported array dtype {other:?}"))),
     }
 }
 
@@ -289,36 +262,16 @@ pub fn read_npy_f64<R: std::io::Read>(path: &Path, npy: npyz::NpyFile<R>) -> Res
     let err = |e: std::io::Error| DataError::file(path, format!("cannot read array data: {e}"));
     Ok(match type_str.as_str() {
         "f8" => npy.into_vec::<f64>().map_err(err)?,
-        "f4" => npy
-            .into_vec::<f32>()
-            .map_err(err)?
-            .into_iter()
-            .map(f64::from)
-            .collect(),
-        "i4" => npy
-            .into_vec::<i32>()
-            .map_err(err)?
-            .into_iter()
-            .map(f64::from)
-            .collect(),
+        "f4" => npy.into_vec::<f32>().map_err(err)?.into_iter().map(f64::from).collect(),
+        "i4" => npy.into_vec::<i32>().map_err(err)?.into_iter().map(f64::from).collect(),
         "i8" => npy
             .into_vec::<i64>()
             .map_err(err)?
             .into_iter()
             .map(|v| v as f64)
             .collect(),
-        "u1" => npy
-            .into_vec::<u8>()
-            .map_err(err)?
-            .into_iter()
-            .map(f64::from)
-            .collect(),
-        "u2" => npy
-            .into_vec::<u16>()
-            .map_err(err)?
-            .into_iter()
-            .map(f64::from)
-            .collect(),
+        "u1" => npy.into_vec::<u8>().map_err(err)?.into_iter().map(f64::from).collect(),
+        "u2" => npy.into_vec::<u16>().map_err(err)?.into_iter().map(f64::from).collect(),
         "b1" => npy
             .into_vec::<bool>()
             .map_err(err)?
@@ -331,24 +284,15 @@ pub fn read_npy_f64<R: std::io::Read>(path: &Path, npy: npyz::NpyFile<R>) -> Res
                 "float16 arrays are not supported; save as float32",
             ))
         }
-        _ => {
-            return Err(DataError::file(
-                path,
-                format!("unsupported array dtype '{type_str}'"),
-            ))
-        }
+        _ => return Err(DataError::file(path, format!("unsupported array dtype '{type_str}'"))),
     })
 }
 
 /// Writes to a temporary file beside `path` and renames it into place, so readers never see a
 /// partial file. Creates the parent directory.
-pub fn write_atomic(
-    path: &Path,
-    write: impl FnOnce(&Path) -> std::result::Result<(), String>,
-) -> Result<()> {
+pub fn write_atomic(path: &Path, write: impl FnOnce(&Path) -> std::result::Result<(), String>) -> Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir)
-            .map_err(|e| DataError::file(dir, format!("cannot create directory: {e}")))?;
+        std::fs::create_dir_all(dir).map_err(|e| DataError::file(dir, format!("cannot create directory: {e}")))?;
     }
     let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("out");
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("tmp");
@@ -366,9 +310,7 @@ pub fn write_atomic(
 
 /// Writes bytes atomically (JSON, TOML, PLY headers…).
 pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    write_atomic(path, |tmp| {
-        std::fs::write(tmp, bytes).map_err(|e| e.to_string())
-    })
+    write_atomic(path, |tmp| std::fs::write(tmp, bytes).map_err(|e| e.to_string()))
 }
 
 fn png_color(channels: usize, sixteen: bool) -> image::ExtendedColorType {
@@ -428,13 +370,7 @@ pub fn write_png16(path: &Path, img: &ImageF32) -> Result<()> {
 }
 
 /// Writes a 16-bit PNG of raw integer values (e.g. depth in millimetres).
-pub fn write_png16_raw(
-    path: &Path,
-    width: usize,
-    height: usize,
-    channels: usize,
-    raw: &[u16],
-) -> Result<()> {
+pub fn write_png16_raw(path: &Path, width: usize, height: usize, channels: usize, raw: &[u16]) -> Result<()> {
     if !(1..=4).contains(&channels) || raw.len() != width * height * channels {
         return Err(DataError::file(path, "bad 16-bit PNG buffer"));
     }
@@ -461,24 +397,13 @@ pub fn write_exr(path: &Path, img: &ImageF32) -> Result<()> {
         2 => &["Y", "A"],
         3 => &["R", "G", "B"],
         4 => &["R", "G", "B", "A"],
-        n => {
-            return Err(DataError::file(
-                path,
-                format!("cannot write {n} channels as EXR"),
-            ))
-        }
+        n => return Err(DataError::file(path, format!("cannot write {n} channels as EXR"))),
     };
     let list: SmallVec<[AnyChannel<FlatSamples>; 4]> = names
         .iter()
         .enumerate()
         .map(|(c, name)| {
-            let values: Vec<f32> = img
-                .data
-                .iter()
-                .skip(c)
-                .step_by(img.channels)
-                .copied()
-                .collect();
+            let values: Vec<f32> = img.data.iter().skip(c).step_by(img.channels).copied().collect();
             AnyChannel::new(*name, FlatSamples::F32(values))
         })
         .collect();
@@ -489,9 +414,7 @@ pub fn write_exr(path: &Path, img: &ImageF32) -> Result<()> {
         AnyChannels::sort(list),
     );
     let image = Image::from_layer(layer);
-    write_atomic(path, |tmp| {
-        image.write().to_file(tmp).map_err(|e| e.to_string())
-    })
+    write_atomic(path, |tmp| image.write().to_file(tmp).map_err(|e| e.to_string()))
 }
 
 /// Writes a float32 `.npy` array of shape H×W (1 channel) or H×W×C.
@@ -510,9 +433,7 @@ pub fn write_npy(path: &Path, img: &ImageF32) -> Result<()> {
             .writer(std::io::BufWriter::new(file))
             .begin_nd()
             .map_err(|e| e.to_string())?;
-        writer
-            .extend(img.data.iter().copied())
-            .map_err(|e| e.to_string())?;
+        writer.extend(img.data.iter().copied()).map_err(|e| e.to_string())?;
         writer.finish().map_err(|e| e.to_string())
     })
 }
@@ -522,9 +443,7 @@ mod tests {
     use super::*;
 
     fn ramp(w: usize, h: usize, c: usize) -> ImageF32 {
-        let data = (0..w * h * c)
-            .map(|i| (i as f32 * 0.37).sin() * 0.5 + 0.5)
-            .collect();
+        let data = (0..w * h * c).map(|i| (i as f32 * 0.37).sin() * 0.5 + 0.5).collect();
         ImageF32::from_data(w, h, c, data)
     }
 
@@ -605,10 +524,7 @@ mod tests {
         assert!(e.contains("bad.png"), "{e}");
         let bad = dir.path().join("bad.npy");
         std::fs::write(&bad, b"\x93NUMPY garbage").unwrap();
-        assert!(read_float_map(&bad)
-            .unwrap_err()
-            .to_string()
-            .contains("bad.npy"));
+        assert!(read_float_map(&bad).unwrap_err().to_string().contains("bad.npy"));
     }
 
     #[test]

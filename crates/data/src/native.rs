@@ -32,12 +32,7 @@ impl Ctx<'_> {
     }
 }
 
-fn get_f64(
-    obj: &Map<String, Value>,
-    top: &Map<String, Value>,
-    key: &str,
-    ctx: &Ctx,
-) -> Result<f64> {
+fn get_f64(obj: &Map<String, Value>, top: &Map<String, Value>, key: &str, ctx: &Ctx) -> Result<f64> {
     let v = obj.get(key).or_else(|| top.get(key));
     match v {
         Some(v) => v
@@ -53,10 +48,7 @@ fn parse_matrix(v: Option<&Value>, ctx: &Ctx) -> Result<DMat4> {
         .and_then(Value::as_array)
         .ok_or_else(|| ctx.err("transform_matrix", "missing or not a 4×4 array"))?;
     if rows.len() != 4 && rows.len() != 3 {
-        return Err(ctx.err(
-            "transform_matrix",
-            format!("expected 4 rows, found {}", rows.len()),
-        ));
+        return Err(ctx.err("transform_matrix", format!("expected 4 rows, found {}", rows.len())));
     }
     let mut m = [[0.0f64; 4]; 4];
     m[3] = [0.0, 0.0, 0.0, 1.0];
@@ -66,12 +58,9 @@ fn parse_matrix(v: Option<&Value>, ctx: &Ctx) -> Result<DMat4> {
             .filter(|r| r.len() == 4)
             .ok_or_else(|| ctx.err("transform_matrix", format!("row {i} is not 4 numbers")))?;
         for (j, x) in row.iter().enumerate() {
-            m[i][j] = x.as_f64().ok_or_else(|| {
-                ctx.err(
-                    "transform_matrix",
-                    format!("entry [{i}][{j}] is not a number"),
-                )
-            })?;
+            m[i][j] = x
+                .as_f64()
+                .ok_or_else(|| ctx.err("transform_matrix", format!("entry [{i}][{j}] is not a number")))?;
         }
     }
     // JSON is row-major; glam is column-major.
@@ -85,28 +74,19 @@ fn camera_of(obj: &Map<String, Value>, top: &Map<String, Value>, ctx: &Ctx) -> R
         .and_then(Value::as_str)
         .unwrap_or("PINHOLE");
     if !matches!(model, "PINHOLE" | "OPENCV" | "SIMPLE_PINHOLE") {
-        return Err(ctx.err(
-            "camera_model",
-            format!("'{model}' is not supported (pinhole only)"),
-        ));
+        return Err(ctx.err("camera_model", format!("'{model}' is not supported (pinhole only)")));
     }
     for k in ["k1", "k2", "k3", "k4", "p1", "p2"] {
         if let Some(v) = obj.get(k).or_else(|| top.get(k)).and_then(Value::as_f64) {
             if v != 0.0 {
-                return Err(ctx.err(
-                    k,
-                    "lens distortion is not supported: undistort the images first",
-                ));
+                return Err(ctx.err(k, "lens distortion is not supported: undistort the images first"));
             }
         }
     }
     let w = get_f64(obj, top, "w", ctx)?;
     let h = get_f64(obj, top, "h", ctx)?;
     if w < 1.0 || h < 1.0 || w.fract() != 0.0 || h.fract() != 0.0 {
-        return Err(ctx.err(
-            "w",
-            format!("image size {w}×{h} is not a positive integer size"),
-        ));
+        return Err(ctx.err("w", format!("image size {w}×{h} is not a positive integer size")));
     }
     let fx = get_f64(obj, top, "fl_x", ctx)?;
     let fy = match get_f64(obj, top, "fl_y", ctx) {
@@ -122,12 +102,7 @@ fn camera_of(obj: &Map<String, Value>, top: &Map<String, Value>, ctx: &Ctx) -> R
     Ok(cam)
 }
 
-fn opt_path(
-    obj: &Map<String, Value>,
-    key: &str,
-    root: &Path,
-    ctx: &Ctx,
-) -> Result<Option<PathBuf>> {
+fn opt_path(obj: &Map<String, Value>, key: &str, root: &Path, ctx: &Ctx) -> Result<Option<PathBuf>> {
     match obj.get(key) {
         None | Some(Value::Null) => Ok(None),
         Some(Value::String(s)) => Ok(Some(root.join(s))),
@@ -145,8 +120,7 @@ fn load_frame(
     png_depth_scale: f64,
 ) -> Result<Frame> {
     let camera = camera_of(obj, top, ctx)?;
-    let image_path =
-        opt_path(obj, "file_path", root, ctx)?.ok_or_else(|| ctx.err("file_path", "missing"))?;
+    let image_path = opt_path(obj, "file_path", root, ctx)?.ok_or_else(|| ctx.err("file_path", "missing"))?;
     let rgb = dataset::load_rgb(&image_path, &camera)?;
     let path = |k: &str| opt_path(obj, k, root, ctx);
     let hdr = path("hdr_file_path")?
@@ -194,11 +168,7 @@ fn normalize_name(s: &str) -> String {
     s.trim_start_matches("./").to_string()
 }
 
-fn filename_set(
-    top: &Map<String, Value>,
-    key: &str,
-    json: &Path,
-) -> Result<Option<HashSet<String>>> {
+fn filename_set(top: &Map<String, Value>, key: &str, json: &Path) -> Result<Option<HashSet<String>>> {
     match top.get(key) {
         None | Some(Value::Null) => Ok(None),
         Some(Value::Array(a)) => a
@@ -221,20 +191,17 @@ fn filename_set(
 
 /// Runs `f` over items in parallel and returns the results in order, or the first error in order
 /// (so the message a user sees does not depend on thread timing).
-fn par_load<T: Sync, R: Send>(
-    items: &[T],
-    f: impl Fn(usize, &T) -> Result<R> + Sync,
-) -> Result<Vec<R>> {
+fn par_load<T: Sync, R: Send>(items: &[T], f: impl Fn(usize, &T) -> Result<R> + Sync) -> Result<Vec<R>> {
     let results: Vec<Result<R>> = items.par_iter().enumerate().map(|(i, t)| f(i, t)).collect();
     results.into_iter().collect()
 }
 
 pub fn load(root: &Path) -> Result<Dataset> {
     let json_path = root.join("transforms.json");
-    let text = std::fs::read_to_string(&json_path)
-        .map_err(|e| DataError::file(&json_path, format!("cannot read: {e}")))?;
-    let value: Value = serde_json::from_str(&text)
-        .map_err(|e| DataError::file(&json_path, format!("invalid JSON: {e}")))?;
+    let text =
+        std::fs::read_to_string(&json_path).map_err(|e| DataError::file(&json_path, format!("cannot read: {e}")))?;
+    let value: Value =
+        serde_json::from_str(&text).map_err(|e| DataError::file(&json_path, format!("invalid JSON: {e}")))?;
     let top = value
         .as_object()
         .ok_or_else(|| DataError::file(&json_path, "the top level is not a JSON object"))?;
@@ -250,13 +217,7 @@ pub fn load(root: &Path) -> Result<Dataset> {
         Some(v) => v
             .as_f64()
             .filter(|s| s.is_finite() && *s > 0.0)
-            .ok_or_else(|| {
-                DataError::field(
-                    &json_path,
-                    "depth_unit_scale_factor",
-                    "not a positive number",
-                )
-            })?,
+            .ok_or_else(|| DataError::field(&json_path, "depth_unit_scale_factor", "not a positive number"))?,
     };
     let train_names = filename_set(top, "train_filenames", &json_path)?;
     let test_names = filename_set(top, "test_filenames", &json_path)?;
@@ -269,21 +230,16 @@ pub fn load(root: &Path) -> Result<Dataset> {
             json: &json_path,
             entry: format!("frames[{i}]"),
         };
-        let obj = fj
-            .as_object()
-            .ok_or_else(|| ctx.err("", "not a JSON object"))?;
+        let obj = fj.as_object().ok_or_else(|| ctx.err("", "not a JSON object"))?;
         let file = obj
             .get("file_path")
             .and_then(Value::as_str)
             .map(normalize_name)
             .ok_or_else(|| ctx.err("file_path", "missing or not a string"))?;
         let split = if let Some(s) = obj.get("split") {
-            s.as_str().and_then(Split::parse).ok_or_else(|| {
-                ctx.err(
-                    "split",
-                    format!("expected \"train\" or \"test\", found {s}"),
-                )
-            })?
+            s.as_str()
+                .and_then(Split::parse)
+                .ok_or_else(|| ctx.err("split", format!("expected \"train\" or \"test\", found {s}")))?
         } else if train_names.is_some() || test_names.is_some() {
             let in_train = train_names.as_ref().is_some_and(|s| s.contains(&file));
             let in_test = test_names.as_ref().is_some_and(|s| s.contains(&file));
@@ -334,13 +290,7 @@ pub fn load(root: &Path) -> Result<Dataset> {
             }
             Some(p)
         }
-        Some(v) => {
-            return Err(DataError::field(
-                &json_path,
-                "mesh_path",
-                format!("not a path: {v}"),
-            ))
-        }
+        Some(v) => return Err(DataError::field(&json_path, "mesh_path", format!("not a path: {v}"))),
     };
     let relight = load_relight(root, &json_path, top, png_depth_scale)?;
     let ldr_transfer = top
@@ -388,9 +338,7 @@ fn load_relight(
             json: json_path,
             entry: format!("relight[{k}]"),
         };
-        let obj = entry
-            .as_object()
-            .ok_or_else(|| ctx.err("", "not a JSON object"))?;
+        let obj = entry.as_object().ok_or_else(|| ctx.err("", "not a JSON object"))?;
         let spec = opt_path(obj, "spec", root, &ctx)?.ok_or_else(|| ctx.err("spec", "missing"))?;
         if !spec.is_file() {
             return Err(ctx.err("spec", format!("{} not found", spec.display())));

@@ -29,8 +29,7 @@ fn list_dir(dir: &Path, exts: &[&str]) -> Result<Option<Vec<PathBuf>>> {
     if !dir.is_dir() {
         return Ok(None);
     }
-    let rd =
-        std::fs::read_dir(dir).map_err(|e| DataError::file(dir, format!("cannot list: {e}")))?;
+    let rd = std::fs::read_dir(dir).map_err(|e| DataError::file(dir, format!("cannot list: {e}")))?;
     let mut files: Vec<PathBuf> = rd
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| {
@@ -54,8 +53,7 @@ fn read_matrix(
         .map_err(|e| DataError::field(path, name, format!("cannot read: {e}")))?
         .ok_or_else(|| DataError::field(path, name, "missing"))?;
     let shape: Vec<u64> = npy.shape().to_vec();
-    let values = imageio::read_npy_f64(path, npy)
-        .map_err(|e| DataError::field(path, name, e.to_string()))?;
+    let values = imageio::read_npy_f64(path, npy).map_err(|e| DataError::field(path, name, e.to_string()))?;
     let rows = match shape.as_slice() {
         [4, 4] => 4,
         [3, 4] => 3,
@@ -73,11 +71,7 @@ fn read_matrix(
         for j in 0..4 {
             let v = values[i * 4 + j];
             if !v.is_finite() {
-                return Err(DataError::field(
-                    path,
-                    name,
-                    format!("entry [{i}][{j}] is not finite"),
-                ));
+                return Err(DataError::field(path, name, format!("entry [{i}][{j}] is not finite")));
             }
             m[i][j] = v;
         }
@@ -87,18 +81,11 @@ fn read_matrix(
 
 /// Camera from a VolSDF/IDR projection matrix P = K·W2C, with the release's integer-pixel ray
 /// convention converted to ours.
-fn camera_from_projection(
-    p4: [[f64; 4]; 4],
-    width: usize,
-    height: usize,
-) -> std::result::Result<Camera, String> {
+fn camera_from_projection(p4: [[f64; 4]; 4], width: usize, height: usize) -> std::result::Result<Camera, String> {
     let p = [p4[0], p4[1], p4[2]];
     let (k, c2w) = decompose_projection(p)?;
     if k.y_axis.x.abs() > 1e-6 * k.x_axis.x.abs() {
-        return Err(format!(
-            "skewed intrinsics (skew {}) are not supported",
-            k.y_axis.x
-        ));
+        return Err(format!("skewed intrinsics (skew {}) are not supported", k.y_axis.x));
     }
     let cam = Camera {
         width,
@@ -131,10 +118,7 @@ pub fn load(root: &Path) -> Result<Dataset> {
     let images = list_dir(&image_dir, &["png", "jpg", "exr"])?
         .ok_or_else(|| DataError::file(&image_dir, "directory not found"))?;
     if images.is_empty() {
-        return Err(DataError::file(
-            &image_dir,
-            "no images: the 'train' split is empty",
-        ));
+        return Err(DataError::file(&image_dir, "no images: the 'train' split is empty"));
     }
     let val_dir = root.join("val");
     let vals = list_dir(&val_dir, &["png", "jpg", "exr"])?.unwrap_or_default();
@@ -153,11 +137,7 @@ pub fn load(root: &Path) -> Result<Dataset> {
             Some(files) if files.len() == images.len() => Ok(Some(files)),
             Some(files) => Err(DataError::file(
                 &dir,
-                format!(
-                    "has {} files but image/ has {} images",
-                    files.len(),
-                    images.len()
-                ),
+                format!("has {} files but image/ has {} images", files.len(), images.len()),
             )),
         }
     };
@@ -171,17 +151,13 @@ pub fn load(root: &Path) -> Result<Dataset> {
     for i in 0..images.len() {
         let name = format!("world_mat_{i}");
         let m = read_matrix(&mut npz, &npz_path, &name)?;
-        cameras.push(
-            camera_from_projection(m, w, h).map_err(|e| DataError::field(&npz_path, &name, e))?,
-        );
+        cameras.push(camera_from_projection(m, w, h).map_err(|e| DataError::field(&npz_path, &name, e))?);
     }
     let mut val_cameras = Vec::new();
     for i in 0..vals.len() {
         let name = format!("val_mat_{i}");
         let m = read_matrix(&mut npz, &npz_path, &name)?;
-        val_cameras.push(
-            camera_from_projection(m, w, h).map_err(|e| DataError::field(&npz_path, &name, e))?,
-        );
+        val_cameras.push(camera_from_projection(m, w, h).map_err(|e| DataError::field(&npz_path, &name, e))?);
     }
     // scale_mat_0 must be a similarity (VolSDF normalization); read it to validate the file.
     let scale = read_matrix(&mut npz, &npz_path, "scale_mat_0")?;
@@ -226,10 +202,7 @@ pub fn load(root: &Path) -> Result<Dataset> {
                 .as_ref()
                 .map(|m| dataset::load_mask(&m[i], &camera))
                 .transpose()?;
-            let hdr = hdrs
-                .as_ref()
-                .map(|m| dataset::load_rgb(&m[i], &camera))
-                .transpose()?;
+            let hdr = hdrs.as_ref().map(|m| dataset::load_rgb(&m[i], &camera)).transpose()?;
             let albedo = material(&stem, "kd")
                 .map(|p| dataset::load_float(&p, &camera, 3, "a Kd map"))
                 .transpose()?;
@@ -262,10 +235,7 @@ pub fn load(root: &Path) -> Result<Dataset> {
             let image_path = vals[i].clone();
             let rgb = dataset::load_rgb(&image_path, &camera)?;
             Ok(Frame {
-                name: format!(
-                    "val_{}",
-                    image_path.file_stem().unwrap_or_default().to_string_lossy()
-                ),
+                name: format!("val_{}", image_path.file_stem().unwrap_or_default().to_string_lossy()),
                 split: Split::Test,
                 camera,
                 image_path,

@@ -47,11 +47,8 @@ impl Summary {
             specular: count(&|f| f.specular.is_some()),
             roughness: count(&|f| f.roughness.is_some()),
         };
-        let mut resolutions: Vec<(usize, usize)> = ds
-            .frames
-            .iter()
-            .map(|f| (f.camera.width, f.camera.height))
-            .collect();
+        let mut resolutions: Vec<(usize, usize)> =
+            ds.frames.iter().map(|f| (f.camera.width, f.camera.height)).collect();
         resolutions.sort();
         resolutions.dedup();
         let (mut lo, mut hi, mut valid, mut total) = (f64::INFINITY, 0.0f64, 0usize, 0usize);
@@ -97,16 +94,8 @@ impl fmt::Display for Summary {
         let n = self.train_views + self.test_views;
         writeln!(f, "dataset      {}", self.root)?;
         writeln!(f, "format       {format}")?;
-        writeln!(
-            f,
-            "views        {} train, {} test",
-            self.train_views, self.test_views
-        )?;
-        let res: Vec<String> = self
-            .resolutions
-            .iter()
-            .map(|(w, h)| format!("{w}×{h}"))
-            .collect();
+        writeln!(f, "views        {} train, {} test", self.train_views, self.test_views)?;
+        let res: Vec<String> = self.resolutions.iter().map(|(w, h)| format!("{w}×{h}")).collect();
         writeln!(f, "resolution   {}", res.join(", "))?;
         let m = &self.maps;
         let maps = [
@@ -154,11 +143,7 @@ impl fmt::Display for Summary {
             c[0], c[1], c[2], self.normalization.scale
         )?;
         writeln!(f, "ldr          {}", self.ldr_transfer)?;
-        writeln!(
-            f,
-            "mesh         {}",
-            self.mesh_path.as_deref().unwrap_or("–")
-        )?;
+        writeln!(f, "mesh         {}", self.mesh_path.as_deref().unwrap_or("–"))?;
         if self.relight_sets.is_empty() {
             write!(f, "relight      –")?;
         } else {
