@@ -1,0 +1,309 @@
+//! `i2sdf synth`: renders a scene description into a dataset directory in the native format
+//! (transforms.json + images + ground truth), with held-out test views and their relit ground
+//! truth.
+
+use crate::camera::{place_camera, Camera};
+use crate::edit::{EditOp, EditSpec};
+use crate::noise::DepthNoise;
+use crate::output::{self, FramePaths};
+use crate::scene::SceneDesc;
+use crate::tracer::{render_view, RenderScene, ViewRender};
+use glam::Vec3;
+use i2sdf_data::DataError;
+use i2sdf_render::color::luminance;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use rayon::prelude::*;
+use serde_json::json;
+use std::path::Path;
+
+/// Everything that shapes a rendered dataset besides the scene.
+#[derive(Clone, Debug)]
+pub struct SynthOptions {
+    pub width: usize,
+    pub height: usize,
+    /// Total number of views; one in six (at least one) is held out for testing.
+    pub views: usize,
+    pub spp: u32,
+    pub seed: u64,
+    pub max_depth: u32,
+    pub depth_noise: DepthNoise,
+    /// Free-form provenance written into transforms.json (e.g. the preset name).
+    pub preset: Option<String>,
+}
+
+impl Default for SynthOptions {
+    fn default() -> Self {
+        SynthOptions {
+            width: 160,
+            height: 120,
+            views: 48,
+            spp: 128,
+            seed: 0,
+            max_depth: 64,
+            depth_noise: DepthNoise::None,
+            preset: None,
+        }
+    }
+}
+
+impl SynthOptions {
+    pub fn test_views(&self) -> usize {
+        ((self.views as f32 / 6.0).round() as usize).clamp(1, self.views.saturating_sub(1).max(1))
+    }
+
+    pub fn validate(&self) -> Result<(), DataError> {
+        if self.width < 8 || self.height < 8 || self.width > 8192 || self.height > 8192 {
+            return Err(DataError::invalid(format!(
+                "image size {}×{} must be within 8..=8192",
+                self.width, self.height
+            )));
+        }
+        if self.views < 2 {
+            return Err(DataError::invalid("--views must be at least 2 (train and test views)"));
+        }
+        if self.spp == 0 {
+            return Err(DataError::invalid("--spp must be at least 1"));
+        }
+        Ok(())
+    }
+}
+
+/// One camera of the dataset.
+#[derive(Clone, Debug)]
+pub struct ViewSpec {
+    pub camera: Camera,
+    pub test: bool,
+    pub stem: String,
+}
+
+/// Train cameras spread their yaw around the full circle (inside-out capture); test cameras are
+/// placed independently with yaws halfway between, so they are novel views of the same room.
+pub fn plan_views(scene: &RenderScene, opts: &SynthOptions) -> Result<Vec<ViewSpec>, DataError> {
+    let n_test = opts.test_views();
+    let n_train = opts.views - n_test;
+    let mut rng = Pcg64::seed_from_u64(opts.seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ 0xCA3E_7A5);
+    let mut views = Vec::with_capacity(opts.views);
+    let offset = rng.gen_range(0.0..std::f32::consts::TAU);
+    for i in 0..n_train {
+        let yaw = offset + std::f32::consts::TAU * i as f32 / n_train as f32;
+        views.push(ViewSpec {
+            camera: place_camera(scene, &mut rng, yaw, opts.width, opts.height)?,
+            test: false,
+            stem: format!("{i:04}"),
+        });
+    }
+    for j in 0..n_test {
+        let yaw = offset + std::f32::consts::TAU * (j as f32 + 0.5) / n_test as f32;
+        let stem = format!("{:04}", n_train + j);
+        views.push(ViewSpec {
+            camera: place_camera(scene, &mut rng, yaw, opts.width, opts.height)?,
+            test: true,
+            stem,
+        });
+    }
+    Ok(views)
+}
+
+/// Exposure that maps the log-average luminance of the non-emitter pixels of the training views
+/// to 0.18 (Reinhard's key value): emitters then saturate in the LDR images, as in photographs.
+pub fn auto_exposure(renders: &[(&ViewSpec, &ViewRender)]) -> f32 {
+    let (mut sum, mut n) = (0.0f64, 0usize);
+    for (spec, r) in renders {
+        if spec.test {
+            continue;
+        }
+        let ones = vec![Vec3::ONE; r.emitters];
+        for (l, &m) in r.hdr(&ones).iter().zip(&r.emitter_mask) {
+            if !m {
+                sum += (1e-4 + luminance(*l) as f64).ln();
+                n += 1;
+            }
+        }
+    }
+    if n == 0 {
+        return 1.0;
+    }
+    (0.18 / (sum / n as f64).exp()) as f32
+}
+
+/// The relit test conditions: the first emitter 2× brighter and warmer, and the last one off
+/// (halved instead when the scene has a single emitter, which would otherwise go black).
+pub fn default_relight_specs(scene: &RenderScene) -> Vec<(String, EditSpec)> {
+    let centre = |k: usize| {
+        let (lo, hi) = scene.emitters[k].bounds;
+        (0.5 * (lo + hi)).to_array()
+    };
+    let first = EditSpec {
+        ops: vec![EditOp::Relight {
+            at: centre(0),
+            scale: 2.0,
+            color: [1.0, 0.8, 0.6],
+        }],
+    };
+    let last = scene.emitters.len() - 1;
+    let (name, scale) = if last > 0 {
+        ("light_off", 0.0)
+    } else {
+        ("light_dim", 0.5)
+    };
+    let second = EditSpec {
+        ops: vec![EditOp::Relight {
+            at: centre(last),
+            scale,
+            color: [1.0; 3],
+        }],
+    };
+    vec![("brighter_warmer".to_string(), first), (name.to_string(), second)]
+}
+
+/// What a finished dataset looks like, for the caller's summary.
+#[derive(Clone, Debug)]
+pub struct SynthSummary {
+    pub train_views: usize,
+    pub test_views: usize,
+    pub triangles: usize,
+    pub emitters: usize,
+    pub exposure: f32,
+    pub render_seconds: f64,
+}
+
+/// Renders `desc` with `opts` into `out` (created if needed). `on_row` is called once per
+/// rendered image row (views × height in all), from worker threads.
+pub fn generate(
+    desc: SceneDesc,
+    opts: &SynthOptions,
+    out: &Path,
+    on_row: &(dyn Fn() + Sync),
+) -> Result<SynthSummary, DataError> {
+    opts.validate()?;
+    desc.validate(Path::new("scene"))?;
+    std::fs::create_dir_all(out).map_err(|e| DataError::file(out, format!("cannot create: {e}")))?;
+    let scene = RenderScene::new(desc);
+    let views = plan_views(&scene, opts)?;
+    let start = std::time::Instant::now();
+    let renders: Vec<ViewRender> = views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| render_view(&scene, &v.camera, opts.spp, opts.seed, i as u32, opts.max_depth, on_row))
+        .collect();
+    let render_seconds = start.elapsed().as_secs_f64();
+    for (v, r) in views.iter().zip(&renders) {
+        if let Some(i) = r.depth.iter().position(|d| !d.is_finite()) {
+            return Err(DataError::invalid(format!(
+                "view {}: pixel {i} sees no surface: the room is not closed",
+                v.stem
+            )));
+        }
+    }
+    let pairs: Vec<(&ViewSpec, &ViewRender)> = views.iter().zip(&renders).collect();
+    let exposure = auto_exposure(&pairs);
+    let noisy = opts.depth_noise != DepthNoise::None;
+    let ones = vec![Vec3::ONE; scene.emitters.len()];
+
+    let frame_paths: Vec<FramePaths> = views.iter().map(|v| FramePaths::new(&v.stem, noisy)).collect();
+    pairs
+        .par_iter()
+        .zip(&frame_paths)
+        .enumerate()
+        .try_for_each(|(i, ((_, r), paths))| {
+            let mut depth = r.depth.clone();
+            let mut rng = Pcg64::seed_from_u64(opts.seed ^ (0xD3_9751 + i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            opts.depth_noise.apply(&mut depth, &mut rng);
+            output::write_view(out, paths, r, &r.hdr(&ones), &depth, exposure)
+        })?;
+
+    // Relit ground truth of the test views (exact by linearity in the emitters; see tracer.rs).
+    let mut relight_json = Vec::new();
+    for (name, spec) in default_relight_specs(&scene) {
+        let spec_rel = format!("relight/{name}.toml");
+        output::write_atomic(&out.join(&spec_rel), spec.to_toml_string().as_bytes())?;
+        let gains = spec.emitter_gains(&scene.emitters);
+        let mut frames = Vec::new();
+        for (v, r) in pairs.iter().filter(|(v, _)| v.test) {
+            let hdr = r.hdr(&gains);
+            let (png, exr) = (
+                format!("relight/{name}/{}.png", v.stem),
+                format!("relight/{name}/{}.exr", v.stem),
+            );
+            i2sdf_data::imageio::write_png(&out.join(&png), &output::ldr_image(r.width, r.height, &hdr, exposure))?;
+            i2sdf_data::imageio::write_exr(&out.join(&exr), &output::rgb_image(r.width, r.height, &hdr))?;
+            frames.push(json!({"file_path": png, "hdr_file_path": exr, "transform_matrix": matrix_json(&v.camera)}));
+        }
+        relight_json.push(json!({"spec": spec_rel, "frames": frames}));
+    }
+
+    scene.mesh.write_ply(&out.join("mesh.ply"))?;
+    output::write_atomic(&out.join("scene.toml"), scene.desc.to_toml_string().as_bytes())?;
+    let transforms = transforms_json(&scene, opts, &views, &frame_paths, exposure, relight_json);
+    output::write_atomic(
+        &out.join("transforms.json"),
+        serde_json::to_string_pretty(&transforms).expect("JSON").as_bytes(),
+    )?;
+    let n_test = views.iter().filter(|v| v.test).count();
+    Ok(SynthSummary {
+        train_views: views.len() - n_test,
+        test_views: n_test,
+        triangles: scene.mesh.triangles.len(),
+        emitters: scene.emitters.len(),
+        exposure,
+        render_seconds,
+    })
+}
+
+fn matrix_json(cam: &Camera) -> serde_json::Value {
+    let m = cam.c2w();
+    // Row-major rows, as nerfstudio writes them.
+    json!((0..4)
+        .map(|r| (0..4).map(|c| m.col(c)[r]).collect::<Vec<f32>>())
+        .collect::<Vec<_>>())
+}
+
+fn transforms_json(
+    scene: &RenderScene,
+    opts: &SynthOptions,
+    views: &[ViewSpec],
+    paths: &[FramePaths],
+    exposure: f32,
+    relight: Vec<serde_json::Value>,
+) -> serde_json::Value {
+    let cam = &views[0].camera;
+    let frames: Vec<_> = views
+        .iter()
+        .zip(paths)
+        .map(|(v, p)| {
+            let mut f = json!({
+                "file_path": p.image, "hdr_file_path": p.hdr, "depth_file_path": p.depth,
+                "normal_file_path": p.normal, "emitter_mask_path": p.mask,
+                "albedo_file_path": p.kd, "specular_file_path": p.ks, "roughness_file_path": p.roughness,
+                "split": if v.test { "test" } else { "train" },
+                "transform_matrix": matrix_json(&v.camera),
+            });
+            if let Some(gt) = &p.depth_gt {
+                f["depth_gt_file_path"] = json!(gt);
+            }
+            f
+        })
+        .collect();
+    let (mu, sigma) = match opts.depth_noise {
+        DepthNoise::None => ("0", "0"),
+        DepthNoise::Sigma => ("0.0001125 z^2 + 0.0048875", "0.002925 z^2 + 0.003325"),
+        DepthNoise::ThreeSigma => ("0.0001125 z^2 + 0.0048875", "3 (0.002925 z^2 + 0.003325)"),
+    };
+    json!({
+        "fl_x": cam.fx, "fl_y": cam.fy, "cx": cam.cx, "cy": cam.cy, "w": cam.width, "h": cam.height,
+        "ldr": {"transfer": "srgb", "exposure": exposure,
+                "encoding": "png = srgb(clamp(exposure * hdr, 0, 1)), 8 bit; hdr = linear radiance"},
+        "depth": {"kind": "z-depth along the optical axis", "unit": "metre",
+                  "noise": opts.depth_noise.name(), "noise_mu": mu, "noise_sigma": sigma},
+        "mesh_path": "mesh.ply",
+        "scene_path": "scene.toml",
+        "generator": {"name": "i2sdf synth", "preset": opts.preset, "seed": opts.seed, "spp": opts.spp,
+                      "max_depth": opts.max_depth, "units": "metre", "up": "+y"},
+        "emitters": scene.emitters.iter().map(|e| json!({
+            "name": e.name, "emission": e.emission.to_array(),
+            "bounds_min": e.bounds.0.to_array(), "bounds_max": e.bounds.1.to_array()})).collect::<Vec<_>>(),
+        "frames": frames,
+        "relight": relight,
+    })
+}

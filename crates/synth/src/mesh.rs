@@ -1,0 +1,268 @@
+//! Tessellation of every shape into one triangle mesh. The path tracer intersects exactly these
+//! triangles and the ground-truth PLY holds exactly these triangles, so depth back-projected from
+//! any view lies on the written mesh up to f32 rounding.
+
+use crate::scene::{Geometry, SceneDesc};
+use glam::{Quat, Vec3};
+use i2sdf_data::DataError;
+use std::io::Write;
+use std::path::Path;
+
+#[derive(Clone, Debug, Default)]
+pub struct TriangleMesh {
+    pub positions: Vec<Vec3>,
+    /// Counter-clockwise seen from outside: the geometric normal is (p1 − p0) × (p2 − p0).
+    pub triangles: Vec<[u32; 3]>,
+    /// Index of the scene shape each triangle belongs to.
+    pub shape_of: Vec<u32>,
+}
+
+impl TriangleMesh {
+    pub fn from_scene(scene: &SceneDesc) -> Self {
+        let mut mesh = TriangleMesh::default();
+        for (i, s) in scene.shapes.iter().enumerate() {
+            mesh.add_geometry(&s.geometry, i as u32);
+        }
+        mesh
+    }
+
+    pub fn vertex(&self, t: usize, k: usize) -> Vec3 {
+        self.positions[self.triangles[t][k] as usize]
+    }
+
+    pub fn area(&self, t: usize) -> f32 {
+        0.5 * (self.vertex(t, 1) - self.vertex(t, 0))
+            .cross(self.vertex(t, 2) - self.vertex(t, 0))
+            .length()
+    }
+
+    fn push(&mut self, verts: &[Vec3], tris: &[[u32; 3]], shape: u32) {
+        let base = self.positions.len() as u32;
+        self.positions.extend_from_slice(verts);
+        for t in tris {
+            self.triangles.push([t[0] + base, t[1] + base, t[2] + base]);
+            self.shape_of.push(shape);
+        }
+    }
+
+    pub fn add_geometry(&mut self, g: &Geometry, shape: u32) {
+        match g {
+            Geometry::Box { min, max, yaw_deg } => {
+                let (lo, hi) = (Vec3::from(*min), Vec3::from(*max));
+                let c = 0.5 * (lo + hi);
+                let rot = Quat::from_rotation_y(yaw_deg.to_radians());
+                let verts: Vec<Vec3> = (0..8)
+                    .map(|i| {
+                        let p = Vec3::new(
+                            if i & 1 != 0 { hi.x } else { lo.x },
+                            if i & 2 != 0 { hi.y } else { lo.y },
+                            if i & 4 != 0 { hi.z } else { lo.z },
+                        );
+                        c + rot * (p - c)
+                    })
+                    .collect();
+                // Faces as quads (outward, counter-clockwise): -x, +x, -y, +y, -z, +z.
+                let quads = [
+                    [0, 4, 6, 2],
+                    [1, 3, 7, 5],
+                    [0, 1, 5, 4],
+                    [2, 6, 7, 3],
+                    [0, 2, 3, 1],
+                    [4, 5, 7, 6],
+                ];
+                let tris: Vec<[u32; 3]> = quads
+                    .iter()
+                    .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+                    .collect();
+                self.push(&verts, &tris, shape);
+            }
+            Geometry::Sphere {
+                center,
+                radius,
+                subdivisions,
+            } => {
+                let (verts, tris) = icosphere(*subdivisions);
+                let c = Vec3::from(*center);
+                let verts: Vec<Vec3> = verts.iter().map(|v| c + *radius * *v).collect();
+                self.push(&verts, &tris, shape);
+            }
+            Geometry::Cylinder { a, b, radius, segments } => {
+                let (a, b) = (Vec3::from(*a), Vec3::from(*b));
+                let axis = (b - a).normalize();
+                let frame = i2sdf_render::sampling::Frame::from_normal(axis);
+                let n = *segments;
+                let mut verts = vec![a, b];
+                for k in 0..n {
+                    let phi = std::f32::consts::TAU * k as f32 / n as f32;
+                    let off = *radius * (phi.cos() * frame.t + phi.sin() * frame.b);
+                    verts.push(a + off);
+                    verts.push(b + off);
+                }
+                let mut tris = Vec::new();
+                for k in 0..n {
+                    let (a0, b0) = (2 + 2 * k, 3 + 2 * k);
+                    let (a1, b1) = (2 + 2 * ((k + 1) % n), 3 + 2 * ((k + 1) % n));
+                    tris.push([a0, a1, b1]);
+                    tris.push([a0, b1, b0]);
+                    tris.push([0, a1, a0]);
+                    tris.push([1, b0, b1]);
+                }
+                self.push(&verts, &tris, shape);
+            }
+            Geometry::Quad { origin, u, v } => {
+                let (o, u, v) = (Vec3::from(*origin), Vec3::from(*u), Vec3::from(*v));
+                self.push(&[o, o + u, o + u + v, o + v], &[[0, 1, 2], [0, 2, 3]], shape);
+            }
+        }
+    }
+
+    /// Axis-aligned bounds of one shape's triangles.
+    pub fn shape_bounds(&self, shape: u32) -> (Vec3, Vec3) {
+        let mut lo = Vec3::splat(f32::INFINITY);
+        let mut hi = Vec3::splat(f32::NEG_INFINITY);
+        for (t, &s) in self.shape_of.iter().enumerate() {
+            if s == shape {
+                for k in 0..3 {
+                    lo = lo.min(self.vertex(t, k));
+                    hi = hi.max(self.vertex(t, k));
+                }
+            }
+        }
+        (lo, hi)
+    }
+
+    /// Binary little-endian PLY: `float x y z` vertices, `uchar int vertex_indices` faces.
+    pub fn write_ply(&self, path: &Path) -> Result<(), DataError> {
+        let mut buf = Vec::with_capacity(64 + self.positions.len() * 12 + self.triangles.len() * 13);
+        write!(
+            buf,
+            "ply\nformat binary_little_endian 1.0\ncomment i2sdf synth ground-truth mesh (metres, y up)\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
+            self.positions.len(),
+            self.triangles.len()
+        )
+        .unwrap();
+        for p in &self.positions {
+            for c in p.to_array() {
+                buf.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        for t in &self.triangles {
+            buf.push(3);
+            for &i in t {
+                buf.extend_from_slice(&(i as i32).to_le_bytes());
+            }
+        }
+        crate::output::write_atomic(path, &buf)
+    }
+}
+
+/// Unit icosphere: the icosahedron with `subdivisions` midpoint subdivisions, projected onto the
+/// sphere; counter-clockwise seen from outside.
+fn icosphere(subdivisions: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let t = (1.0 + 5f32.sqrt()) / 2.0;
+    let mut verts: Vec<Vec3> = [
+        [-1.0, t, 0.0],
+        [1.0, t, 0.0],
+        [-1.0, -t, 0.0],
+        [1.0, -t, 0.0],
+        [0.0, -1.0, t],
+        [0.0, 1.0, t],
+        [0.0, -1.0, -t],
+        [0.0, 1.0, -t],
+        [t, 0.0, -1.0],
+        [t, 0.0, 1.0],
+        [-t, 0.0, -1.0],
+        [-t, 0.0, 1.0],
+    ]
+    .iter()
+    .map(|p| Vec3::from(*p).normalize())
+    .collect();
+    let mut tris: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..subdivisions {
+        let mut mid = std::collections::HashMap::new();
+        let mut midpoint = |a: u32, b: u32, verts: &mut Vec<Vec3>| -> u32 {
+            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                verts.push((verts[a as usize] + verts[b as usize]).normalize());
+                verts.len() as u32 - 1
+            })
+        };
+        let mut next = Vec::with_capacity(tris.len() * 4);
+        for [a, b, c] in tris {
+            let ab = midpoint(a, b, &mut verts);
+            let bc = midpoint(b, c, &mut verts);
+            let ca = midpoint(c, a, &mut verts);
+            next.extend_from_slice(&[[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        tris = next;
+    }
+    (verts, tris)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn signed_volume(m: &TriangleMesh) -> f32 {
+        (0..m.triangles.len())
+            .map(|t| m.vertex(t, 0).dot(m.vertex(t, 1).cross(m.vertex(t, 2))) / 6.0)
+            .sum()
+    }
+
+    #[test]
+    fn closed_shapes_face_outwards_with_the_right_volume() {
+        let mut m = TriangleMesh::default();
+        m.add_geometry(
+            &Geometry::Box {
+                min: [0.0, 0.0, 0.0],
+                max: [1.0, 2.0, 3.0],
+                yaw_deg: 30.0,
+            },
+            0,
+        );
+        assert!((signed_volume(&m) - 6.0).abs() < 1e-4);
+        let mut m = TriangleMesh::default();
+        m.add_geometry(
+            &Geometry::Cylinder {
+                a: [0.0, 0.0, 0.0],
+                b: [0.0, 2.0, 0.0],
+                radius: 1.0,
+                segments: 64,
+            },
+            0,
+        );
+        let prism = 0.5 * 64.0 * (std::f32::consts::TAU / 64.0).sin() * 2.0;
+        assert!((signed_volume(&m) - prism).abs() < 1e-3);
+        let mut m = TriangleMesh::default();
+        m.add_geometry(
+            &Geometry::Sphere {
+                center: [0.0; 3],
+                radius: 1.0,
+                subdivisions: 4,
+            },
+            0,
+        );
+        let v = signed_volume(&m);
+        assert!(v > 4.0 && v < 4.0 * std::f32::consts::PI / 3.0, "{v}");
+    }
+}

@@ -1,0 +1,280 @@
+//! The scene description: shapes (box, sphere, cylinder, quad) with GGX materials, optional
+//! procedural Kd textures and emission, the room bounds and the camera rig. It round-trips through
+//! TOML (`scene.toml` in every generated dataset), so a room can be edited by hand and re-rendered.
+
+use glam::Vec3;
+use i2sdf_data::DataError;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// A whole synthetic scene, in metres, y up.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SceneDesc {
+    pub name: String,
+    pub room: RoomBounds,
+    pub camera: CameraRig,
+    #[serde(rename = "shape")]
+    pub shapes: Vec<ShapeDesc>,
+}
+
+/// The inside of the room (cameras are placed in it, inset from the walls).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RoomBounds {
+    pub min: [f32; 3],
+    pub max: [f32; 3],
+}
+
+/// How cameras are placed: horizontal field of view and the eye-height range.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraRig {
+    pub fov_x_deg: f32,
+    pub eye_height: [f32; 2],
+    /// Pitch range in degrees (negative looks down).
+    #[serde(default = "default_pitch")]
+    pub pitch_deg: [f32; 2],
+}
+
+fn default_pitch() -> [f32; 2] {
+    [-25.0, 5.0]
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ShapeDesc {
+    pub name: String,
+    #[serde(flatten)]
+    pub geometry: Geometry,
+    pub material: MaterialDesc,
+    /// Emitted radiance (linear RGB, W·sr⁻¹·m⁻² up to a global scale), one-sided along the
+    /// outward normal. A shape with emission is one emitter; emitters reflect nothing.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub emission: Option<[f32; 3]>,
+}
+
+/// Geometry of a shape; everything is tessellated into triangles before rendering, and the
+/// triangles are exactly what the ground-truth mesh holds.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum Geometry {
+    /// Axis-aligned box rotated by `yaw_deg` about the vertical axis through its centre.
+    Box {
+        min: [f32; 3],
+        max: [f32; 3],
+        #[serde(default)]
+        yaw_deg: f32,
+    },
+    /// Icosphere with `subdivisions` loop subdivisions of the icosahedron (20·4ⁿ faces).
+    Sphere {
+        center: [f32; 3],
+        radius: f32,
+        #[serde(default = "default_subdivisions")]
+        subdivisions: u32,
+    },
+    /// Closed cylinder from `a` to `b` (cap centres) with `segments` sides.
+    Cylinder {
+        a: [f32; 3],
+        b: [f32; 3],
+        radius: f32,
+        #[serde(default = "default_segments")]
+        segments: u32,
+    },
+    /// One-sided parallelogram `origin + s·u + t·v`, s,t ∈ [0,1]; it faces along u × v.
+    Quad { origin: [f32; 3], u: [f32; 3], v: [f32; 3] },
+}
+
+fn default_subdivisions() -> u32 {
+    2
+}
+fn default_segments() -> u32 {
+    16
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MaterialDesc {
+    pub kd: [f32; 3],
+    #[serde(default)]
+    pub ks: [f32; 3],
+    #[serde(default = "default_roughness")]
+    pub roughness: f32,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub texture: Option<TextureDesc>,
+}
+
+fn default_roughness() -> f32 {
+    0.5
+}
+
+/// A solid (3D) procedural texture on Kd: world-space checker cells or stripes of size `scale`
+/// alternating between `kd` and `kd2`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "pattern", rename_all = "lowercase")]
+pub enum TextureDesc {
+    Checker {
+        kd2: [f32; 3],
+        scale: f32,
+    },
+    /// Stripes across world axis `axis` (0 = x, 1 = y, 2 = z).
+    Stripe {
+        kd2: [f32; 3],
+        scale: f32,
+        axis: usize,
+    },
+}
+
+impl TextureDesc {
+    /// Kd at world point `p`, given the base `kd`. Cells are offset by half a cell so that
+    /// surfaces lying on multiples of `scale` (the floor at y = 0) sit mid-cell, not on a border.
+    pub fn kd_at(&self, kd: Vec3, p: Vec3) -> Vec3 {
+        let (alt, odd) = match self {
+            TextureDesc::Checker { kd2, scale } => {
+                let c = (p / *scale + Vec3::splat(0.5)).floor();
+                (Vec3::from(*kd2), (c.x + c.y + c.z).rem_euclid(2.0) >= 1.0)
+            }
+            TextureDesc::Stripe { kd2, scale, axis } => {
+                let c = (p[*axis] / *scale + 0.5).floor();
+                (Vec3::from(*kd2), c.rem_euclid(2.0) >= 1.0)
+            }
+        };
+        if odd {
+            alt
+        } else {
+            kd
+        }
+    }
+}
+
+fn finite3(a: &[f32; 3]) -> bool {
+    a.iter().all(|x| x.is_finite())
+}
+
+impl SceneDesc {
+    pub fn from_toml_str(text: &str, path: &Path) -> Result<Self, DataError> {
+        let scene: SceneDesc =
+            toml::from_str(text).map_err(|e| DataError::file(path, format!("bad scene TOML: {e}")))?;
+        scene.validate(path)?;
+        Ok(scene)
+    }
+
+    pub fn read(path: &Path) -> Result<Self, DataError> {
+        let text = std::fs::read_to_string(path).map_err(|e| DataError::file(path, e.to_string()))?;
+        Self::from_toml_str(&text, path)
+    }
+
+    pub fn to_toml_string(&self) -> String {
+        toml::to_string_pretty(self).expect("scene descriptions always serialize")
+    }
+
+    /// Checks every value a renderer relies on; errors name the shape and field.
+    pub fn validate(&self, path: &Path) -> Result<(), DataError> {
+        let (lo, hi) = (Vec3::from(self.room.min), Vec3::from(self.room.max));
+        if !finite3(&self.room.min) || !finite3(&self.room.max) || !(hi - lo).cmpgt(Vec3::splat(0.5)).all() {
+            return Err(DataError::field(
+                path,
+                "room",
+                "min/max must be finite with max − min > 0.5 m on every axis",
+            ));
+        }
+        let c = &self.camera;
+        if !(c.fov_x_deg > 1.0 && c.fov_x_deg < 170.0) {
+            return Err(DataError::field(path, "camera.fov_x_deg", "must be in (1, 170)"));
+        }
+        if !(c.eye_height[0] <= c.eye_height[1]) || c.eye_height[0] <= lo.y || c.eye_height[1] >= hi.y {
+            return Err(DataError::field(
+                path,
+                "camera.eye_height",
+                "must be an increasing range inside the room",
+            ));
+        }
+        if !(c.pitch_deg[0] <= c.pitch_deg[1]) || c.pitch_deg[0] < -89.0 || c.pitch_deg[1] > 89.0 {
+            return Err(DataError::field(
+                path,
+                "camera.pitch_deg",
+                "must be an increasing range within ±89°",
+            ));
+        }
+        if self.shapes.is_empty() {
+            return Err(DataError::field(path, "shape", "a scene needs shapes"));
+        }
+        let mut emitters = 0;
+        for (i, s) in self.shapes.iter().enumerate() {
+            let field = |f: &str| format!("shape[{i}] ({}).{f}", s.name);
+            let bad = |f: &str, msg: &str| Err(DataError::field(path, field(f), msg));
+            match &s.geometry {
+                Geometry::Box { min, max, yaw_deg } => {
+                    if !finite3(min)
+                        || !finite3(max)
+                        || !yaw_deg.is_finite()
+                        || !(Vec3::from(*max) - Vec3::from(*min)).cmpgt(Vec3::ZERO).all()
+                    {
+                        return bad("min/max", "need finite min < max on every axis");
+                    }
+                }
+                Geometry::Sphere {
+                    center,
+                    radius,
+                    subdivisions,
+                } => {
+                    if !finite3(center) || !(*radius > 0.0) || *subdivisions > 5 {
+                        return bad("radius", "need a finite centre, radius > 0 and subdivisions ≤ 5");
+                    }
+                }
+                Geometry::Cylinder { a, b, radius, segments } => {
+                    if !finite3(a)
+                        || !finite3(b)
+                        || (Vec3::from(*a) - Vec3::from(*b)).length() <= 0.0
+                        || !(*radius > 0.0)
+                        || *segments < 3
+                        || *segments > 256
+                    {
+                        return bad(
+                            "a/b/radius",
+                            "need distinct finite ends, radius > 0 and 3..=256 segments",
+                        );
+                    }
+                }
+                Geometry::Quad { origin, u, v } => {
+                    if !finite3(origin) || Vec3::from(*u).cross(Vec3::from(*v)).length() <= 0.0 {
+                        return bad("u/v", "need non-parallel edges");
+                    }
+                }
+            }
+            let m = &s.material;
+            let in01 = |a: &[f32; 3]| a.iter().all(|x| (0.0..=1.0).contains(x));
+            if !in01(&m.kd) || !in01(&m.ks) {
+                return bad("material", "kd and ks must be in [0, 1]");
+            }
+            if !(m.roughness > 0.0 && m.roughness <= 1.0) {
+                return bad("material.roughness", "must be in (0, 1]");
+            }
+            match &m.texture {
+                Some(TextureDesc::Checker { kd2, scale }) | Some(TextureDesc::Stripe { kd2, scale, .. }) => {
+                    if !in01(kd2) || !(*scale > 0.0) {
+                        return bad("material.texture", "kd2 must be in [0, 1] and scale > 0");
+                    }
+                }
+                None => {}
+            }
+            if let Some(TextureDesc::Stripe { axis, .. }) = &m.texture {
+                if *axis > 2 {
+                    return bad("material.texture.axis", "must be 0, 1 or 2");
+                }
+            }
+            if let Some(e) = &s.emission {
+                if !e.iter().all(|x| x.is_finite() && *x >= 0.0) || e.iter().all(|x| *x == 0.0) {
+                    return bad("emission", "must be finite, non-negative and not all zero");
+                }
+                emitters += 1;
+            }
+        }
+        if emitters == 0 {
+            return Err(DataError::field(path, "shape", "a scene needs at least one emitter"));
+        }
+        if emitters > crate::tracer::MAX_EMITTERS {
+            return Err(DataError::field(
+                path,
+                "shape",
+                format!("at most {} emitters", crate::tracer::MAX_EMITTERS),
+            ));
+        }
+        Ok(())
+    }
+}
