@@ -80,6 +80,16 @@ pub struct RelightSet {
     pub frames: Vec<Frame>,
 }
 
+/// One named object of the ground truth (native format, top-level `objects`): `id` is the
+/// per-face `object_id` of the GT mesh; `tags` say what kind of object it is (the synthetic
+/// generator writes `room`, `furniture`, `thin`, `suspended`, `emitter`).
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct ObjectInfo {
+    pub id: i32,
+    pub name: String,
+    pub tags: Vec<String>,
+}
+
 /// Similarity transform from world units into the normalized frame of the neural fields:
 /// `x_n = (x_w − center) / scale`. The whole scene lies in the unit sphere of the normalized frame.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -128,6 +138,9 @@ pub struct Dataset {
     /// Ground-truth mesh (PLY) in world units, if the dataset has one.
     pub mesh_path: Option<PathBuf>,
     pub relight: Vec<RelightSet>,
+    /// The GT mesh's objects, when the dataset names them; empty otherwise (always for the paper's
+    /// format).
+    pub objects: Vec<ObjectInfo>,
     pub bounds: Bounds,
     pub bounds_source: BoundsSource,
     pub normalization: Normalization,

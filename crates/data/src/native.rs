@@ -9,10 +9,11 @@
 //! material maps `albedo_file_path`, `specular_file_path`, `roughness_file_path`. Splits come from
 //! `split`, else from nerfstudio's top-level `train_filenames` / `test_filenames`; a dataset with
 //! neither holds out every 8th frame (0, 8, 16, …) for testing. Top level, optional: `mesh_path`,
-//! `relight: [{spec, frames}]`, `ldr: {transfer: "srgb"|"linear"}`. Unknown keys are ignored.
+//! `relight: [{spec, frames}]`, `ldr: {transfer: "srgb"|"linear"}`, `objects: [{id, name, tags}]`
+//! (the GT mesh's per-face `object_id`s, named and tagged). Unknown keys are ignored.
 
 use crate::camera::Camera;
-use crate::dataset::{self, Dataset, Format, Frame, RelightSet, Split};
+use crate::dataset::{self, Dataset, Format, Frame, ObjectInfo, RelightSet, Split};
 use crate::error::{DataError, Result};
 use glam::DMat4;
 use rayon::prelude::*;
@@ -293,6 +294,7 @@ pub fn load(root: &Path) -> Result<Dataset> {
         Some(v) => return Err(DataError::field(&json_path, "mesh_path", format!("not a path: {v}"))),
     };
     let relight = load_relight(root, &json_path, top, png_depth_scale)?;
+    let objects = parse_objects(&json_path, top)?;
     let ldr_transfer = top
         .get("ldr")
         .and_then(|l| l.get("transfer"))
@@ -314,6 +316,7 @@ pub fn load(root: &Path) -> Result<Dataset> {
         ldr_transfer,
         mesh_path,
         relight,
+        objects,
         bounds,
         bounds_source,
         normalization,
@@ -365,4 +368,129 @@ fn load_relight(
         sets.push(RelightSet { spec, frames });
     }
     Ok(sets)
+}
+
+/// The optional top-level `objects: [{"id": 7, "name": "lamp_pole", "tags": ["thin"]}, …]`; ids
+/// are distinct integers, `tags` may be left out.
+fn parse_objects(json_path: &Path, top: &Map<String, Value>) -> Result<Vec<ObjectInfo>> {
+    let list = match top.get("objects") {
+        None | Some(Value::Null) => return Ok(Vec::new()),
+        Some(Value::Array(a)) => a,
+        Some(v) => return Err(DataError::field(json_path, "objects", format!("not a list: {v}"))),
+    };
+    let mut seen = HashSet::new();
+    let mut objects = Vec::with_capacity(list.len());
+    for (i, entry) in list.iter().enumerate() {
+        let err = |field: &str, msg: String| DataError::field(json_path, format!("objects[{i}].{field}"), msg);
+        let obj = entry
+            .as_object()
+            .ok_or_else(|| DataError::field(json_path, format!("objects[{i}]"), "not a JSON object"))?;
+        let id = match obj.get("id") {
+            Some(v) => v
+                .as_i64()
+                .and_then(|x| i32::try_from(x).ok())
+                .ok_or_else(|| err("id", format!("expected a 32-bit integer, found {v}")))?,
+            None => return Err(err("id", "missing".into())),
+        };
+        if !seen.insert(id) {
+            return Err(err("id", format!("{id} is listed twice")));
+        }
+        let name = match obj.get("name") {
+            Some(Value::String(s)) => s.clone(),
+            Some(v) => return Err(err("name", format!("expected a string, found {v}"))),
+            None => return Err(err("name", "missing".into())),
+        };
+        let tags = match obj.get("tags") {
+            None | Some(Value::Null) => Vec::new(),
+            Some(Value::Array(a)) => a
+                .iter()
+                .enumerate()
+                .map(|(k, t)| {
+                    t.as_str()
+                        .map(str::to_string)
+                        .ok_or_else(|| err(&format!("tags[{k}]"), format!("expected a string, found {t}")))
+                })
+                .collect::<Result<_>>()?,
+            Some(v) => return Err(err("tags", format!("expected a list of strings, found {v}"))),
+        };
+        objects.push(ObjectInfo { id, name, tags });
+    }
+    Ok(objects)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    fn parse(v: Value) -> Result<Vec<ObjectInfo>> {
+        parse_objects(Path::new("scene/transforms.json"), v.as_object().unwrap())
+    }
+
+    #[test]
+    fn objects_are_read_and_default_to_none() {
+        assert_eq!(parse(json!({"frames": []})).unwrap(), Vec::new());
+        let objects = parse(json!({"objects": [
+            {"id": 0, "name": "floor", "tags": ["room"]},
+            {"id": 9, "name": "chandelier", "tags": ["suspended", "thin"], "extra": 1},
+            {"id": -1, "name": "unlabelled"},
+        ]}))
+        .unwrap();
+        assert_eq!(
+            objects,
+            vec![
+                ObjectInfo {
+                    id: 0,
+                    name: "floor".into(),
+                    tags: vec!["room".into()]
+                },
+                ObjectInfo {
+                    id: 9,
+                    name: "chandelier".into(),
+                    tags: vec!["suspended".into(), "thin".into()]
+                },
+                ObjectInfo {
+                    id: -1,
+                    name: "unlabelled".into(),
+                    tags: Vec::new()
+                },
+            ]
+        );
+    }
+
+    #[test]
+    fn malformed_objects_name_the_entry_and_field() {
+        let cases = [
+            (json!({"objects": {"id": 0}}), "objects"),
+            (json!({"objects": [3]}), "objects[0]"),
+            (json!({"objects": [{"name": "a"}]}), "objects[0].id"),
+            (json!({"objects": [{"id": 1.5, "name": "a"}]}), "objects[0].id"),
+            (
+                json!({"objects": [{"id": 4294967296i64, "name": "a"}]}),
+                "objects[0].id",
+            ),
+            (
+                json!({"objects": [{"id": 1, "name": "a"}, {"id": 1, "name": "b"}]}),
+                "objects[1].id",
+            ),
+            (json!({"objects": [{"id": 1}]}), "objects[0].name"),
+            (
+                json!({"objects": [{"id": 1, "name": "a", "tags": "thin"}]}),
+                "objects[0].tags",
+            ),
+            (
+                json!({"objects": [{"id": 1, "name": "a", "tags": ["thin", 2]}]}),
+                "objects[0].tags[1]",
+            ),
+        ];
+        for (value, expected) in cases {
+            match parse(value.clone()).unwrap_err() {
+                DataError::Field { path, field, .. } => {
+                    assert_eq!(field, expected, "{value}");
+                    assert_eq!(path, Path::new("scene/transforms.json"));
+                }
+                e => panic!("{value}: {e}"),
+            }
+        }
+    }
 }

@@ -259,6 +259,7 @@ pub fn load(root: &Path) -> Result<Dataset> {
         ldr_transfer: "srgb".into(),
         mesh_path: None,
         relight: Vec::new(),
+        objects: Vec::new(),
         bounds,
         bounds_source,
         normalization,

@@ -1,13 +1,15 @@
 //! Evaluating a trained run against its dataset (DESIGN.md "Evaluation"): the mesh of the neural
 //! SDF, novel-view, depth and normal metrics on the test views, and mesh metrics against the
-//! ground-truth mesh culled by the training views.
+//! ground-truth mesh culled by the training views, per GT object and for the thin and suspended
+//! objects where the dataset names its objects.
 
 use crate::image_metrics::{depth_l1, normal_angular_l1, psnr, ssim, ImageRef};
 use crate::marching_cubes::{marching_cubes, McGrid, McOptions};
 use crate::mesh::TriangleMesh;
-use crate::mesh_metrics::{mesh_metrics, CullingView, MeshMetricsOptions};
+use crate::mesh_metrics::{mesh_metrics, CullingView, MeshMetricsOptions, ObjectGroup};
 use crate::ply::read_ply;
-use crate::report::{EvalReport, MeshReport};
+use crate::report::{EvalReport, MeshReport, ThinObjectsReport};
+use i2sdf_data::dataset::ObjectInfo;
 use i2sdf_data::{Bounds, DataError, Dataset, Frame, Split};
 use i2sdf_model::images::render_view;
 use i2sdf_model::renderer::RenderSettings;
@@ -123,6 +125,43 @@ pub fn view_metrics(
     Ok(report)
 }
 
+/// Objects with any of these tags make up `geometry.thin_objects`.
+pub const THIN_OBJECT_TAGS: [&str; 2] = ["thin", "suspended"];
+/// The distances (scene units: 2 cm and 5 cm in metric scenes) of `geometry.thin_objects`.
+pub const THIN_OBJECT_THRESHOLDS: [f64; 2] = [0.02, 0.05];
+
+/// Mesh metrics of `pred` against `gt` (see [`mesh_metrics`]), with the per-object recall named
+/// and tagged from `objects`, and the recall of the objects tagged thin or suspended (`None` when
+/// `objects` has none).
+pub fn mesh_report(
+    pred: &TriangleMesh,
+    gt: &TriangleMesh,
+    views: &[CullingView],
+    objects: &[ObjectInfo],
+    options: &MeshMetricsOptions,
+) -> Result<(MeshReport, Option<ThinObjectsReport>), DataError> {
+    let thin: Vec<&ObjectInfo> = objects
+        .iter()
+        .filter(|o| o.tags.iter().any(|t| THIN_OBJECT_TAGS.contains(&t.as_str())))
+        .collect();
+    let mut options = options.clone();
+    if !thin.is_empty() {
+        options.object_groups.push(ObjectGroup {
+            name: "thin_objects".into(),
+            object_ids: thin.iter().map(|o| o.id).collect(),
+            thresholds: THIN_OBJECT_THRESHOLDS.to_vec(),
+        });
+    }
+    let metrics = mesh_metrics(pred, gt, views, &options)?;
+    let mut report = MeshReport::from(&metrics);
+    report.join_objects(objects);
+    let thin_report = (!thin.is_empty()).then(|| {
+        let group = metrics.group_recall.last().expect("the thin group was added last");
+        ThinObjectsReport::new(group, thin.iter().map(|o| o.name.clone()).collect())
+    });
+    Ok((report, thin_report))
+}
+
 /// The whole evaluation of a run: view metrics, and mesh metrics when the dataset has a GT mesh.
 /// Returns the report and the extracted mesh.
 pub fn evaluate(
@@ -136,8 +175,10 @@ pub fn evaluate(
     report.geometry.mesh = match &dataset.mesh_path {
         Some(gt_path) => {
             let gt = read_ply(gt_path)?;
-            let m = mesh_metrics(&mesh, &gt, &culling_views(dataset), &options.mesh)?;
-            MeshReport::from(&m)
+            let views = culling_views(dataset);
+            let (mesh_report, thin) = mesh_report(&mesh, &gt, &views, &dataset.objects, &options.mesh)?;
+            report.geometry.thin_objects = thin;
+            mesh_report
         }
         None => MeshReport {
             threshold: Some(options.mesh.threshold),
@@ -145,4 +186,97 @@ pub fn evaluate(
         },
     };
     Ok((report, mesh))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::test_shapes::{box_mesh, concat};
+
+    fn with_id(mut m: TriangleMesh, id: i32) -> TriangleMesh {
+        m.face_object_ids = Some(vec![id; m.num_faces()]);
+        m
+    }
+
+    fn info(id: i32, name: &str, tags: &[&str]) -> ObjectInfo {
+        ObjectInfo {
+            id,
+            name: name.into(),
+            tags: tags.iter().map(|t| t.to_string()).collect(),
+        }
+    }
+
+    /// A room (object 0), a table (1), a 2 cm pole standing in the air 0.3 under the ceiling (7,
+    /// clear of every other surface by more than 5 cm) and, when asked, a suspended globe (9).
+    fn scene(pole: bool, globe: bool) -> TriangleMesh {
+        let mut parts = vec![
+            with_id(box_mesh([0.0; 3], [4.0, 3.0, 2.5]), 0),
+            with_id(box_mesh([2.5, 0.5, 0.0], [3.5, 1.5, 0.7]), 1),
+        ];
+        if pole {
+            parts.push(with_id(box_mesh([1.99, 1.49, 1.0], [2.01, 1.51, 2.2]), 7));
+        }
+        if globe {
+            parts.push(with_id(box_mesh([0.9, 1.9, 1.6], [1.1, 2.1, 1.8]), 9));
+        }
+        concat(&parts)
+    }
+
+    fn options() -> MeshMetricsOptions {
+        MeshMetricsOptions {
+            num_points: 200_000,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_missing_thin_object_shows_in_thin_recall_not_in_the_global_figure() {
+        let gt = scene(true, true);
+        let objects = [
+            info(0, "room", &["room"]),
+            info(1, "table", &["furniture"]),
+            info(7, "pole", &["thin"]),
+            info(9, "globe", &["suspended"]),
+            info(12, "not_in_the_mesh", &["thin"]),
+        ];
+        // The prediction has the room, the table and the globe, but lost the pole.
+        let pred = scene(false, true);
+        let (report, thin) = mesh_report(&pred, &gt, &[], &objects, &options()).unwrap();
+        assert!(report.recall.unwrap() > 0.99, "{:?}", report.recall);
+        let thin = thin.expect("the dataset has thin objects");
+        assert_eq!(thin.objects, ["pole", "globe", "not_in_the_mesh"]);
+        // The globe (0.24 m²) is recalled, the pole (0.096 m²) is not: about 70 % recalled.
+        let (r2, r5) = (thin.recall_2cm.unwrap(), thin.recall_5cm.unwrap());
+        assert!(r5 > 0.55 && r5 < 0.8 && r2 <= r5, "{thin:?}");
+        assert!(thin.points > 0);
+
+        // Names and tags are joined onto the per-object recall.
+        let per_object = report.per_object_recall.unwrap();
+        let ids: Vec<i32> = per_object.iter().map(|r| r.object_id).collect();
+        assert_eq!(ids, [0, 1, 7, 9]);
+        assert_eq!(per_object[2].name.as_deref(), Some("pole"));
+        assert_eq!(per_object[2].tags, ["thin"]);
+        assert_eq!(per_object[2].recall, Some(0.0));
+        assert_eq!(per_object[3].tags, ["suspended"]);
+
+        // Only the pole missing from the thin group: recall 0 at both distances.
+        let (_, thin) = mesh_report(&pred, &gt, &[], &objects[..3], &options()).unwrap();
+        let thin = thin.unwrap();
+        assert_eq!((thin.recall_2cm, thin.recall_5cm), (Some(0.0), Some(0.0)));
+        // The GT itself recovers everything.
+        let (_, thin) = mesh_report(&gt, &gt, &[], &objects, &options()).unwrap();
+        assert_eq!(thin.unwrap().recall_2cm, Some(1.0));
+    }
+
+    #[test]
+    fn datasets_without_thin_objects_report_none() {
+        let gt = scene(true, false);
+        let (report, thin) = mesh_report(&gt, &gt, &[], &[info(0, "room", &["room"])], &options()).unwrap();
+        assert!(thin.is_none());
+        let per_object = report.per_object_recall.unwrap();
+        assert_eq!(per_object[0].name.as_deref(), Some("room"));
+        assert!(per_object[1].name.is_none() && per_object[1].tags.is_empty());
+        let (report, thin) = mesh_report(&gt, &gt, &[], &[], &options()).unwrap();
+        assert!(thin.is_none() && report.fscore == Some(1.0));
+    }
 }

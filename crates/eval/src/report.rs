@@ -1,7 +1,9 @@
 //! The `eval` command's JSON (DESIGN.md "The command line"): every figure that cannot be computed
-//! is `null`, never absent. Extra keys beyond the contract: `geometry.mesh.per_object_recall`.
+//! is `null`, never absent. Extra keys beyond the contract: `geometry.mesh.per_object_recall`
+//! (with the dataset's object names and tags) and `geometry.thin_objects`.
 
-use crate::mesh_metrics::{MeshMetrics, ObjectRecall};
+use crate::mesh_metrics::{GroupRecall, MeshMetrics};
+use i2sdf_data::dataset::ObjectInfo;
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -25,6 +27,40 @@ pub struct GeometryMetrics {
     pub depth_l1: Option<f64>,
     pub normal_angular_l1: Option<f64>,
     pub mesh: MeshReport,
+    /// Recall of the GT objects tagged `thin` or `suspended`, `null` when the dataset has none.
+    pub thin_objects: Option<ThinObjectsReport>,
+}
+
+/// How much of the thin and suspended objects (lamp poles, table legs, chandeliers: what the
+/// paper's bubble loss exists to recover) the extracted mesh recovers: the fraction of their
+/// visible GT surface points within 2 cm and 5 cm (0.02 and 0.05 scene units) of it.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ThinObjectsReport {
+    pub recall_2cm: Option<f64>,
+    pub recall_5cm: Option<f64>,
+    /// Visible GT points on those objects.
+    pub points: usize,
+    /// Names of the objects covered.
+    pub objects: Vec<String>,
+}
+
+impl ThinObjectsReport {
+    /// From the recall of the group of thin objects at thresholds (0.02, 0.05).
+    pub fn new(group: &GroupRecall, objects: Vec<String>) -> Self {
+        let at = |t: f64| {
+            group
+                .thresholds
+                .iter()
+                .position(|&x| x == t)
+                .and_then(|i| group.recall[i])
+        };
+        ThinObjectsReport {
+            recall_2cm: at(0.02),
+            recall_5cm: at(0.05),
+            points: group.points,
+            objects,
+        }
+    }
 }
 
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -35,8 +71,31 @@ pub struct MeshReport {
     pub recall: Option<f64>,
     pub fscore: Option<f64>,
     pub threshold: Option<f64>,
-    /// Recall per ground-truth object, `null` when the dataset names no objects.
-    pub per_object_recall: Option<Vec<ObjectRecall>>,
+    /// Recall per ground-truth object, `null` when the GT mesh has no object ids.
+    pub per_object_recall: Option<Vec<ObjectRecallReport>>,
+}
+
+/// One GT object's recall at the main threshold, with its name and tags where the dataset lists
+/// the object.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ObjectRecallReport {
+    pub object_id: i32,
+    pub name: Option<String>,
+    pub tags: Vec<String>,
+    pub recall: Option<f64>,
+    pub points: usize,
+}
+
+impl MeshReport {
+    /// Joins names and tags from the dataset's object list onto the per-object recall.
+    pub fn join_objects(&mut self, objects: &[ObjectInfo]) {
+        for r in self.per_object_recall.iter_mut().flatten() {
+            if let Some(o) = objects.iter().find(|o| o.id == r.object_id) {
+                r.name = Some(o.name.clone());
+                r.tags = o.tags.clone();
+            }
+        }
+    }
 }
 
 impl From<&MeshMetrics> for MeshReport {
@@ -48,7 +107,18 @@ impl From<&MeshMetrics> for MeshReport {
             recall: m.recall,
             fscore: m.fscore,
             threshold: Some(m.threshold),
-            per_object_recall: (!m.per_object_recall.is_empty()).then(|| m.per_object_recall.clone()),
+            per_object_recall: (!m.per_object_recall.is_empty()).then(|| {
+                m.per_object_recall
+                    .iter()
+                    .map(|r| ObjectRecallReport {
+                        object_id: r.object_id,
+                        name: None,
+                        tags: Vec::new(),
+                        recall: r.recall,
+                        points: r.points,
+                    })
+                    .collect()
+            }),
         }
     }
 }
@@ -82,6 +152,7 @@ impl EvalReport {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::mesh_metrics::ObjectRecall;
     use serde_json::Value;
 
     const CONTRACT: [(&str, &[&str]); 5] = [
@@ -110,6 +181,8 @@ mod tests {
                 }
             }
         }
+        assert!(v["geometry"]["thin_objects"].is_null());
+        assert!(v["geometry"].as_object().unwrap().contains_key("thin_objects"));
     }
 
     #[test]
@@ -127,17 +200,48 @@ mod tests {
             threshold: 0.05,
             pred_points: 10,
             gt_points: 10,
-            per_object_recall: vec![ObjectRecall {
-                object_id: 3,
-                recall: Some(0.5),
-                points: 4,
-            }],
+            per_object_recall: vec![
+                ObjectRecall {
+                    object_id: 3,
+                    recall: Some(0.5),
+                    points: 4,
+                },
+                ObjectRecall {
+                    object_id: 5,
+                    recall: None,
+                    points: 0,
+                },
+            ],
+            group_recall: Vec::new(),
         });
+        report.geometry.mesh.join_objects(&[ObjectInfo {
+            id: 3,
+            name: "lamp_pole".into(),
+            tags: vec!["thin".into()],
+        }]);
+        let thin = GroupRecall {
+            name: "thin".into(),
+            points: 4,
+            thresholds: vec![0.02, 0.05],
+            recall: vec![Some(0.25), Some(0.5)],
+        };
+        report.geometry.thin_objects = Some(ThinObjectsReport::new(&thin, vec!["lamp_pole".into()]));
         let json = report.to_json();
         let v: Value = serde_json::from_str(&json).unwrap();
         assert!(v["novel_view"]["psnr"].is_null(), "infinity is written as null");
         assert_eq!(v["geometry"]["mesh"]["threshold"], 0.05);
-        assert_eq!(v["geometry"]["mesh"]["per_object_recall"][0]["object_id"], 3);
+        let objects = &v["geometry"]["mesh"]["per_object_recall"];
+        assert_eq!(objects[0]["object_id"], 3);
+        assert_eq!(
+            (&objects[0]["name"], &objects[0]["tags"][0]),
+            (&"lamp_pole".into(), &"thin".into())
+        );
+        assert!(objects[1]["name"].is_null() && objects[1]["recall"].is_null());
+        let thin = &v["geometry"]["thin_objects"];
+        assert_eq!(
+            (&thin["recall_2cm"], &thin["recall_5cm"], &thin["points"]),
+            (&0.25.into(), &0.5.into(), &4.into())
+        );
         let back: EvalReport = serde_json::from_str(&json).unwrap();
         assert_eq!(back.geometry, report.geometry);
         assert_eq!(back.novel_view.psnr, None);

@@ -1,12 +1,13 @@
 //! `i2sdf synth`: renders a scene description into a dataset directory in the native format
 //! (transforms.json + images + ground truth), with held-out test views and their relit ground
-//! truth.
+//! truth. The GT mesh carries a per-face `object_id`; transforms.json's `objects` names and tags
+//! each id.
 
 use crate::camera::{place_camera, Camera};
 use crate::edit::{EditOp, EditSpec};
 use crate::noise::DepthNoise;
 use crate::output::{self, FramePaths};
-use crate::scene::SceneDesc;
+use crate::scene::{SceneDesc, SceneObject};
 use crate::tracer::{render_view, RenderScene, ViewRender};
 use glam::Vec3;
 use i2sdf_data::DataError;
@@ -233,9 +234,10 @@ pub fn generate(
         relight_json.push(json!({"spec": spec_rel, "frames": frames}));
     }
 
-    scene.mesh.write_ply(&out.join("mesh.ply"))?;
+    let (objects, object_of_shape) = scene.desc.objects();
+    scene.mesh.write_ply(&out.join("mesh.ply"), &object_of_shape)?;
     output::write_atomic(&out.join("scene.toml"), scene.desc.to_toml_string().as_bytes())?;
-    let transforms = transforms_json(&scene, opts, &views, &frame_paths, exposure, relight_json);
+    let transforms = transforms_json(&scene, opts, &views, &frame_paths, exposure, relight_json, &objects);
     output::write_atomic(
         &out.join("transforms.json"),
         serde_json::to_string_pretty(&transforms).expect("JSON").as_bytes(),
@@ -266,6 +268,7 @@ fn transforms_json(
     paths: &[FramePaths],
     exposure: f32,
     relight: Vec<serde_json::Value>,
+    objects: &[SceneObject],
 ) -> serde_json::Value {
     let cam = &views[0].camera;
     let frames: Vec<_> = views
@@ -303,6 +306,7 @@ fn transforms_json(
         "emitters": scene.emitters.iter().map(|e| json!({
             "name": e.name, "emission": e.emission.to_array(),
             "bounds_min": e.bounds.0.to_array(), "bounds_max": e.bounds.1.to_array()})).collect::<Vec<_>>(),
+        "objects": objects.iter().map(|o| json!({"id": o.id, "name": o.name, "tags": o.tags})).collect::<Vec<_>>(),
         "frames": frames,
         "relight": relight,
     })

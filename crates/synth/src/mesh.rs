@@ -1,6 +1,7 @@
 //! Tessellation of every shape into one triangle mesh. The path tracer intersects exactly these
 //! triangles and the ground-truth PLY holds exactly these triangles, so depth back-projected from
-//! any view lies on the written mesh up to f32 rounding.
+//! any view lies on the written mesh up to f32 rounding. Each triangle remembers its shape, and
+//! through it its object, which the PLY writes per face.
 
 use crate::scene::{Geometry, SceneDesc};
 use glam::{Quat, Vec3};
@@ -131,12 +132,21 @@ impl TriangleMesh {
         (lo, hi)
     }
 
-    /// Binary little-endian PLY: `float x y z` vertices, `uchar int vertex_indices` faces.
-    pub fn write_ply(&self, path: &Path) -> Result<(), DataError> {
-        let mut buf = Vec::with_capacity(64 + self.positions.len() * 12 + self.triangles.len() * 13);
+    /// Binary little-endian PLY: `float x y z` vertices, `uchar int vertex_indices` faces, each
+    /// followed by its `int object_id` (`object_of_shape[shape]`, see [`SceneDesc::objects`]) — the
+    /// convention `i2sdf_eval::read_ply` reads.
+    pub fn write_ply(&self, path: &Path, object_of_shape: &[i32]) -> Result<(), DataError> {
+        if let Some(&s) = self.shape_of.iter().find(|&&s| s as usize >= object_of_shape.len()) {
+            return Err(DataError::invalid(format!(
+                "writing {}: shape {s} has no object id ({} given)",
+                path.display(),
+                object_of_shape.len()
+            )));
+        }
+        let mut buf = Vec::with_capacity(256 + self.positions.len() * 12 + self.triangles.len() * 17);
         write!(
             buf,
-            "ply\nformat binary_little_endian 1.0\ncomment i2sdf synth ground-truth mesh (metres, y up)\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
+            "ply\nformat binary_little_endian 1.0\ncomment i2sdf synth ground-truth mesh (metres, y up)\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nelement face {}\nproperty list uchar int vertex_indices\nproperty int object_id\nend_header\n",
             self.positions.len(),
             self.triangles.len()
         )
@@ -146,11 +156,12 @@ impl TriangleMesh {
                 buf.extend_from_slice(&c.to_le_bytes());
             }
         }
-        for t in &self.triangles {
+        for (t, &shape) in self.triangles.iter().zip(&self.shape_of) {
             buf.push(3);
             for &i in t {
                 buf.extend_from_slice(&(i as i32).to_le_bytes());
             }
+            buf.extend_from_slice(&object_of_shape[shape as usize].to_le_bytes());
         }
         crate::output::write_atomic(path, &buf)
     }

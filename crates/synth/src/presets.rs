@@ -3,7 +3,10 @@
 //! light panel and a floor lamp with a thin pole (~1–2 px at 160×120) and a bare bulb, a
 //! chandelier-like cluster of small spheres suspended from the ceiling, furniture of very different
 //! sizes (thin table legs included), diffuse and glossy materials and checker/stripe textures.
+//! Every shape belongs to a named, tagged object (see [`crate::scene::tags`]), so that evaluation
+//! can score the thin and suspended objects on their own.
 
+use crate::scene::tags::{FURNITURE, ROOM, SUSPENDED, THIN};
 use crate::scene::{CameraRig, Geometry, MaterialDesc, RoomBounds, SceneDesc, ShapeDesc, TextureDesc};
 use glam::{Quat, Vec3};
 use i2sdf_data::DataError;
@@ -76,6 +79,8 @@ struct RoomBuilder {
     footprints: Vec<([f32; 2], [f32; 2])>,
     /// Centre (x, z) and half size of the ceiling light panel, which the chandelier keeps clear of.
     panel: ([f32; 2], [f32; 2]),
+    /// The object (name, tags) the shapes added next belong to; see [`RoomBuilder::object`].
+    object: (String, Vec<String>),
 }
 
 impl RoomBuilder {
@@ -95,14 +100,31 @@ impl RoomBuilder {
             shapes: Vec::new(),
             footprints: Vec::new(),
             panel: ([0.0; 2], [0.0; 2]),
+            object: (String::new(), Vec::new()),
         };
         b.shell();
         b
     }
 
+    /// Starts an object: every shape added until the next call belongs to it.
+    fn object(&mut self, name: &str, tags: &[&str]) {
+        self.object = (name.to_string(), tags.iter().map(|t| t.to_string()).collect());
+    }
+
+    /// The current object, as a shape records it: left out where the shape is the whole object
+    /// and carries its name, so that scene.toml stays terse.
+    fn object_of(&self, shape: &str) -> (Option<String>, Vec<String>) {
+        let (name, tags) = &self.object;
+        assert!(!name.is_empty(), "shape {shape} added outside an object");
+        ((name != shape).then(|| name.clone()), tags.clone())
+    }
+
     fn add(&mut self, name: &str, geometry: Geometry, material: MaterialDesc) {
+        let (object, tags) = self.object_of(name);
         self.shapes.push(ShapeDesc {
             name: name.to_string(),
+            object,
+            tags,
             geometry,
             material,
             emission: None,
@@ -111,8 +133,11 @@ impl RoomBuilder {
 
     fn add_emitter(&mut self, name: &str, geometry: Geometry, emission: [f32; 3]) {
         let black = mat([0.0; 3], 0.0, 1.0);
+        let (object, tags) = self.object_of(name);
         self.shapes.push(ShapeDesc {
             name: name.to_string(),
+            object,
+            tags,
             geometry,
             material: black,
             emission: Some(emission),
@@ -170,6 +195,7 @@ impl RoomBuilder {
             roughness: 0.5,
             texture: Some(floor_texture),
         };
+        self.object("floor", &[ROOM]);
         self.add(
             "floor",
             Geometry::Quad {
@@ -179,6 +205,7 @@ impl RoomBuilder {
             },
             floor,
         );
+        self.object("ceiling", &[ROOM]);
         self.add(
             "ceiling",
             Geometry::Quad {
@@ -200,6 +227,7 @@ impl RoomBuilder {
                 axis: 0,
             }),
         };
+        self.object("wall_back", &[ROOM]);
         self.add(
             "wall_back",
             Geometry::Quad {
@@ -209,6 +237,7 @@ impl RoomBuilder {
             },
             paper,
         );
+        self.object("wall_front", &[ROOM]);
         self.add(
             "wall_front",
             Geometry::Quad {
@@ -218,6 +247,7 @@ impl RoomBuilder {
             },
             mat(wall, 0.0, 0.9),
         );
+        self.object("wall_left", &[ROOM]);
         self.add(
             "wall_left",
             Geometry::Quad {
@@ -227,6 +257,7 @@ impl RoomBuilder {
             },
             mat(wall, 0.0, 0.9),
         );
+        self.object("wall_right", &[ROOM]);
         self.add(
             "wall_right",
             Geometry::Quad {
@@ -243,6 +274,7 @@ impl RoomBuilder {
         self.panel = ([px, pz], [pw / 2.0, pd / 2.0]);
         let y = hi.y - 0.005;
         let e = self.rng.gen_range(4.0..5.0f32);
+        self.object("ceiling_light", &[]);
         self.add_emitter(
             "ceiling_light",
             Geometry::Quad {
@@ -372,6 +404,7 @@ impl RoomBuilder {
         let metal = mat([0.15, 0.15, 0.16], 0.6, 0.3);
         let height = self.rng.gen_range(1.4..1.7f32);
         let radius = self.rng.gen_range(0.013..0.016f32);
+        self.object(&format!("{name}_base"), &[FURNITURE]);
         self.local_cylinder(
             p,
             &format!("{name}_base"),
@@ -381,6 +414,7 @@ impl RoomBuilder {
             32,
             metal.clone(),
         );
+        self.object(&format!("{name}_pole"), &[THIN]);
         self.local_cylinder(
             p,
             &format!("{name}_pole"),
@@ -394,6 +428,7 @@ impl RoomBuilder {
         // irradiance singularity (1/d² next to the contact) that light sampling reaches with
         // unbounded variance: a pole into or under the bulb filled every image with fireflies.
         let e = self.rng.gen_range(12.0..16.0f32);
+        self.object(&format!("{name}_bulb"), &[]);
         let c = p.to_world(Vec3::new(0.0, height + 0.04 + 0.1, 0.0));
         self.add_emitter(
             &format!("{name}_bulb"),
@@ -427,6 +462,9 @@ impl RoomBuilder {
             roughness: 0.35,
             texture: None,
         };
+        // Two objects: the rod and arms (1–2 cm across: thin) and the hub with its globes (8–12 cm),
+        // so that the thin-object score is not carried by the globes.
+        self.object("chandelier_rods", &[THIN, SUSPENDED]);
         self.add(
             "chandelier_rod",
             Geometry::Cylinder {
@@ -437,6 +475,7 @@ impl RoomBuilder {
             },
             brass.clone(),
         );
+        self.object("chandelier_globes", &[SUSPENDED]);
         self.add(
             "chandelier_hub",
             Geometry::Sphere {
@@ -454,6 +493,7 @@ impl RoomBuilder {
             let dy = if i % 2 == 0 { -0.12 } else { -0.04 };
             let ball = Vec3::new(c.x + ring * phi.cos(), hub_y + dy, c.z + ring * phi.sin());
             let r = if i % 2 == 0 { 0.05 } else { 0.04 };
+            self.object("chandelier_rods", &[THIN, SUSPENDED]);
             self.add(
                 &format!("chandelier_arm_{i}"),
                 Geometry::Cylinder {
@@ -464,6 +504,7 @@ impl RoomBuilder {
                 },
                 brass.clone(),
             );
+            self.object("chandelier_globes", &[SUSPENDED]);
             self.add(
                 &format!("chandelier_ball_{i}"),
                 Geometry::Sphere {
@@ -484,6 +525,7 @@ impl RoomBuilder {
         // Bed: frame, mattress, pillow, headboard (against a wall, headboard at the wall).
         let (bw, bl) = (self.rng.gen_range(1.4..1.8f32), 2.05f32);
         if let Some(p) = self.against_wall(bw + 1.1, bl, 0.0) {
+            self.object("bed", &[FURNITURE]);
             self.local_box(
                 p,
                 "bed_frame",
@@ -515,6 +557,7 @@ impl RoomBuilder {
             // Nightstands beside the bed, each with a small glossy sphere ornament on one.
             for (i, side) in [-1.0f32, 1.0].into_iter().enumerate() {
                 let x = side * (bw / 2.0 + 0.3);
+                self.object(&format!("nightstand_{i}"), &[FURNITURE]);
                 self.local_box(
                     p,
                     &format!("nightstand_{i}"),
@@ -525,6 +568,7 @@ impl RoomBuilder {
             }
             let x = -(bw / 2.0 + 0.3);
             let c = p.to_world(Vec3::new(x, 0.62, -bl / 2.0 + 0.21));
+            self.object("ornament_sphere", &[FURNITURE]);
             self.add(
                 "ornament_sphere",
                 Geometry::Sphere {
@@ -539,6 +583,9 @@ impl RoomBuilder {
         let ww = self.rng.gen_range(0.9..1.3f32);
         if let Some(p) = self.against_wall(ww, 0.58, 0.0) {
             let paint = self.pastel();
+            // The handle (3 cm deep) is relief on the wardrobe's face, not a free-standing thin
+            // structure: it stays part of the wardrobe.
+            self.object("wardrobe", &[FURNITURE]);
             self.local_box(
                 p,
                 "wardrobe",
@@ -564,6 +611,7 @@ impl RoomBuilder {
         // Sofa: seat, back, two armrests.
         let sw = self.rng.gen_range(1.8..2.3f32);
         if let Some(p) = self.against_wall(sw, 0.9, 0.05) {
+            self.object("sofa", &[FURNITURE]);
             self.local_box(
                 p,
                 "sofa_seat",
@@ -592,6 +640,7 @@ impl RoomBuilder {
         // TV stand with a glossy black screen.
         let tw = self.rng.gen_range(1.2..1.6f32);
         if let Some(p) = self.against_wall(tw, 0.45, 0.0) {
+            self.object("tv_stand", &[FURNITURE]);
             self.local_box(
                 p,
                 "tv_stand",
@@ -599,6 +648,7 @@ impl RoomBuilder {
                 [tw / 2.0, 0.45, 0.22],
                 mat([0.3, 0.22, 0.15], 0.08, 0.35),
             );
+            self.object("tv_screen", &[FURNITURE]);
             self.local_box(
                 p,
                 "tv_screen",
@@ -611,6 +661,7 @@ impl RoomBuilder {
         let shelf_w = self.rng.gen_range(0.8..1.1f32);
         if let Some(p) = self.against_wall(shelf_w, 0.35, 0.0) {
             let wood = mat([0.55, 0.4, 0.25], 0.04, 0.5);
+            self.object("bookshelf", &[FURNITURE]);
             self.local_box(
                 p,
                 "shelf_side_l",
@@ -634,6 +685,7 @@ impl RoomBuilder {
             );
             for k in 0..5 {
                 let y = k as f32 * 0.43;
+                self.object("bookshelf", &[FURNITURE]);
                 self.local_box(
                     p,
                     &format!("shelf_board_{k}"),
@@ -648,6 +700,7 @@ impl RoomBuilder {
                         let bw = self.rng.gen_range(0.03..0.07f32);
                         let bh = self.rng.gen_range(0.2..0.36f32);
                         let c = self.saturated();
+                        self.object("books", &[FURNITURE]);
                         self.local_box(
                             p,
                             &format!("book_{k}_{j}"),
@@ -678,7 +731,9 @@ impl RoomBuilder {
                     axis: 2,
                 }),
             };
+            self.object("rug", &[FURNITURE]);
             self.local_box(p, "rug", [-1.0, 0.0, -0.7], [1.0, 0.01, 0.7], rug_mat);
+            self.object("coffee_table", &[FURNITURE]);
             self.local_box(
                 p,
                 "coffee_table_top",
@@ -690,6 +745,7 @@ impl RoomBuilder {
                 .into_iter()
                 .enumerate()
             {
+                self.object("coffee_table_legs", &[THIN]);
                 self.local_cylinder(
                     p,
                     &format!("coffee_table_leg_{i}"),
@@ -701,6 +757,7 @@ impl RoomBuilder {
                 );
             }
             let c = p.to_world(Vec3::new(0.2, 0.45 + 0.1, 0.0));
+            self.object("glossy_ball", &[FURNITURE]);
             self.add(
                 "glossy_ball",
                 Geometry::Sphere {
@@ -719,6 +776,7 @@ impl RoomBuilder {
         let (w, d) = (self.rng.gen_range(0.9..1.2f32), 0.55f32);
         if let Some(p) = self.against_wall(w, d, 0.02) {
             let top = mat([0.6, 0.45, 0.3], 0.08, 0.3);
+            self.object(name, &[FURNITURE]);
             self.local_box(
                 p,
                 &format!("{name}_top"),
@@ -731,6 +789,7 @@ impl RoomBuilder {
                 .enumerate()
             {
                 let (x, z) = (sx * (w / 2.0 - 0.04), sz * (d / 2.0 - 0.04));
+                self.object(&format!("{name}_legs"), &[THIN]);
                 self.local_cylinder(
                     p,
                     &format!("{name}_leg_{i}"),
@@ -742,6 +801,7 @@ impl RoomBuilder {
                 );
             }
             let c = self.saturated();
+            self.object(&format!("{name}_vase"), &[FURNITURE]);
             self.local_cylinder(
                 p,
                 &format!("{name}_vase"),

@@ -41,6 +41,14 @@ fn default_pitch() -> [f32; 2] {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ShapeDesc {
     pub name: String,
+    /// The object this shape is part of: shapes naming the same object form one object of the
+    /// ground truth (one `object_id` in `mesh.ply`, one entry of `objects` in transforms.json), so
+    /// that four table legs can be scored together. Defaults to the shape's own name.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub object: Option<String>,
+    /// Tags of that object (see [`tags`]); an object's tags are the union over its shapes.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub tags: Vec<String>,
     #[serde(flatten)]
     pub geometry: Geometry,
     pub material: MaterialDesc,
@@ -79,6 +87,31 @@ pub enum Geometry {
     },
     /// One-sided parallelogram `origin + s·u + t·v`, s,t ∈ [0,1]; it faces along u × v.
     Quad { origin: [f32; 3], u: [f32; 3], v: [f32; 3] },
+}
+
+/// The object tags the generator writes. Evaluation groups objects by them: `thin` and
+/// `suspended` objects are what the paper's bubble loss exists to recover.
+pub mod tags {
+    /// Floor, ceiling and walls.
+    pub const ROOM: &str = "room";
+    pub const FURNITURE: &str = "furniture";
+    /// Rod-like parts, under ~4 cm across in both directions of their cross-section (a lamp pole,
+    /// table legs, chandelier rods). Slabs thin in one direction only (table tops, shelf boards, a
+    /// rug) are not thin: a flat plate is as easy to see from depth as a wall.
+    pub const THIN: &str = "thin";
+    /// Hanging in the air, attached only to the ceiling (the chandelier).
+    pub const SUSPENDED: &str = "suspended";
+    /// Implied by a shape's `emission`; never needs writing.
+    pub const EMITTER: &str = "emitter";
+}
+
+/// One object of the scene as the ground truth names it: `id` is the mesh's per-face
+/// `object_id`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneObject {
+    pub id: i32,
+    pub name: String,
+    pub tags: Vec<String>,
 }
 
 fn default_subdivisions() -> u32 {
@@ -163,6 +196,35 @@ impl SceneDesc {
         toml::to_string_pretty(self).expect("scene descriptions always serialize")
     }
 
+    /// The scene's objects, numbered 0, 1, … in order of first appearance, and the object id of
+    /// every shape. Tags are merged over an object's shapes in order of first appearance, with
+    /// `emitter` added where a shape emits.
+    pub fn objects(&self) -> (Vec<SceneObject>, Vec<i32>) {
+        let mut objects: Vec<SceneObject> = Vec::new();
+        let mut index = std::collections::HashMap::new();
+        let mut object_of_shape = Vec::with_capacity(self.shapes.len());
+        for s in &self.shapes {
+            let name = s.object.as_deref().unwrap_or(&s.name);
+            let id = *index.entry(name.to_string()).or_insert_with(|| {
+                objects.push(SceneObject {
+                    id: objects.len() as i32,
+                    name: name.to_string(),
+                    tags: Vec::new(),
+                });
+                objects.len() as i32 - 1
+            });
+            let tags = &mut objects[id as usize].tags;
+            let implied = s.emission.is_some().then_some(tags::EMITTER);
+            for t in s.tags.iter().map(String::as_str).chain(implied) {
+                if !tags.iter().any(|x| x == t) {
+                    tags.push(t.to_string());
+                }
+            }
+            object_of_shape.push(id);
+        }
+        (objects, object_of_shape)
+    }
+
     /// Checks every value a renderer relies on; errors name the shape and field.
     pub fn validate(&self, path: &Path) -> Result<(), DataError> {
         let (lo, hi) = (Vec3::from(self.room.min), Vec3::from(self.room.max));
@@ -198,6 +260,12 @@ impl SceneDesc {
         for (i, s) in self.shapes.iter().enumerate() {
             let field = |f: &str| format!("shape[{i}] ({}).{f}", s.name);
             let bad = |f: &str, msg: &str| Err(DataError::field(path, field(f), msg));
+            if s.object.as_ref().is_some_and(|o| o.trim().is_empty()) {
+                return bad("object", "must not be empty (leave it out to use the shape's name)");
+            }
+            if s.tags.iter().any(|t| t.trim().is_empty()) {
+                return bad("tags", "tags must not be empty strings");
+            }
             match &s.geometry {
                 Geometry::Box { min, max, yaw_deg } => {
                     if !finite3(min)

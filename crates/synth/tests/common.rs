@@ -1,5 +1,5 @@
 //! Shared helpers of the synth integration tests: a tiny rendered dataset and readers for what
-//! it wrote (cameras from transforms.json, depth EXRs, the binary PLY).
+//! it wrote (cameras from transforms.json, depth EXRs, the binary PLY with its object ids).
 
 #![allow(dead_code)]
 
@@ -105,6 +105,13 @@ impl Written {
 
 /// Reads a binary little-endian PLY of float vertices and int triangles.
 pub fn read_ply(path: &Path) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let (verts, faces, _) = read_ply_with_objects(path);
+    (verts, faces)
+}
+
+/// Reads a binary little-endian PLY of float vertices and int triangles, with the per-face
+/// `int object_id` when the header declares one.
+pub fn read_ply_with_objects(path: &Path) -> (Vec<Vec3>, Vec<[u32; 3]>, Option<Vec<i32>>) {
     let bytes = std::fs::read(path).unwrap();
     let end = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
     let header = std::str::from_utf8(&bytes[..end]).unwrap();
@@ -121,21 +128,25 @@ pub fn read_ply(path: &Path) -> (Vec<Vec3>, Vec<[u32; 3]>) {
             .unwrap()
     };
     let (nv, nf) = (count("vertex"), count("face"));
+    let has_ids = header.contains("property list uchar int vertex_indices\nproperty int object_id\n");
+    let stride = if has_ids { 17 } else { 13 };
     let f32_at = |o: usize| f32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
+    let i32_at = |o: usize| i32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
     let verts: Vec<Vec3> = (0..nv)
         .map(|i| Vec3::new(f32_at(end + 12 * i), f32_at(end + 12 * i + 4), f32_at(end + 12 * i + 8)))
         .collect();
     let base = end + 12 * nv;
     let faces: Vec<[u32; 3]> = (0..nf)
         .map(|i| {
-            let o = base + 13 * i;
+            let o = base + stride * i;
             assert_eq!(bytes[o], 3);
-            let idx = |k: usize| i32::from_le_bytes(bytes[o + 1 + 4 * k..o + 5 + 4 * k].try_into().unwrap()) as u32;
+            let idx = |k: usize| i32_at(o + 1 + 4 * k) as u32;
             [idx(0), idx(1), idx(2)]
         })
         .collect();
-    assert_eq!(base + 13 * nf, bytes.len());
-    (verts, faces)
+    let ids = has_ids.then(|| (0..nf).map(|i| i32_at(base + stride * i + 13)).collect());
+    assert_eq!(base + stride * nf, bytes.len());
+    (verts, faces, ids)
 }
 
 /// Distance from `p` to triangle (a, b, c) (Ericson, Real-Time Collision Detection 5.1.5), f64.

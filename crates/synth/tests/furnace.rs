@@ -14,6 +14,8 @@ fn furnace_scene(le: [f32; 3], kd: [f32; 3]) -> SceneDesc {
     let (w, h, d) = (4.0, 3.0, 4.0);
     let wall = |name: &str, origin: Vec3, u: [f32; 3], v: [f32; 3]| ShapeDesc {
         name: name.into(),
+        object: None,
+        tags: Vec::new(),
         geometry: Geometry::Quad {
             origin: origin.into(),
             u,
@@ -45,6 +47,8 @@ fn furnace_scene(le: [f32; 3], kd: [f32; 3]) -> SceneDesc {
     // objects several times.
     shapes.push(ShapeDesc {
         name: "box".into(),
+        object: None,
+        tags: Vec::new(),
         geometry: Geometry::Box {
             min: [-0.8, 0.0, -1.2],
             max: [0.4, 0.9, -0.3],
@@ -55,6 +59,8 @@ fn furnace_scene(le: [f32; 3], kd: [f32; 3]) -> SceneDesc {
     });
     shapes.push(ShapeDesc {
         name: "sphere".into(),
+        object: None,
+        tags: Vec::new(),
         geometry: Geometry::Sphere {
             center: [-0.2, 1.3, -0.8],
             radius: 0.4,
@@ -65,6 +71,8 @@ fn furnace_scene(le: [f32; 3], kd: [f32; 3]) -> SceneDesc {
     });
     shapes.push(ShapeDesc {
         name: "cylinder".into(),
+        object: None,
+        tags: Vec::new(),
         geometry: Geometry::Cylinder {
             a: [0.7, 0.0, -0.9],
             b: [0.7, 1.6, -0.9],
