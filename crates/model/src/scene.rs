@@ -9,8 +9,9 @@ use i2sdf_nn::{
 use std::collections::HashMap;
 use std::path::Path;
 
-/// The learnable β of the VolSDF density (paper eq. 2), kept as β = β_min + |raw| so it stays
-/// positive whatever the optimizer does (VolSDF's parametrization).
+/// The learnable β of the VolSDF density (paper eq. 2), kept as β = β_min + exp(raw): positive
+/// whatever the optimizer does, and learned in log space so that a short CPU schedule can move it
+/// over orders of magnitude (0.1 → 0.001) at a constant relative rate.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Beta {
     pub raw: [f32; 1],
@@ -19,18 +20,17 @@ pub struct Beta {
 
 impl Beta {
     pub fn new(init: f32, min: f32) -> Self {
-        Beta { raw: [init - min], min }
+        Beta {
+            raw: [(init - min).ln()],
+            min,
+        }
     }
     pub fn value(&self) -> f32 {
-        self.min + self.raw[0].abs()
+        self.min + self.raw[0].exp()
     }
     /// dβ/d raw.
     pub fn dvalue(&self) -> f32 {
-        if self.raw[0] >= 0.0 {
-            1.0
-        } else {
-            -1.0
-        }
+        self.raw[0].exp()
     }
 }
 
@@ -322,7 +322,7 @@ mod tests {
             },
             5,
         );
-        scene.beta.raw[0] = 0.0314;
+        scene.beta.raw[0] = -3.14;
         scene.radiance.params[7] = 0.5;
         let p = dir.path().join("fields.safetensors");
         scene.save(&p, &[("iteration", "12".into())]).unwrap();

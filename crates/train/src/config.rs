@@ -47,7 +47,9 @@ pub struct TrainLoop {
     /// Learning rate of the hash grid (or of the whole MLP backbone) and of the MLPs.
     pub lr_grid: f32,
     pub lr_mlp: f32,
-    /// Final learning rate as a fraction of the initial one (exponential decay, as VolSDF).
+    /// Learning rate of log β (the density's sharpness).
+    pub lr_beta: f32,
+    /// Final learning rate as a fraction of the initial one (cosine decay after the warm-up).
     pub lr_final_fraction: f32,
     /// Learning-rate warm-up iterations (linear ramp).
     pub lr_warmup: u64,
@@ -69,6 +71,7 @@ impl Default for TrainLoop {
             eikonal_points: 1024,
             lr_grid: 1e-2,
             lr_mlp: 1e-3,
+            lr_beta: 1e-2,
             lr_final_fraction: 0.1,
             lr_warmup: 100,
             seed: 0,

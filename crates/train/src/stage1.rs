@@ -143,7 +143,7 @@ impl Stage1 {
         };
         let radiance = adam.add_group("radiance", scene.radiance.params.len(), t.lr_mlp, schedule(t.lr_warmup));
         let emitter = adam.add_group("emitter", scene.emitter.params.len(), t.lr_mlp, schedule(t.lr_warmup));
-        let beta = adam.add_group("beta", 1, t.lr_mlp, schedule(0));
+        let beta = adam.add_group("beta", 1, t.lr_beta, schedule(0));
         let mut settings = RenderSettings::default();
         settings.sampler.num_samples = config.sampling.samples;
         settings.sampler.num_samples_eval = config.sampling.coarse;
