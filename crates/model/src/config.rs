@@ -46,7 +46,7 @@ impl Default for ModelConfig {
             backbone: Backbone::HashGrid,
             hash_levels: 16,
             hash_features: 2,
-            hash_log2_table: 19,
+            hash_log2_table: 17,
             hash_base_resolution: 16,
             hash_finest_resolution: 2048,
             sdf_hidden: 64,

@@ -65,12 +65,12 @@ pub struct TrainLoop {
 impl Default for TrainLoop {
     fn default() -> Self {
         TrainLoop {
-            iterations: 4000,
+            iterations: 3000,
             rays: 1024,
             bubble_points: 1024,
             eikonal_points: 1024,
             lr_grid: 1e-2,
-            lr_mlp: 1e-3,
+            lr_mlp: 5e-3,
             lr_beta: 1e-2,
             lr_final_fraction: 0.1,
             lr_warmup: 100,
@@ -96,8 +96,8 @@ pub struct SamplingConfig {
 impl Default for SamplingConfig {
     fn default() -> Self {
         SamplingConfig {
-            samples: 64,
-            coarse: 64,
+            samples: 32,
+            coarse: 32,
             epsilon: 0.1,
         }
     }
