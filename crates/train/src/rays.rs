@@ -169,19 +169,11 @@ impl RayBatch {
     }
 }
 
-/// Distance along a unit ray from `o` (inside the sphere) to where it leaves the sphere of radius
-/// `r` about the origin.
-pub fn sphere_exit(o: [f32; 3], d: [f32; 3], r: f32) -> f32 {
-    let b = o[0] * d[0] + o[1] * d[1] + o[2] * d[2];
-    let c = o[0] * o[0] + o[1] * o[1] + o[2] * o[2] - r * r;
-    let disc = (b * b - c).max(0.0);
-    (-b + disc.sqrt()).max(0.0)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use i2sdf_data::fixture::{self, FixtureOptions};
+    use i2sdf_model::renderer::sphere_exit;
     use rand::SeedableRng;
 
     #[test]
