@@ -5,6 +5,7 @@ mod common;
 
 use glam::Vec3;
 use i2sdf_data::Split;
+use i2sdf_synth::tracer::Estimator;
 use i2sdf_synth::{generate, DepthNoise, RoomPreset, SynthOptions};
 
 #[test]
@@ -19,6 +20,7 @@ fn generated_scene_loads_with_every_annotation() {
         max_depth: 3,
         depth_noise: DepthNoise::Sigma,
         preset: Some("bedroom".into()),
+        ..Default::default()
     };
     generate(RoomPreset::Bedroom.build(1), &opts, tmp.path(), &|| {}).unwrap();
     let ds = i2sdf_data::load(tmp.path()).expect("the loader accepts a generated scene");
@@ -74,4 +76,30 @@ fn bad_options_are_rejected_as_bad_input() {
     };
     let err = generate(RoomPreset::Bedroom.build(0), &opts, tmp.path(), &|| {}).unwrap_err();
     assert!(err.to_string().contains("spp"));
+}
+
+#[test]
+fn transforms_json_records_the_estimator() {
+    let tmp = tempfile::tempdir().unwrap();
+    let default = common::render_tiny(tmp.path(), RoomPreset::Livingroom, 0, 2);
+    let est = &default.json["generator"]["estimator"];
+    assert_eq!(est["unbiased"], false, "{est}");
+    let rho = est["regularization"]["min_roughness_after_diffuse"].as_f64().unwrap();
+    assert_eq!(Some(rho as f32), Estimator::DATASET.regularize_roughness);
+
+    let tmp = tempfile::tempdir().unwrap();
+    let opts = SynthOptions {
+        width: 32,
+        height: 24,
+        views: 2,
+        spp: 1,
+        max_depth: 2,
+        estimator: Estimator::UNBIASED,
+        ..Default::default()
+    };
+    generate(RoomPreset::Livingroom.build(0), &opts, tmp.path(), &|| {}).unwrap();
+    let json = common::read_written(tmp.path()).json;
+    let est = &json["generator"]["estimator"];
+    assert_eq!(est["unbiased"], true, "{est}");
+    assert!(est["regularization"].is_null(), "{est}");
 }

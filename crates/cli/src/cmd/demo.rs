@@ -37,6 +37,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             spp,
             depth_noise: "none".into(),
             max_depth: 64,
+            unbiased: false,
         })?;
     } else {
         eprintln!("== 1/5 reuse the room in {}", scene.display());

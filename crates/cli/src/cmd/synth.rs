@@ -4,6 +4,7 @@
 
 use anyhow::Context;
 use i2sdf_data::DataError;
+use i2sdf_synth::tracer::Estimator;
 use i2sdf_synth::{generate, DepthNoise, RoomPreset, SceneDesc, SynthOptions};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
@@ -38,6 +39,11 @@ pub struct Args {
     /// Most scattering events per path (Russian roulette ends most paths far earlier).
     #[arg(long, default_value_t = SynthOptions::default().max_depth)]
     pub max_depth: u32,
+    /// Render with the plain unbiased path tracer, without the default path-space regularization
+    /// of glossy lobes after a diffuse bounce (which removes caustic fireflies at a small bias;
+    /// transforms.json records which estimator made the images).
+    #[arg(long)]
+    pub unbiased: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -63,6 +69,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         max_depth: args.max_depth,
         depth_noise,
         preset,
+        estimator: if args.unbiased {
+            Estimator::UNBIASED
+        } else {
+            SynthOptions::default().estimator
+        },
     };
     opts.validate()?;
     let bar = ProgressBar::new((opts.views * opts.height) as u64);
