@@ -21,12 +21,33 @@ struct Cli {
 enum Command {
     /// Validate a dataset (native transforms.json or the paper's release format) and summarize it.
     Check(cmd::check::Args),
+    /// Render a synthetic indoor room with full ground truth (images, depth, normals, emitter masks, materials, mesh, relit test views).
+    Synth(cmd::synth::Args),
+    /// Time the neural engine: a representative stage-1 iteration, the paper's MLP backbone, and this machine's sgemm peak.
+    Bench(cmd::bench::Args),
+    /// Train a run: stage 1 (SDF, radiance and emitter fields) from a dataset.
+    Train(cmd::train::Args),
+    /// Extract the trained SDF's surface as a mesh (marching cubes, world units, PLY).
+    Mesh(cmd::mesh::Args),
+    /// Render views with the trained fields: colour, depth, normals, emitter probability.
+    Render(cmd::render::Args),
+    /// Evaluate a run against its dataset: image, depth, normal and mesh metrics as JSON.
+    Eval(cmd::eval::Args),
+    /// Run the whole pipeline on the built-in synthetic room (synth → check → train → mesh → render → eval).
+    Demo(cmd::demo::Args),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Check(a) => cmd::check::run(a),
+        Command::Synth(a) => cmd::synth::run(a),
+        Command::Bench(a) => cmd::bench::run(a),
+        Command::Train(a) => cmd::train::run(a),
+        Command::Mesh(a) => cmd::mesh::run(a),
+        Command::Render(a) => cmd::render::run(a),
+        Command::Eval(a) => cmd::eval::run(a),
+        Command::Demo(a) => cmd::demo::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

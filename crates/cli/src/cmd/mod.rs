@@ -1,4 +1,11 @@
+pub mod bench;
 pub mod check;
+pub mod demo;
+pub mod eval;
+pub mod mesh;
+pub mod render;
+pub mod synth;
+pub mod train;
 
 /// DESIGN.md exit codes: 2 for bad input (any `DataError` in the chain), 1 for anything else.
 pub fn exit_code(e: &anyhow::Error) -> u8 {
@@ -7,4 +14,28 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
     } else {
         1
     }
+}
+
+/// A trained run's fields (from its checkpoint) and its run info.
+pub fn load_run(
+    run: &std::path::Path,
+) -> Result<(i2sdf_model::NeuralScene, i2sdf_train::run_dir::RunInfo), i2sdf_data::DataError> {
+    let dir = i2sdf_train::run_dir::RunDir::new(run);
+    let info = dir.read_info()?;
+    let (scene, _) = i2sdf_model::NeuralScene::load(&dir.checkpoint_path())?;
+    Ok((scene, info))
+}
+
+/// The scene bounds recorded in the run.
+pub fn run_bounds(
+    run: &std::path::Path,
+    info: &i2sdf_train::run_dir::RunInfo,
+) -> Result<i2sdf_data::Bounds, i2sdf_data::DataError> {
+    info.bounds.ok_or_else(|| {
+        i2sdf_data::DataError::field(
+            run.join("run.json"),
+            "bounds",
+            "missing (run trained by an older version?)",
+        )
+    })
 }

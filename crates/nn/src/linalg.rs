@@ -1,0 +1,294 @@
+//! Thin, safe wrappers over `matrixmultiply::sgemm` for the three products of a dense layer, and the
+//! small slice utilities the tile loops share.
+//!
+//! All matrices are row-major with an explicit leading dimension (row stride). The engine calls these
+//! from inside rayon tasks, one tile per call, so matrixmultiply's own threading must stay off: it
+//! would split a 64×256×64 weight-gradient product over a second thread pool and fight rayon for the
+//! same two cores. [`single_threaded_gemm`] pins it to one thread (its pool is configured once, from
+//! `MATMUL_NUM_THREADS`, on first use); the sgemm peak of the benchmark splits its product over rayon
+//! instead, so it measures the same kernel the engine runs.
+
+use std::sync::Once;
+
+static GEMM_THREADS: Once = Once::new();
+
+/// Whether a product with inner dimension `k` and output width `n` runs on [`crate::smallgemm`]:
+/// on AVX-512 builds, unless both are wide (the paper's 256-wide layers), where matrixmultiply's
+/// cache blocking wins (measured, one thread: 256³ `A·Bᵀ` 135–185 vs 86 GFLOP/s; at 256×64×64
+/// the small kernel does 240 vs 120). `I2SDF_GEMM=matrixmultiply` forces matrixmultiply.
+fn small_gemm_for(k: usize, n: usize) -> bool {
+    use_small_gemm() && (k <= 128 || n <= 128)
+}
+
+fn use_small_gemm() -> bool {
+    use std::sync::OnceLock;
+    static CHOICE: OnceLock<bool> = OnceLock::new();
+    *CHOICE.get_or_init(|| {
+        crate::smallgemm::AVAILABLE && std::env::var("I2SDF_GEMM").map_or(true, |v| v != "matrixmultiply")
+    })
+}
+
+std::thread_local! {
+    /// `Bᵀ` of [`gemm_a_bt`] for the small kernel (a weight matrix; reused, never shrunk).
+    static TRANSPOSED: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Configure matrixmultiply for one thread per call (before its first use). Called by every engine
+/// entry point; harmless when the caller already set `MATMUL_NUM_THREADS`.
+pub fn single_threaded_gemm() {
+    GEMM_THREADS.call_once(|| {
+        if std::env::var_os("MATMUL_NUM_THREADS").is_none() {
+            // SAFETY of intent: runs once, before any engine thread reads the environment.
+            std::env::set_var("MATMUL_NUM_THREADS", "1");
+        }
+    });
+}
+
+/// `C[m×n] = beta·C + A[m×k] · Bᵀ`, with `B` stored `[n×k]` (a layer's weight `W[out×in]`).
+#[allow(clippy::too_many_arguments)]
+#[inline]
+pub fn gemm_a_bt(
+    m: usize,
+    k: usize,
+    n: usize,
+    a: &[f32],
+    lda: usize,
+    b: &[f32],
+    ldb: usize,
+    beta: f32,
+    c: &mut [f32],
+    ldc: usize,
+) {
+    if m == 0 || n == 0 {
+        return;
+    }
+    assert!(a.len() >= (m - 1) * lda + k && b.len() >= (n - 1) * ldb + k);
+    assert!(c.len() >= (m - 1) * ldc + n);
+    if small_gemm_for(k, n) && (beta == 0.0 || beta == 1.0) {
+        TRANSPOSED.with_borrow_mut(|bt| {
+            if bt.len() < k * n {
+                bt.resize(k * n, 0.0);
+            }
+            for j in 0..n {
+                for p in 0..k {
+                    bt[p * n + j] = b[j * ldb + p];
+                }
+            }
+            // SAFETY: bounds asserted above; Bᵀ is [k×n] in `bt`.
+            unsafe {
+                crate::smallgemm::gemm(
+                    m,
+                    k,
+                    n,
+                    a.as_ptr(),
+                    lda,
+                    1,
+                    bt.as_ptr(),
+                    n,
+                    beta == 1.0,
+                    c.as_mut_ptr(),
+                    ldc,
+                )
+            }
+        });
+        return;
+    }
+    // SAFETY: bounds asserted above; strides describe row-major storage inside the slices.
+    unsafe {
+        matrixmultiply::sgemm(
+            m,
+            k,
+            n,
+            1.0,
+            a.as_ptr(),
+            lda as isize,
+            1,
+            b.as_ptr(),
+            1,
+            ldb as isize,
+            beta,
+            c.as_mut_ptr(),
+            ldc as isize,
+            1,
+        )
+    }
+}
+
+/// `C[m×n] = beta·C + A[m×k] · B[k×n]`.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+pub fn gemm_a_b(
+    m: usize,
+    k: usize,
+    n: usize,
+    a: &[f32],
+    lda: usize,
+    b: &[f32],
+    ldb: usize,
+    beta: f32,
+    c: &mut [f32],
+    ldc: usize,
+) {
+    if m == 0 || n == 0 {
+        return;
+    }
+    assert!(a.len() >= (m - 1) * lda + k && b.len() >= (k.max(1) - 1) * ldb + n);
+    assert!(c.len() >= (m - 1) * ldc + n);
+    if small_gemm_for(k, n) && (beta == 0.0 || beta == 1.0) {
+        // SAFETY: bounds asserted above.
+        unsafe {
+            crate::smallgemm::gemm(
+                m,
+                k,
+                n,
+                a.as_ptr(),
+                lda,
+                1,
+                b.as_ptr(),
+                ldb,
+                beta == 1.0,
+                c.as_mut_ptr(),
+                ldc,
+            )
+        };
+        return;
+    }
+    // SAFETY: bounds asserted above.
+    unsafe {
+        matrixmultiply::sgemm(
+            m,
+            k,
+            n,
+            1.0,
+            a.as_ptr(),
+            lda as isize,
+            1,
+            b.as_ptr(),
+            ldb as isize,
+            1,
+            beta,
+            c.as_mut_ptr(),
+            ldc as isize,
+            1,
+        )
+    }
+}
+
+/// `C[m×n] += Aᵀ · B` with `A` stored `[k×m]` and `B` `[k×n]`: the weight gradient `W̄ += Z̄ᵀ·I`
+/// summed over the `k` points of a tile.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+pub fn gemm_at_b_acc(
+    m: usize,
+    k: usize,
+    n: usize,
+    a: &[f32],
+    lda: usize,
+    b: &[f32],
+    ldb: usize,
+    c: &mut [f32],
+    ldc: usize,
+) {
+    if m == 0 || n == 0 || k == 0 {
+        return;
+    }
+    assert!(a.len() >= (k - 1) * lda + m && b.len() >= (k - 1) * ldb + n);
+    assert!(c.len() >= (m - 1) * ldc + n);
+    if small_gemm_for(m, n) {
+        // SAFETY: bounds asserted above; A(r, p) = a[p·lda + r].
+        unsafe { crate::smallgemm::gemm(m, k, n, a.as_ptr(), 1, lda, b.as_ptr(), ldb, true, c.as_mut_ptr(), ldc) };
+        return;
+    }
+    // SAFETY: bounds asserted above.
+    unsafe {
+        matrixmultiply::sgemm(
+            m,
+            k,
+            n,
+            1.0,
+            a.as_ptr(),
+            1,
+            lda as isize,
+            b.as_ptr(),
+            ldb as isize,
+            1,
+            1.0,
+            c.as_mut_ptr(),
+            ldc as isize,
+            1,
+        )
+    }
+}
+
+/// Split `s` into consecutive mutable pieces of the given lengths (the rest is dropped).
+pub fn split_lengths_mut<'a, T>(mut s: &'a mut [T], lens: &[usize]) -> Vec<&'a mut [T]> {
+    let mut out = Vec::with_capacity(lens.len());
+    for &l in lens {
+        let (head, tail) = std::mem::take(&mut s).split_at_mut(l);
+        out.push(head);
+        s = tail;
+    }
+    out
+}
+
+/// Contiguous ranges of `n_items` split into at most `n_parts` nearly equal parts (none empty).
+pub fn even_ranges(n_items: usize, n_parts: usize) -> Vec<std::ops::Range<usize>> {
+    let parts = n_parts.clamp(1, n_items.max(1));
+    (0..parts)
+        .map(|p| (p * n_items / parts)..((p + 1) * n_items / parts))
+        .filter(|r| !r.is_empty())
+        .collect()
+}
+
+/// Sum per-chunk accumulators into `out` (`out += Σ accs`), in parallel over slices of `out`.
+pub fn reduce_into(out: &mut [f32], accs: &[Vec<f32>]) {
+    use rayon::prelude::*;
+    const BLOCK: usize = 1 << 14;
+    out.par_chunks_mut(BLOCK).enumerate().for_each(|(b, o)| {
+        let (start, len) = (b * BLOCK, o.len());
+        for acc in accs {
+            for (o, a) in o.iter_mut().zip(&acc[start..start + len]) {
+                *o += a;
+            }
+        }
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gemm_wrappers_match_naive_products() {
+        single_threaded_gemm();
+        let (m, k, n) = (5, 7, 3);
+        let a: Vec<f32> = (0..m * k).map(|i| (i as f32 * 0.37).sin()).collect();
+        let bt: Vec<f32> = (0..n * k).map(|i| (i as f32 * 0.91).cos()).collect();
+        let bn: Vec<f32> = (0..k * n).map(|i| (i as f32 * 0.53).sin()).collect();
+        let mut c = vec![1.0f32; m * n];
+        gemm_a_bt(m, k, n, &a, k, &bt, k, 1.0, &mut c, n);
+        for i in 0..m {
+            for j in 0..n {
+                let want: f32 = 1.0 + (0..k).map(|p| a[i * k + p] * bt[j * k + p]).sum::<f32>();
+                assert!((c[i * n + j] - want).abs() < 1e-5);
+            }
+        }
+        gemm_a_b(m, k, n, &a, k, &bn, n, 0.0, &mut c, n);
+        for i in 0..m {
+            for j in 0..n {
+                let want: f32 = (0..k).map(|p| a[i * k + p] * bn[p * n + j]).sum();
+                assert!((c[i * n + j] - want).abs() < 1e-5);
+            }
+        }
+        // Aᵀ·B with A [m×k] seen as [k'=m × m'=k]
+        let mut g = vec![0.5f32; k * n];
+        let b2: Vec<f32> = (0..m * n).map(|i| i as f32 * 0.1).collect();
+        gemm_at_b_acc(k, m, n, &a, k, &b2, n, &mut g, n);
+        for i in 0..k {
+            for j in 0..n {
+                let want: f32 = 0.5 + (0..m).map(|p| a[p * k + i] * b2[p * n + j]).sum::<f32>();
+                assert!((g[i * n + j] - want).abs() < 1e-4);
+            }
+        }
+    }
+}

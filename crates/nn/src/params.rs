@@ -1,0 +1,226 @@
+//! Named parameter tensors and their safetensors files.
+//!
+//! Every module lists its tensors with a name and shape through [`Parameters`]; a checkpoint is the
+//! union of several modules under prefixes (`"sdf"`, `"radiance"`, …), stored as f32 safetensors.
+//! Loading checks that every expected tensor is present with the expected shape.
+
+use crate::hashgrid::HashGrid;
+use crate::mlp::Mlp;
+use crate::sdf::{SdfEncoding, SdfNetwork};
+use safetensors::tensor::{Dtype, SafeTensors, TensorView};
+use std::collections::HashMap;
+use std::path::Path;
+
+/// Errors of parameter files.
+#[derive(Debug, thiserror::Error)]
+pub enum ParamError {
+    #[error("{path}: {source}")]
+    Io { path: String, source: std::io::Error },
+    #[error("{path}: not a safetensors file: {message}")]
+    Format { path: String, message: String },
+    #[error("{path}: tensor {name} is missing")]
+    Missing { path: String, name: String },
+    #[error("{path}: tensor {name} has shape {found:?} ({dtype}), expected {expected:?} (F32)")]
+    Shape {
+        path: String,
+        name: String,
+        found: Vec<usize>,
+        expected: Vec<usize>,
+        dtype: String,
+    },
+}
+
+/// A module with named f32 parameter tensors (flat slices with a logical shape).
+/// The visitor receives `(name, shape, values)` of each tensor.
+#[allow(clippy::type_complexity)]
+pub trait Parameters {
+    fn visit(&self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &[f32]));
+    fn visit_mut(&mut self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &mut [f32]));
+}
+
+impl Parameters for Mlp {
+    fn visit(&self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &[f32])) {
+        for (l, layer) in self.layers.iter().enumerate() {
+            let (w, b) = (layer.weight_offset, layer.bias_offset);
+            f(
+                format!("{prefix}.layers.{l}.weight"),
+                vec![layer.out_dim, layer.in_dim],
+                &self.params[w..b],
+            );
+            f(
+                format!("{prefix}.layers.{l}.bias"),
+                vec![layer.out_dim],
+                &self.params[b..b + layer.out_dim],
+            );
+        }
+    }
+    fn visit_mut(&mut self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &mut [f32])) {
+        for (l, layer) in self.layers.iter().enumerate() {
+            let (w, b) = (layer.weight_offset, layer.bias_offset);
+            let (wp, bp) = self.params[w..b + layer.out_dim].split_at_mut(b - w);
+            f(
+                format!("{prefix}.layers.{l}.weight"),
+                vec![layer.out_dim, layer.in_dim],
+                wp,
+            );
+            f(format!("{prefix}.layers.{l}.bias"), vec![layer.out_dim], bp);
+        }
+    }
+}
+
+impl Parameters for HashGrid {
+    fn visit(&self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &[f32])) {
+        f(
+            format!("{prefix}.table"),
+            vec![self.entries(), self.config.features_per_level],
+            &self.params,
+        );
+    }
+    fn visit_mut(&mut self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &mut [f32])) {
+        let shape = vec![self.entries(), self.config.features_per_level];
+        f(format!("{prefix}.table"), shape, &mut self.params);
+    }
+}
+
+impl Parameters for SdfNetwork {
+    fn visit(&self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &[f32])) {
+        if let SdfEncoding::HashGrid(g) = &self.encoding {
+            g.visit(&format!("{prefix}.hash_grid"), f);
+        }
+        self.mlp.visit(&format!("{prefix}.mlp"), f);
+    }
+    fn visit_mut(&mut self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &mut [f32])) {
+        if let SdfEncoding::HashGrid(g) = &mut self.encoding {
+            g.visit_mut(&format!("{prefix}.hash_grid"), f);
+        }
+        self.mlp.visit_mut(&format!("{prefix}.mlp"), f);
+    }
+}
+
+/// Write the tensors of `modules` (each under its prefix) to a safetensors file, with `metadata`
+/// (e.g. the configuration as JSON) in its header.
+pub fn save_safetensors(
+    path: &Path,
+    modules: &[(&str, &dyn Parameters)],
+    metadata: Option<HashMap<String, String>>,
+) -> Result<(), ParamError> {
+    let mut tensors: Vec<(String, Vec<usize>, Vec<u8>)> = Vec::new();
+    for (prefix, module) in modules {
+        module.visit(prefix, &mut |name, shape, data| {
+            let bytes = data.iter().flat_map(|v| v.to_le_bytes()).collect();
+            tensors.push((name, shape, bytes));
+        });
+    }
+    let p = path.display().to_string();
+    let views: Vec<(String, TensorView)> = tensors
+        .iter()
+        .map(|(n, s, b)| {
+            let view = TensorView::new(Dtype::F32, s.clone(), b).map_err(|e| ParamError::Format {
+                path: p.clone(),
+                message: e.to_string(),
+            })?;
+            Ok((n.clone(), view))
+        })
+        .collect::<Result<_, ParamError>>()?;
+    safetensors::serialize_to_file(views, metadata, path).map_err(|e| match e {
+        safetensors::SafeTensorError::IoError(source) => ParamError::Io {
+            path: p.clone(),
+            source,
+        },
+        other => ParamError::Format {
+            path: p.clone(),
+            message: other.to_string(),
+        },
+    })
+}
+
+/// Read a safetensors file into `modules` (each under its prefix); every tensor they expect must be
+/// present, f32, with their shape. Returns the header metadata.
+pub fn load_safetensors(
+    path: &Path,
+    modules: &mut [(&str, &mut dyn Parameters)],
+) -> Result<HashMap<String, String>, ParamError> {
+    let p = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|source| ParamError::Io {
+        path: p.clone(),
+        source,
+    })?;
+    let (_, header) = SafeTensors::read_metadata(&bytes).map_err(|e| ParamError::Format {
+        path: p.clone(),
+        message: e.to_string(),
+    })?;
+    let file = SafeTensors::deserialize(&bytes).map_err(|e| ParamError::Format {
+        path: p.clone(),
+        message: e.to_string(),
+    })?;
+    let mut first_error = None;
+    for (prefix, module) in modules.iter_mut() {
+        module.visit_mut(prefix, &mut |name, shape, dst| {
+            if first_error.is_some() {
+                return;
+            }
+            match file.tensor(&name) {
+                Err(_) => first_error = Some(ParamError::Missing { path: p.clone(), name }),
+                Ok(t) if t.dtype() != Dtype::F32 || t.shape() != shape.as_slice() => {
+                    first_error = Some(ParamError::Shape {
+                        path: p.clone(),
+                        name,
+                        found: t.shape().to_vec(),
+                        expected: shape,
+                        dtype: format!("{:?}", t.dtype()),
+                    })
+                }
+                Ok(t) => {
+                    for (d, c) in dst.iter_mut().zip(t.data().chunks_exact(4)) {
+                        *d = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+                    }
+                }
+            }
+        });
+    }
+    match first_error {
+        Some(e) => Err(e),
+        None => Ok(header.metadata().clone().unwrap_or_default()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{HashGridConfig, SdfEncodingConfig, SdfNetworkConfig};
+
+    fn net(seed: u64, features: usize) -> SdfNetwork {
+        let mut c = SdfNetworkConfig::hash_grid(0.8);
+        c.encoding = SdfEncodingConfig::HashGrid(HashGridConfig {
+            levels: 4,
+            log2_table_size: 10,
+            finest_resolution: 64,
+            ..Default::default()
+        });
+        c.feature_dim = features;
+        SdfNetwork::new(c, seed)
+    }
+
+    #[test]
+    fn round_trip_and_shape_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.safetensors");
+        let a = net(1, 7);
+        let meta = HashMap::from([("config".to_string(), "{}".to_string())]);
+        save_safetensors(&path, &[("sdf", &a)], Some(meta)).unwrap();
+        let mut b = net(2, 7);
+        assert_ne!(a.mlp.params, b.mlp.params);
+        let got = load_safetensors(&path, &mut [("sdf", &mut b)]).unwrap();
+        assert_eq!(got["config"], "{}");
+        assert_eq!(a.mlp.params, b.mlp.params);
+        let (SdfEncoding::HashGrid(ga), SdfEncoding::HashGrid(gb)) = (&a.encoding, &b.encoding) else {
+            unreachable!()
+        };
+        assert_eq!(ga.params, gb.params);
+        let mut c = net(3, 5);
+        let err = load_safetensors(&path, &mut [("sdf", &mut c)]).unwrap_err();
+        assert!(matches!(err, ParamError::Shape { .. }), "{err}");
+        let err = load_safetensors(&path, &mut [("radiance", &mut c)]).unwrap_err();
+        assert!(matches!(err, ParamError::Missing { .. }), "{err}");
+    }
+}
