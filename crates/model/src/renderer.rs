@@ -12,7 +12,8 @@ use i2sdf_render::volume::{
     composite_batch, composite_batch_backward, error_bounded_samples, laplace_density_backward, laplace_density_batch,
     CompositeGrads, CompositeOutputs, ErrorBoundedSamplerConfig, PackedSamples, RaySampleSet,
 };
-use rand::Rng;
+use rand::{Rng, SeedableRng};
+use rayon::prelude::*;
 
 /// Channels composited per sample: RGB, unit normal, emitter probability.
 pub const CHANNELS: usize = 7;
@@ -96,7 +97,7 @@ pub struct RenderWorkspace {
     pub weights: Vec<f32>,
     pub out: RayOutputs,
     sdf_ws: SdfWorkspace,
-    sampler_ws: SdfWorkspace,
+    sampler_chunks: Vec<SamplerChunk>,
     radiance_ws: MlpWorkspace,
     emitter_ws: MlpWorkspace,
     // backward scratch
@@ -107,8 +108,6 @@ pub struct RenderWorkspace {
     grad_emitter_out: Vec<f32>,
     grad_radiance_out: Vec<f32>,
     grad_emitter_in: Vec<f32>,
-    scratch_sdf: Vec<f32>,
-    scratch_feature: Vec<f32>,
 }
 
 /// Distance along the unit ray from `o` to where it leaves the sphere of radius `r`.
@@ -151,16 +150,68 @@ pub fn sample<R: Rng + ?Sized>(
         .zip(dirs)
         .map(|(o, d)| sphere_exit(*o, *d, settings.bound_radius).max(settings.near * 2.0))
         .collect();
-    let (sampler_ws, scratch_sdf, scratch_feature) = (&mut ws.sampler_ws, &mut ws.scratch_sdf, &mut ws.scratch_feature);
+    // The sampler walks its rays one by one between batched SDF calls, so it runs on chunks of
+    // rays in parallel (one SDF workspace and one RNG stream per chunk; the streams are drawn from
+    // the caller's RNG, so a seeded run stays reproducible for a given thread count).
+    let chunks = (2 * rayon::current_num_threads()).clamp(1, rays.max(1));
+    let per = rays.div_ceil(chunks).max(1);
+    let seeds: Option<Vec<u64>> = rng.map(|r| (0..chunks).map(|_| r.gen::<u64>()).collect());
+    if ws.sampler_chunks.len() < chunks {
+        ws.sampler_chunks.resize_with(chunks, SamplerChunk::default);
+    }
     let fdim = scene.feature_dim();
-    let sdf_eval = |pts: &[[f32; 3]], out: &mut [f32]| {
-        let flat: &[f32] = bytemuck_flat(pts);
-        scratch_sdf.resize(pts.len(), 0.0);
-        scratch_feature.resize(pts.len() * fdim, 0.0);
-        scene.sdf.forward(flat, sampler_ws, scratch_sdf, scratch_feature);
-        out.copy_from_slice(&scratch_sdf[..pts.len()]);
-    };
-    ws.samples = error_bounded_samples(&settings.sampler, origins, dirs, &near, &far, beta, sdf_eval, rng);
+    let results: Vec<RaySampleSet> = ws.sampler_chunks[..chunks]
+        .par_iter_mut()
+        .enumerate()
+        .map(|(c, chunk)| {
+            let range = (c * per).min(rays)..((c + 1) * per).min(rays);
+            let SamplerChunk { sdf_ws, sdf, feature } = chunk;
+            let sdf_eval = |pts: &[[f32; 3]], out: &mut [f32]| {
+                sdf.resize(pts.len(), 0.0);
+                feature.resize(pts.len() * fdim, 0.0);
+                scene.sdf.forward(bytemuck_flat(pts), sdf_ws, sdf, feature);
+                out.copy_from_slice(&sdf[..pts.len()]);
+            };
+            let mut chunk_rng = seeds.as_ref().map(|s| rand_pcg::Pcg64::seed_from_u64(s[c]));
+            let r = range.clone();
+            error_bounded_samples(
+                &settings.sampler,
+                &origins[r.clone()],
+                &dirs[r.clone()],
+                &near[r.clone()],
+                &far[r],
+                beta,
+                sdf_eval,
+                chunk_rng.as_mut(),
+            )
+        })
+        .collect();
+    // Concatenate the chunks' packed samples.
+    let set = &mut ws.samples;
+    set.ray_offsets.clear();
+    set.ray_offsets.push(0);
+    set.t.clear();
+    set.delta.clear();
+    set.beta_used.clear();
+    set.converged.clear();
+    set.sdf_evaluations = 0;
+    for r in results {
+        let base = *set.ray_offsets.last().unwrap();
+        set.ray_offsets.extend(r.ray_offsets[1..].iter().map(|o| o + base));
+        set.t.extend_from_slice(&r.t);
+        set.delta.extend_from_slice(&r.delta);
+        set.beta_used.extend_from_slice(&r.beta_used);
+        set.converged.extend_from_slice(&r.converged);
+        set.sdf_evaluations += r.sdf_evaluations;
+    }
+}
+
+/// One parallel sampler task's buffers.
+#[derive(Default)]
+struct SamplerChunk {
+    sdf_ws: SdfWorkspace,
+    sdf: Vec<f32>,
+    feature: Vec<f32>,
 }
 
 /// The differentiable part of [`forward`], at the samples already in `ws.samples`.
