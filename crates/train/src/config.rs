@@ -65,7 +65,7 @@ pub struct TrainLoop {
 impl Default for TrainLoop {
     fn default() -> Self {
         TrainLoop {
-            iterations: 3000,
+            iterations: 5000,
             rays: 1024,
             bubble_points: 1024,
             eikonal_points: 1024,
