@@ -524,10 +524,15 @@ mod tests {
             &mut d_grad,
             &mut grads,
         );
-        // Check a spread of parameters of every network, and β.
+        // Check a spread of parameters of every network, and β: central differences of the loss
+        // in the parameter that `slot` selects.
         let h = 1e-3f32;
         let mut checked = 0;
-        let mut check = |analytic: f32, plus: f64, minus: f64, what: &str| {
+        let mut check = |analytic: f32, slot: fn(&mut NeuralScene) -> &mut [f32], k: usize, what: &str| {
+            let (mut a, mut b) = (s.clone(), s.clone());
+            slot(&mut a)[k] += h;
+            slot(&mut b)[k] -= h;
+            let (plus, minus) = (loss(&a, &samples, &o, &d, &extra), loss(&b, &samples, &o, &d, &extra));
             let numeric = (plus - minus) / (2.0 * h as f64);
             let tol = 2e-2 * numeric.abs().max(analytic.abs() as f64) + 2e-3;
             assert!(
@@ -536,69 +541,41 @@ mod tests {
             );
             checked += 1;
         };
+        fn radiance(sc: &mut NeuralScene) -> &mut [f32] {
+            &mut sc.radiance.params
+        }
+        fn emitter(sc: &mut NeuralScene) -> &mut [f32] {
+            &mut sc.emitter.params
+        }
+        fn sdf_mlp(sc: &mut NeuralScene) -> &mut [f32] {
+            &mut sc.sdf.mlp.params
+        }
+        fn table(sc: &mut NeuralScene) -> &mut [f32] {
+            match &mut sc.sdf.encoding {
+                i2sdf_nn::SdfEncoding::HashGrid(g) => &mut g.params,
+                _ => unreachable!(),
+            }
+        }
+        fn beta(sc: &mut NeuralScene) -> &mut [f32] {
+            &mut sc.beta.raw
+        }
         for k in (0..s.radiance.params.len()).step_by(97) {
-            let (mut a, mut b) = (s.clone(), s.clone());
-            a.radiance.params[k] += h;
-            b.radiance.params[k] -= h;
-            check(
-                grads.radiance[k],
-                loss(&a, &samples, &o, &d, &extra),
-                loss(&b, &samples, &o, &d, &extra),
-                "radiance",
-            );
+            check(grads.radiance[k], radiance, k, "radiance");
         }
         for k in (0..s.emitter.params.len()).step_by(41) {
-            let (mut a, mut b) = (s.clone(), s.clone());
-            a.emitter.params[k] += h;
-            b.emitter.params[k] -= h;
-            check(
-                grads.emitter[k],
-                loss(&a, &samples, &o, &d, &extra),
-                loss(&b, &samples, &o, &d, &extra),
-                "emitter",
-            );
+            check(grads.emitter[k], emitter, k, "emitter");
         }
         for k in (0..s.sdf.mlp.params.len()).step_by(211) {
-            let (mut a, mut b) = (s.clone(), s.clone());
-            a.sdf.mlp.params[k] += h;
-            b.sdf.mlp.params[k] -= h;
-            check(
-                grads.sdf.mlp[k],
-                loss(&a, &samples, &o, &d, &extra),
-                loss(&b, &samples, &o, &d, &extra),
-                "sdf mlp",
-            );
+            check(grads.sdf.mlp[k], sdf_mlp, k, "sdf mlp");
         }
         // The hash table: the entries with the largest gradients.
         let hg = grads.sdf.hash_grid.as_ref().unwrap();
         let mut idx: Vec<usize> = (0..hg.values.len()).filter(|&k| hg.values[k] != 0.0).collect();
         idx.sort_by(|&x, &y| hg.values[y].abs().total_cmp(&hg.values[x].abs()));
         for &k in idx.iter().take(6) {
-            let (mut a, mut b) = (s.clone(), s.clone());
-            fn table(sc: &mut NeuralScene) -> &mut Vec<f32> {
-                match &mut sc.sdf.encoding {
-                    i2sdf_nn::SdfEncoding::HashGrid(g) => &mut g.params,
-                    _ => unreachable!(),
-                }
-            }
-            table(&mut a)[k] += h;
-            table(&mut b)[k] -= h;
-            check(
-                hg.values[k],
-                loss(&a, &samples, &o, &d, &extra),
-                loss(&b, &samples, &o, &d, &extra),
-                "hash grid",
-            );
+            check(hg.values[k], table, k, "hash grid");
         }
-        let (mut a, mut b) = (s.clone(), s.clone());
-        a.beta.raw[0] += h;
-        b.beta.raw[0] -= h;
-        check(
-            grads.beta * s.beta.dvalue(),
-            loss(&a, &samples, &o, &d, &extra),
-            loss(&b, &samples, &o, &d, &extra),
-            "beta",
-        );
+        check(grads.beta * s.beta.dvalue(), beta, 0, "beta");
         assert!(checked > 10);
     }
 
