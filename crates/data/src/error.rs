@@ -1,19 +1,29 @@
-//! The one error type for bad input. The CLI maps any `DataError` in an error chain to exit code 2
-//! (DESIGN.md: "2 bad input, with a message naming what and where"); everything else exits 1.
+//! The one error type of the house, classified by whose fault it is (DESIGN.md exit codes):
+//! bad input — a dataset, config key, `--set` value, edit spec or argument that is wrong — exits 2
+//! with a message naming the file and field or key; everything else — a write that failed (full
+//! disk, permissions), a run that diverged, an internal failure — exits 1. The CLI asks
+//! [`DataError::is_bad_input`] of every `DataError` in an error chain.
 
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
 pub enum DataError {
-    /// A file that is missing, unreadable, or malformed as a whole.
+    /// Bad input: a file that is missing, unreadable, or malformed as a whole.
     #[error("{}: {msg}", path.display())]
     File { path: PathBuf, msg: String },
-    /// One field (a JSON key, an npz array, a frame entry, an image channel) of a file is wrong.
+    /// Bad input: one field (a JSON key, an npz array, a frame entry, an image channel, a config
+    /// key) of a file is wrong.
     #[error("{}: {field}: {msg}", path.display())]
     Field { path: PathBuf, field: String, msg: String },
-    /// Bad input not tied to one file (a command-line value, an empty split).
+    /// Bad input not tied to one file (a command-line value, a `--set` key, an empty split).
     #[error("{0}")]
     Invalid(String),
+    /// Not the input's fault: writing or creating `path` failed (full disk, permissions, …).
+    #[error("{}: {msg}", path.display())]
+    Io { path: PathBuf, msg: String },
+    /// Not the input's fault: the computation failed (a diverged run, an internal error).
+    #[error("{0}")]
+    Failed(String),
 }
 
 impl DataError {
@@ -32,6 +42,23 @@ impl DataError {
     }
     pub fn invalid(msg: impl Into<String>) -> Self {
         DataError::Invalid(msg.into())
+    }
+    /// A failed write, directory creation or rename (exit code 1).
+    pub fn io(path: impl AsRef<Path>, msg: impl Into<String>) -> Self {
+        DataError::Io {
+            path: path.as_ref().to_path_buf(),
+            msg: msg.into(),
+        }
+    }
+    /// A failure that is not the input's fault (exit code 1).
+    pub fn failed(msg: impl Into<String>) -> Self {
+        DataError::Failed(msg.into())
+    }
+
+    /// Whether the user's input is at fault (exit code 2) rather than the machine or the
+    /// computation (exit code 1).
+    pub fn is_bad_input(&self) -> bool {
+        matches!(self, DataError::File { .. } | DataError::Field { .. } | DataError::Invalid(_))
     }
 }
 

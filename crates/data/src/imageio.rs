@@ -292,7 +292,7 @@ pub fn read_npy_f64<R: std::io::Read>(path: &Path, npy: npyz::NpyFile<R>) -> Res
 /// partial file. Creates the parent directory.
 pub fn write_atomic(path: &Path, write: impl FnOnce(&Path) -> std::result::Result<(), String>) -> Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|e| DataError::file(dir, format!("cannot create directory: {e}")))?;
+        std::fs::create_dir_all(dir).map_err(|e| DataError::io(dir, format!("cannot create directory: {e}")))?;
     }
     let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("out");
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("tmp");
@@ -300,11 +300,11 @@ pub fn write_atomic(path: &Path, write: impl FnOnce(&Path) -> std::result::Resul
     let tmp: PathBuf = path.with_file_name(format!(".{name}.{}.partial.{ext}", std::process::id()));
     if let Err(msg) = write(&tmp) {
         let _ = std::fs::remove_file(&tmp);
-        return Err(DataError::file(path, format!("cannot write: {msg}")));
+        return Err(DataError::io(path, format!("cannot write: {msg}")));
     }
     std::fs::rename(&tmp, path).map_err(|e| {
         let _ = std::fs::remove_file(&tmp);
-        DataError::file(path, format!("cannot move into place: {e}"))
+        DataError::io(path, format!("cannot move into place: {e}"))
     })
 }
 

@@ -348,7 +348,7 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<TriangleMesh, DataError> {
 /// indices (`vertex_indices`), and an `int object_id` per face when the mesh has them.
 pub fn write_ply(path: impl AsRef<Path>, mesh: &TriangleMesh) -> Result<(), DataError> {
     let path = path.as_ref();
-    let io = |e: std::io::Error| DataError::file(path, format!("cannot write: {e}"));
+    let io = |e: std::io::Error| DataError::io(path, format!("cannot write: {e}"));
     if let Some(ids) = &mesh.face_object_ids {
         if ids.len() != mesh.faces.len() {
             return Err(DataError::invalid(format!(

@@ -187,7 +187,7 @@ pub fn generate(
 ) -> Result<SynthSummary, DataError> {
     opts.validate()?;
     desc.validate(Path::new("scene"))?;
-    std::fs::create_dir_all(out).map_err(|e| DataError::file(out, format!("cannot create: {e}")))?;
+    std::fs::create_dir_all(out).map_err(|e| DataError::io(out, format!("cannot create: {e}")))?;
     let mut scene = RenderScene::new(desc);
     scene.estimator = opts.estimator;
     let views = plan_views(&scene, opts)?;

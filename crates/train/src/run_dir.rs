@@ -59,7 +59,7 @@ impl RunDir {
 
     pub fn create(&self) -> Result<(), DataError> {
         std::fs::create_dir_all(&self.root)
-            .map_err(|e| DataError::file(&self.root, format!("cannot create the run directory: {e}")))
+            .map_err(|e| DataError::io(&self.root, format!("cannot create the run directory: {e}")))
     }
 
     pub fn write_config(&self, c: &TrainConfig) -> Result<(), DataError> {
@@ -91,8 +91,8 @@ impl RunDir {
             .create(true)
             .append(true)
             .open(&p)
-            .map_err(|e| DataError::file(&p, format!("cannot open: {e}")))?;
-        writeln!(f, "{record}").map_err(|e| DataError::file(&p, format!("cannot write: {e}")))
+            .map_err(|e| DataError::io(&p, format!("cannot open: {e}")))?;
+        writeln!(f, "{record}").map_err(|e| DataError::io(&p, format!("cannot write: {e}")))
     }
 }
 

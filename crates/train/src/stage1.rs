@@ -194,7 +194,7 @@ impl Stage1 {
     /// Writes the checkpoint atomically; refuses parameters that are not finite.
     pub fn save(&self, path: &Path) -> Result<(), DataError> {
         if !self.scene.is_finite() {
-            return Err(DataError::invalid(
+            return Err(DataError::failed(
                 "training diverged: non-finite parameters; checkpoint not written",
             ));
         }
@@ -453,7 +453,7 @@ impl Stage1 {
             self.nonfinite_streak += 1;
             self.iteration += 1;
             if self.nonfinite_streak > MAX_NONFINITE_STREAK {
-                return Err(DataError::invalid(format!(
+                return Err(DataError::failed(format!(
                     "training diverged: {} consecutive non-finite losses at iteration {}",
                     self.nonfinite_streak, self.iteration
                 )));

@@ -7,9 +7,14 @@ pub mod render;
 pub mod synth;
 pub mod train;
 
-/// DESIGN.md exit codes: 2 for bad input (any `DataError` in the chain), 1 for anything else.
+/// DESIGN.md exit codes: 2 for bad input (a `DataError` in the chain that says so: a file, field,
+/// key or argument at fault), 1 for anything else (a failed write, a diverged run, an internal
+/// error).
 pub fn exit_code(e: &anyhow::Error) -> u8 {
-    if e.chain().any(|c| c.is::<i2sdf_data::DataError>()) {
+    if e
+        .chain()
+        .any(|c| c.downcast_ref::<i2sdf_data::DataError>().is_some_and(|d| d.is_bad_input()))
+    {
         2
     } else {
         1
