@@ -64,19 +64,83 @@ impl Default for ModelConfig {
     }
 }
 
+/// Range checks for configuration values: each names its dotted key, the value and the allowed
+/// range, so `--set model.hash_levels=0` fails with a message instead of a panic deep in the
+/// engine. Non-finite numbers are always rejected.
+pub mod check {
+    use std::fmt::Display;
+
+    /// `lo ≤ v ≤ hi` for a count or size.
+    pub fn int<T: PartialOrd + Display + Copy>(key: &str, v: T, lo: T, hi: T) -> Result<(), String> {
+        if v < lo || v > hi {
+            return Err(format!("{key} = {v}: must be in {lo}..={hi}"));
+        }
+        Ok(())
+    }
+
+    /// `lo ≤ v ≤ hi` and finite.
+    pub fn real<T: Into<f64> + Copy>(key: &str, v: T, lo: f64, hi: f64) -> Result<(), String> {
+        let x: f64 = v.into();
+        if !(x.is_finite() && x >= lo && x <= hi) {
+            return Err(format!("{key} = {x}: must be a finite number in [{lo}, {hi}]"));
+        }
+        Ok(())
+    }
+
+    /// `0 < v ≤ hi` and finite.
+    pub fn positive<T: Into<f64> + Copy>(key: &str, v: T, hi: f64) -> Result<(), String> {
+        let x: f64 = v.into();
+        if !(x.is_finite() && x > 0.0 && x <= hi) {
+            return Err(format!("{key} = {x}: must be a finite number in (0, {hi}]"));
+        }
+        Ok(())
+    }
+}
+
 impl ModelConfig {
+    /// Checks every key (prefix `model.`) against the range the engine supports.
     pub fn validate(&self) -> Result<(), String> {
-        if !(self.init_radius > 0.0) {
-            return Err("model.init_radius must be positive".into());
+        use check::{int, positive};
+        int("model.hash_levels", self.hash_levels, 1, 32)?;
+        if ![1, 2, 4, 8].contains(&self.hash_features) {
+            return Err(format!(
+                "model.hash_features = {}: must be 1, 2, 4 or 8 (the hash grid's SIMD layouts)",
+                self.hash_features
+            ));
         }
-        if !(self.beta_init > self.beta_min && self.beta_min > 0.0) {
-            return Err("model.beta_init must exceed model.beta_min > 0".into());
+        int("model.hash_log2_table", self.hash_log2_table, 8, 24)?;
+        int("model.hash_base_resolution", self.hash_base_resolution, 1, 1 << 16)?;
+        int(
+            "model.hash_finest_resolution",
+            self.hash_finest_resolution,
+            self.hash_base_resolution,
+            1 << 20,
+        )
+        .map_err(|e| format!("{e} (at least model.hash_base_resolution)"))?;
+        let table_floats = (self.hash_levels as u64) * (self.hash_features as u64) << self.hash_log2_table;
+        if table_floats > 1 << 28 {
+            return Err(format!(
+                "model.hash_levels × model.hash_features × 2^model.hash_log2_table = {} × {} × 2^{} = {table_floats} \
+                 table entries: more than 2^28 (1 GiB)",
+                self.hash_levels, self.hash_features, self.hash_log2_table
+            ));
         }
-        if !(1..=4).contains(&self.sh_degree) {
-            return Err("model.sh_degree must be 1..=4".into());
-        }
-        if self.feature_dim == 0 {
-            return Err("model.feature_dim must be positive".into());
+        int("model.sdf_hidden", self.sdf_hidden, 1, 1024)?;
+        int("model.sdf_layers", self.sdf_layers, 1, 16)?;
+        int("model.feature_dim", self.feature_dim, 1, 512)?;
+        int("model.color_hidden", self.color_hidden, 1, 1024)?;
+        int("model.color_layers", self.color_layers, 1, 16)?;
+        int("model.emitter_hidden", self.emitter_hidden, 1, 1024)?;
+        int("model.emitter_layers", self.emitter_layers, 1, 16)?;
+        int("model.sh_degree", self.sh_degree, 1, 4)?;
+        positive("model.init_radius", self.init_radius, 2.0)?;
+        positive("model.beta_min", self.beta_min, 1.0)?;
+        positive("model.beta_init", self.beta_init, 10.0)?;
+        if self.beta_init <= self.beta_min {
+            return Err(format!(
+                "model.beta_init = {}: must exceed model.beta_min = {}",
+                self.beta_init, self.beta_min
+            ));
         }
         Ok(())
     }
@@ -154,6 +218,115 @@ impl ModelConfig {
             skip_layers: vec![],
             hidden_activation: Activation::Relu,
             output_activation: Activation::Sigmoid,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::NeuralScene;
+    use i2sdf_data::Normalization;
+    use i2sdf_nn::{MlpWorkspace, SdfWorkspace};
+
+    /// A small configuration that the edge cases below start from.
+    fn small() -> ModelConfig {
+        ModelConfig {
+            hash_levels: 2,
+            hash_log2_table: 10,
+            hash_finest_resolution: 32,
+            ..Default::default()
+        }
+    }
+
+    /// Builds the fields and runs the SDF (with gradient), F_c and F_e on a few points.
+    fn build_and_query(c: &ModelConfig) {
+        let scene = NeuralScene::new(
+            c,
+            Normalization {
+                center: [0.0; 3],
+                scale: 1.0,
+            },
+            1,
+        );
+        let n = 5;
+        let x: Vec<f32> = (0..n * 3).map(|i| (i as f32 * 0.37).sin() * 0.9).collect();
+        let (mut d, mut g) = (vec![0.0; n], vec![0.0; n * 3]);
+        let mut z = vec![0.0; n * scene.feature_dim()];
+        scene
+            .sdf
+            .forward_with_gradient(&x, &mut SdfWorkspace::default(), &mut d, &mut z, &mut g);
+        let dirs: Vec<f32> = (0..n).flat_map(|_| [0.0, 0.0, 1.0]).collect();
+        let mut input = Vec::new();
+        scene.radiance_input(&z, &dirs, &g, &mut input);
+        let mut rgb = vec![0.0; n * 3];
+        scene.radiance.forward(&input, &mut MlpWorkspace::default(), &mut rgb);
+        let mut e = vec![0.0; n];
+        scene.emitter.forward(&z, &mut MlpWorkspace::default(), &mut e);
+        assert!(d.iter().chain(&rgb).chain(&e).all(|v| v.is_finite()), "{c:?}");
+    }
+
+    /// Every key at the ends of its allowed range builds working fields (no panic in the engine),
+    /// and one step past either end is refused with the key named.
+    #[test]
+    fn every_key_is_checked_at_both_ends_of_its_range() {
+        type Edit = fn(&mut ModelConfig);
+        let accepted: [(&str, Edit); 16] = [
+            ("hash_levels=1", |c| c.hash_levels = 1),
+            ("hash_levels=32", |c| {
+                c.hash_levels = 32;
+                c.hash_finest_resolution = 64
+            }),
+            ("hash_features=1", |c| c.hash_features = 1),
+            ("hash_features=8", |c| c.hash_features = 8),
+            ("hash_log2_table=8", |c| c.hash_log2_table = 8),
+            ("hash_base_resolution=1", |c| c.hash_base_resolution = 1),
+            ("hash_finest_resolution=base", |c| {
+                c.hash_finest_resolution = c.hash_base_resolution
+            }),
+            ("sdf_hidden=1", |c| c.sdf_hidden = 1),
+            ("sdf_layers=1", |c| c.sdf_layers = 1),
+            ("feature_dim=1", |c| c.feature_dim = 1),
+            ("color_layers=1", |c| c.color_layers = 1),
+            ("emitter_hidden=1", |c| c.emitter_hidden = 1),
+            ("sh_degree=1", |c| c.sh_degree = 1),
+            ("sh_degree=4", |c| c.sh_degree = 4),
+            ("init_radius=2", |c| c.init_radius = 2.0),
+            ("beta_init just above beta_min", |c| c.beta_init = c.beta_min * 1.001),
+        ];
+        for (what, edit) in accepted {
+            let mut c = small();
+            edit(&mut c);
+            assert!(c.validate().is_ok(), "{what}: {:?}", c.validate());
+            build_and_query(&c);
+        }
+        let rejected: [(&str, Edit); 14] = [
+            ("model.hash_levels", |c| c.hash_levels = 0),
+            ("model.hash_features", |c| c.hash_features = 3),
+            ("model.hash_features", |c| c.hash_features = 0),
+            ("model.hash_log2_table", |c| c.hash_log2_table = 25),
+            ("model.hash_finest_resolution", |c| {
+                c.hash_finest_resolution = c.hash_base_resolution - 1
+            }),
+            ("2^28", |c| {
+                c.hash_levels = 32;
+                c.hash_features = 8;
+                c.hash_log2_table = 24
+            }),
+            ("model.sdf_hidden", |c| c.sdf_hidden = 0),
+            ("model.sdf_layers", |c| c.sdf_layers = 0),
+            ("model.feature_dim", |c| c.feature_dim = 0),
+            ("model.color_hidden", |c| c.color_hidden = 0),
+            ("model.sh_degree", |c| c.sh_degree = 5),
+            ("model.init_radius", |c| c.init_radius = f32::NAN),
+            ("model.beta_min", |c| c.beta_min = 0.0),
+            ("model.beta_init", |c| c.beta_init = c.beta_min),
+        ];
+        for (key, edit) in rejected {
+            let mut c = small();
+            edit(&mut c);
+            let e = c.validate().expect_err(key);
+            assert!(e.contains(key), "{key}: {e}");
         }
     }
 }

@@ -29,13 +29,15 @@ const LOG2E: f32 = std::f32::consts::LOG2_E;
 const LN2_HI: f32 = 0.693_359_4;
 const LN2_LO: f32 = -2.121_944_4e-4;
 
-/// `e^x` for finite `x`, relative error ~2e-7, clamped to the normal f32 range; branch-free so loops
-/// over slices vectorize.
+/// `e^x`, relative error ~2e-7, clamped to the normal f32 range; NaN stays NaN. Branch-free so
+/// loops over slices vectorize.
 #[inline(always)]
 pub fn exp_fast(x: f32) -> f32 {
-    let x = x.clamp(-87.0, 88.0);
-    let n = (x * LOG2E + 0.5).floor();
-    let r = x - n * LN2_HI - n * LN2_LO;
+    // `max`/`min` (not `clamp`) map NaN to a finite bound, so `n` below is always in range; the
+    // NaN is put back at the end with a select, which vectorizes like the rest.
+    let xc = x.max(-87.0).min(88.0);
+    let n = (xc * LOG2E + 0.5).floor();
+    let r = xc - n * LN2_HI - n * LN2_LO;
     // Taylor/minimax polynomial of e^r on |r| ≤ ln2/2 (Cephes expf coefficients).
     let p = 1.987_569_1e-4_f32;
     let p = p * r + 1.398_199_9e-3;
@@ -44,11 +46,16 @@ pub fn exp_fast(x: f32) -> f32 {
     let p = p * r + 1.666_666_5e-1;
     let p = p * r + 0.5;
     let p = p * r * r + r + 1.0;
-    // SAFETY: |x| ≤ 88 keeps n in [−126, 127]: finite and in range, so the unchecked conversion
-    // (which vectorizes, unlike `as` with its NaN/saturation checks) is exact.
+    // SAFETY: `xc` is finite with |xc| ≤ 88 (NaN and ±∞ were mapped to the bounds above), which
+    // keeps n in [−126, 127]: finite and in range, so the unchecked conversion (which vectorizes,
+    // unlike `as` with its NaN/saturation checks) is exact.
     let ni: i32 = unsafe { n.to_int_unchecked() };
     let scale = f32::from_bits(((ni + 127) as u32) << 23);
-    p * scale
+    if x.is_nan() {
+        x
+    } else {
+        p * scale
+    }
 }
 
 /// `ln(1 + e)` for `e ∈ [0, 1]` as `e·q(e)`, `q` a degree-8 least-squares fit of `ln(1+e)/e` on
@@ -198,6 +205,26 @@ mod tests {
             let x = i as f32 * 0.043;
             let rel = ((exp_fast(x) as f64 - (x as f64).exp()) / (x as f64).exp()).abs();
             assert!(rel < 5e-7, "x={x} rel={rel}");
+        }
+    }
+
+    /// NaN and infinities never reach the unchecked float-to-int conversion (that would be
+    /// undefined behaviour); NaN propagates, ±∞ saturate like `exp`, and every activation passes
+    /// NaN through (the trainer's divergence tests feed it NaN on purpose).
+    #[test]
+    fn exp_fast_handles_nan_and_infinities() {
+        assert!(exp_fast(f32::NAN).is_nan());
+        assert!(exp_fast(-f32::NAN).is_nan());
+        assert_eq!(exp_fast(f32::NEG_INFINITY), exp_fast(-87.0));
+        assert!(exp_fast(f32::INFINITY) > 1e38 && exp_fast(f32::INFINITY).is_finite());
+        let v = [f32::NAN, 1.0, f32::NAN, -3.0];
+        for act in [Activation::Softplus { beta: 100.0 }, Activation::Sigmoid] {
+            let mut z = v;
+            act.forward_inplace(&mut z);
+            assert!(
+                z[0].is_nan() && z[2].is_nan() && z[1].is_finite() && z[3].is_finite(),
+                "{act:?}: {z:?}"
+            );
         }
     }
 

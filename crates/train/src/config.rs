@@ -134,6 +134,14 @@ impl TrainConfig {
         let mut table: toml::Table = match file {
             Some(p) => {
                 let text = std::fs::read_to_string(p).map_err(|e| DataError::file(p, format!("cannot read: {e}")))?;
+                // Deserializing the text (not the parsed table) keeps the line and key of a value
+                // of the wrong type in the message.
+                if let Err(e) = toml::from_str::<TrainConfig>(&text) {
+                    return Err(DataError::file(
+                        p,
+                        format!("invalid configuration: {}", e.to_string().trim()),
+                    ));
+                }
                 text.parse()
                     .map_err(|e| DataError::file(p, format!("invalid TOML: {e}")))?
             }
@@ -141,31 +149,73 @@ impl TrainConfig {
         };
         for o in overrides {
             apply_override(&mut table, o)?;
+            // One override at a time, so a value of the wrong type is blamed on its own --set.
+            if let Err(e) = toml::Value::Table(table.clone()).try_into::<TrainConfig>() {
+                return Err(DataError::invalid(format!("--set {o}: {}", e.message().trim())));
+            }
         }
-        let what = file.map_or("--set".to_string(), |p| p.display().to_string());
         let config: TrainConfig = toml::Value::Table(table)
             .try_into()
-            .map_err(|e: toml::de::Error| DataError::invalid(format!("{what}: {}", e.message().trim())))?;
-        config.validate()?;
+            .map_err(|e: toml::de::Error| DataError::invalid(format!("--set: {}", e.message().trim())))?;
+        // Where a value out of range came from, for the message: the file, --set, or both.
+        let what = match (file, overrides.is_empty()) {
+            (Some(p), true) => p.display().to_string(),
+            (Some(p), false) => format!("{} with --set", p.display()),
+            (None, _) => "--set".to_string(),
+        };
+        config.check().map_err(|m| DataError::invalid(format!("{what}: {m}")))?;
         Ok(config)
     }
 
+    /// Checks every key against its allowed range; the message names the key, its value and the
+    /// range (the caller prefixes the file or `--set`).
     pub fn validate(&self) -> Result<(), DataError> {
-        let bad = |m: String| Err(DataError::invalid(m));
-        self.schedule
-            .validate()
-            .map_err(|m| DataError::invalid(format!("schedule: {m}")))?;
-        if self.train.iterations == 0 || self.train.rays == 0 {
-            return bad("train.iterations and train.rays must be positive".into());
+        self.check().map_err(DataError::invalid)
+    }
+
+    fn check(&self) -> Result<(), String> {
+        use i2sdf_model::config::check::{int, positive, real};
+        const MAX_POINTS: usize = 1 << 20;
+        let t = &self.train;
+        int("train.iterations", t.iterations, 1, 100_000_000)?;
+        int("train.rays", t.rays, 1, MAX_POINTS)?;
+        int("train.bubble_points", t.bubble_points, 0, MAX_POINTS)?;
+        int("train.eikonal_points", t.eikonal_points, 0, MAX_POINTS)?;
+        positive("train.lr_grid", t.lr_grid, 1.0)?;
+        positive("train.lr_mlp", t.lr_mlp, 1.0)?;
+        positive("train.lr_beta", t.lr_beta, 1.0)?;
+        positive("train.lr_final_fraction", t.lr_final_fraction, 1.0)?;
+        int("train.lr_warmup", t.lr_warmup, 0, 100_000_000)?;
+        int("train.checkpoint_every", t.checkpoint_every, 1, u64::MAX)?;
+        int("train.log_every", t.log_every, 1, u64::MAX)?;
+        int("train.threads", t.threads, 0, 1024)?;
+        let s = &self.sampling;
+        int("sampling.samples", s.samples, 2, 1024)?;
+        int("sampling.coarse", s.coarse, 2, 1024)?;
+        positive("sampling.epsilon", s.epsilon, 10.0)?;
+        let l = &self.loss;
+        for (key, v) in [
+            ("loss.rgb", l.rgb),
+            ("loss.eikonal", l.eikonal),
+            ("loss.depth", l.depth),
+            ("loss.normal", l.normal),
+            ("loss.smooth", l.smooth),
+            ("loss.bubble", l.bubble),
+            ("loss.emitter", l.emitter),
+        ] {
+            real(key, v, 0.0, 1e4)?;
         }
-        if self.sampling.samples < 2 || self.sampling.coarse < 2 {
-            return bad("sampling.samples and sampling.coarse must be at least 2".into());
+        self.schedule.validate().map_err(|m| format!("schedule: {m}"))?;
+        let a = &self.adaptive;
+        real("adaptive.p_min", a.p_min, 0.0, 1e3)?;
+        real("adaptive.p_max", a.p_max, 0.0, 1e3)?;
+        if a.p_max <= a.p_min {
+            return Err(format!(
+                "adaptive.p_max = {}: must exceed adaptive.p_min = {}",
+                a.p_max, a.p_min
+            ));
         }
-        self.model.validate().map_err(DataError::invalid)?;
-        if self.adaptive.p_min < 0.0 || self.adaptive.p_max <= self.adaptive.p_min {
-            return bad("adaptive: need 0 ≤ p_min < p_max".into());
-        }
-        Ok(())
+        self.model.validate()
     }
 
     pub fn to_toml(&self) -> String {
@@ -231,6 +281,42 @@ mod tests {
         assert!(!c.adaptive.enabled);
         assert_eq!(c.loss.bubble, 0.25);
         assert_eq!(c.loss.depth, 0.1);
+    }
+
+    /// Values that used to panic deep in the engine (or were silently accepted) are refused with
+    /// the key named; one step inside the range is accepted.
+    #[test]
+    fn out_of_range_values_name_their_key() {
+        for (set, key) in [
+            ("model.hash_features=3", "model.hash_features"),
+            ("model.hash_levels=0", "model.hash_levels"),
+            ("model.sdf_hidden=0", "model.sdf_hidden"),
+            ("sampling.epsilon=0", "sampling.epsilon"),
+            ("sampling.epsilon=-1", "sampling.epsilon"),
+            ("loss.rgb=nan", "loss.rgb"),
+            ("loss.depth=-0.1", "loss.depth"),
+            ("loss.bubble=inf", "loss.bubble"),
+            ("train.rays=0", "train.rays"),
+            ("train.lr_mlp=0", "train.lr_mlp"),
+            ("train.lr_warmup=-1", "train.lr_warmup"),
+            ("train.checkpoint_every=0", "train.checkpoint_every"),
+            ("sampling.samples=1", "sampling.samples"),
+            ("adaptive.p_min=nan", "adaptive.p_min"),
+            ("schedule.warmup_fraction=nan", "warmup_fraction"),
+        ] {
+            let overrides = vec![set.to_string(), "train.iterations=5".to_string()];
+            let e = TrainConfig::load(None, &overrides).expect_err(set).to_string();
+            assert!(e.contains(key) && e.contains("--set"), "{set}: {e}");
+        }
+        for ok in [
+            "model.hash_features=4",
+            "sampling.epsilon=0.01",
+            "loss.rgb=0",
+            "train.lr_warmup=0",
+        ] {
+            let overrides = vec![ok.to_string(), "train.iterations=5".to_string()];
+            assert!(TrainConfig::load(None, &overrides).is_ok(), "{ok}");
+        }
     }
 
     #[test]
