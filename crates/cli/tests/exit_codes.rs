@@ -1,0 +1,280 @@
+//! Exit codes by class (DESIGN.md "The command line"), per command: bad input — a dataset, a run
+//! directory, a config key, a `--set` value or an argument that is wrong — exits 2 with the key or
+//! file named; a write that fails exits 1 and leaves nothing half-written; nothing panics (a panic
+//! exits 101, which every assertion here would report).
+
+use i2sdf_data::fixture::{self, FixtureOptions};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+struct Outcome {
+    code: i32,
+    stderr: String,
+}
+
+fn i2sdf(args: &[&str]) -> Outcome {
+    let out = Command::new(env!("CARGO_BIN_EXE_i2sdf")).args(args).output().unwrap();
+    Outcome {
+        code: out.status.code().unwrap_or(-1),
+        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+    }
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Asserts exit code `code` and that stderr names every needle.
+#[track_caller]
+fn expect(o: Outcome, code: i32, needles: &[&str]) {
+    assert_eq!(o.code, code, "expected exit {code}; stderr: {}", o.stderr);
+    for n in needles {
+        assert!(o.stderr.contains(n), "expected '{n}' in: {}", o.stderr);
+    }
+}
+
+/// Settings that make a run of the fixture take a second or two.
+const TINY: [&str; 12] = [
+    "--set",
+    "train.iterations=4",
+    "--set",
+    "model.hash_levels=4",
+    "--set",
+    "model.hash_log2_table=12",
+    "--set",
+    "train.rays=64",
+    "--set",
+    "train.eikonal_points=64",
+    "--set",
+    "train.bubble_points=64",
+];
+
+/// A fixture dataset and a finished tiny run on it, shared by the tests.
+fn trained() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {
+    static RUN: OnceLock<(tempfile::TempDir, PathBuf, PathBuf)> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let data = dir.path().join("data");
+        fixture::write_native(&data, &FixtureOptions::default());
+        let run = dir.path().join("run");
+        let mut args = vec!["train", "--quiet", "--data", s(&data), "--out", s(&run)];
+        args.extend_from_slice(&TINY);
+        let o = i2sdf(&args);
+        assert_eq!(o.code, 0, "{}", o.stderr);
+        (dir, data, run)
+    })
+}
+
+/// A path whose parent is a regular file: creating it fails whoever runs the test (root too).
+fn unwritable(dir: &Path, name: &str) -> PathBuf {
+    let blocker = dir.join("not_a_directory");
+    std::fs::write(&blocker, b"x").unwrap();
+    blocker.join(name)
+}
+
+#[test]
+fn train_bad_input_exits_2_naming_the_key_or_file() {
+    let (_, data, _) = trained();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let train = |extra: &[&str]| {
+        let mut args = vec!["train", "--quiet", "--data", s(data), "--out", s(&out)];
+        args.extend_from_slice(extra);
+        i2sdf(&args)
+    };
+    for (set, key) in [
+        ("model.hash_features=3", "model.hash_features"),
+        ("model.hash_levels=0", "model.hash_levels"),
+        ("model.sdf_hidden=0", "model.sdf_hidden"),
+        ("sampling.epsilon=0", "sampling.epsilon"),
+        ("loss.rgb=nan", "loss.rgb"),
+        ("train.iteratons=5", "iteratons"),
+        ("train.rays=many", "train.rays=many"),
+    ] {
+        expect(train(&["--set", set]), 2, &[key]);
+    }
+    let config = dir.path().join("bad.toml");
+    std::fs::write(&config, "[train]\nrays = -3\n").unwrap();
+    expect(train(&["--config", s(&config)]), 2, &["bad.toml", "rays"]);
+    expect(
+        i2sdf(&["train", "--data", s(&dir.path().join("nowhere")), "--out", s(&out)]),
+        2,
+        &["nowhere"],
+    );
+    // Resuming a run that does not exist, and starting over a run that does.
+    expect(train(&["--resume"]), 2, &["run"]);
+    let (_, _, run) = trained();
+    expect(
+        i2sdf(&["train", "--quiet", "--data", s(data), "--out", s(run)]),
+        2,
+        &["already holds a run"],
+    );
+    // Nothing was created for the refused runs.
+    assert!(!out.exists(), "a refused run left {}", out.display());
+}
+
+#[test]
+fn mesh_bad_input_exits_2() {
+    let (_, _, run) = trained();
+    let dir = tempfile::tempdir().unwrap();
+    let ply = dir.path().join("m.ply");
+    expect(
+        i2sdf(&["mesh", "--run", s(&dir.path().join("norun")), "--out", s(&ply)]),
+        2,
+        &["run.json"],
+    );
+    expect(
+        i2sdf(&["mesh", "--run", s(run), "--out", s(&ply), "--resolution", "1"]),
+        2,
+        &["resolution"],
+    );
+    // A corrupt checkpoint is named.
+    let broken = dir.path().join("broken");
+    std::fs::create_dir_all(&broken).unwrap();
+    std::fs::copy(run.join("run.json"), broken.join("run.json")).unwrap();
+    std::fs::copy(run.join("config.toml"), broken.join("config.toml")).unwrap();
+    std::fs::write(broken.join("checkpoint.safetensors"), b"not a checkpoint").unwrap();
+    expect(
+        i2sdf(&["mesh", "--run", s(&broken), "--out", s(&ply)]),
+        2,
+        &["checkpoint.safetensors"],
+    );
+    assert!(!ply.exists());
+}
+
+#[test]
+fn render_bad_input_exits_2() {
+    let (_, _, run) = trained();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("renders");
+    expect(
+        i2sdf(&["render", "--run", s(run), "--out", s(&out), "--split", "validation"]),
+        2,
+        &["--split", "validation"],
+    );
+    expect(
+        i2sdf(&["render", "--run", s(run), "--out", s(&out), "--what", "rgb,sparkle"]),
+        2,
+        &["--what", "sparkle"],
+    );
+    expect(
+        i2sdf(&[
+            "render",
+            "--run",
+            s(run),
+            "--out",
+            s(&out),
+            "--data",
+            s(&dir.path().join("gone")),
+        ]),
+        2,
+        &["gone"],
+    );
+    expect(
+        i2sdf(&["render", "--run", s(&dir.path().join("norun")), "--out", s(&out)]),
+        2,
+        &["run.json"],
+    );
+    assert!(!out.exists(), "a refused render created {}", out.display());
+}
+
+#[test]
+fn eval_bad_input_exits_2() {
+    let (_, data, run) = trained();
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("m.json");
+    expect(
+        i2sdf(&[
+            "eval",
+            "--run",
+            s(run),
+            "--data",
+            s(&dir.path().join("gone")),
+            "--out",
+            s(&json),
+        ]),
+        2,
+        &["gone"],
+    );
+    expect(
+        i2sdf(&[
+            "eval",
+            "--run",
+            s(&dir.path().join("norun")),
+            "--data",
+            s(data),
+            "--out",
+            s(&json),
+        ]),
+        2,
+        &["run.json"],
+    );
+    expect(
+        i2sdf(&[
+            "eval",
+            "--run",
+            s(run),
+            "--data",
+            s(data),
+            "--out",
+            s(&json),
+            "--threshold=-1",
+        ]),
+        2,
+        &["threshold"],
+    );
+    assert!(!json.exists());
+}
+
+#[test]
+fn failed_writes_exit_1_and_leave_nothing_half_written() {
+    let (_, data, run) = trained();
+    let dir = tempfile::tempdir().unwrap();
+    let ply = unwritable(dir.path(), "m.ply");
+    expect(
+        i2sdf(&["mesh", "--run", s(run), "--out", s(&ply)]),
+        1,
+        &["not_a_directory"],
+    );
+    let renders = unwritable(dir.path(), "renders");
+    expect(
+        i2sdf(&["render", "--run", s(run), "--out", s(&renders), "--what", "rgb"]),
+        1,
+        &["not_a_directory"],
+    );
+    let json = unwritable(dir.path(), "m.json");
+    expect(
+        i2sdf(&["eval", "--run", s(run), "--data", s(data), "--out", s(&json)]),
+        1,
+        &["not_a_directory"],
+    );
+    let out = unwritable(dir.path(), "run");
+    let mut args = vec!["train", "--quiet", "--data", s(data), "--out", s(&out)];
+    args.extend_from_slice(&TINY);
+    expect(i2sdf(&args), 1, &["not_a_directory"]);
+    let scene = unwritable(dir.path(), "scene");
+    expect(
+        i2sdf(&[
+            "synth",
+            "--out",
+            s(&scene),
+            "--width",
+            "16",
+            "--height",
+            "12",
+            "--views",
+            "2",
+            "--spp",
+            "1",
+        ]),
+        1,
+        &["not_a_directory"],
+    );
+    // Only the blocking file is there: no temporaries or partial outputs beside it.
+    let left: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(left, ["not_a_directory"], "{left:?}");
+}
