@@ -4,7 +4,7 @@
 //! Every loader converts into this; nothing downstream knows about OpenGL poses or integer-pixel
 //! rays.
 
-use glam::{DMat3, DMat4, DVec3, DVec4};
+use glam::{DMat3, DMat4, DVec3, DVec4, Mat3, Vec3};
 
 /// A pinhole camera: intrinsics in pixels and a rigid camera-to-world transform (OpenCV axes).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -114,6 +114,18 @@ impl Camera {
         Some((self.fx * pc.x / pc.z + self.cx, self.fy * pc.y / pc.z + self.cy, pc.z))
     }
 
+    /// The camera in f32 for the Monte Carlo renderer's inner loop (one direction per path).
+    pub fn ray_generator(&self) -> RayGenerator {
+        RayGenerator {
+            origin: self.center().as_vec3(),
+            rotation: self.rotation().as_mat3(),
+            fx: self.fx as f32,
+            fy: self.fy as f32,
+            cx: self.cx as f32,
+            cy: self.cy as f32,
+        }
+    }
+
     /// Checks intrinsics and pose; the message says what is wrong (the caller names the file).
     pub fn validate(&self) -> Result<(), String> {
         if self.width == 0 || self.height == 0 {
@@ -131,6 +143,34 @@ impl Camera {
             ));
         }
         validate_rigid(&self.c2w)
+    }
+}
+
+/// A [`Camera`] in f32, for generating many rays: the path tracer traces a few hundred per pixel
+/// and needs neither the f64 precision of the pose nor a matrix conversion per ray. Same
+/// conventions (OpenCV axes, pixel centres at +0.5).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RayGenerator {
+    pub origin: Vec3,
+    /// Camera-to-world rotation, columns = camera x (right), y (down), z (forward).
+    pub rotation: Mat3,
+    pub fx: f32,
+    pub fy: f32,
+    pub cx: f32,
+    pub cy: f32,
+}
+
+impl RayGenerator {
+    /// Unit world direction through continuous pixel position (u, v).
+    #[inline]
+    pub fn dir(&self, u: f32, v: f32) -> Vec3 {
+        (self.rotation * Vec3::new((u - self.cx) / self.fx, (v - self.cy) / self.fy, 1.0)).normalize()
+    }
+
+    /// The optical axis (z-depth of a point p is (p − origin) · forward).
+    #[inline]
+    pub fn forward(&self) -> Vec3 {
+        self.rotation.z_axis
     }
 }
 
@@ -269,6 +309,19 @@ mod tests {
         let t = 4.0;
         let (_, _, z) = c.project(o + d * t).unwrap();
         assert!((z - t * cos).abs() < 1e-9);
+    }
+
+    #[test]
+    fn ray_generator_agrees_with_the_f64_ray() {
+        let c = cam();
+        let g = c.ray_generator();
+        for (u, v) in [(0.0, 0.0), (3.25, 40.5), (63.9, 47.9), (32.0, 24.0)] {
+            let (o, d, cos) = c.ray(u, v);
+            let df = g.dir(u as f32, v as f32);
+            assert!((df.as_dvec3() - d).length() < 1e-6, "{df} vs {d}");
+            assert!((g.origin.as_dvec3() - o).length() < 1e-6);
+            assert!((df.dot(g.forward()) as f64 - cos).abs() < 1e-6);
+        }
     }
 
     #[test]

@@ -7,12 +7,15 @@ pub mod dataset;
 pub mod error;
 pub mod fixture;
 pub mod imageio;
+pub mod mesh;
 pub mod native;
 pub mod paper;
+pub mod ply;
 pub mod summary;
 
 pub use camera::Camera;
 pub use dataset::{load, Bounds, Dataset, Format, Frame, Normalization, RelightSet, Split};
 pub use error::DataError;
 pub use imageio::ImageF32;
+pub use mesh::TriangleMesh;
 pub use summary::Summary;

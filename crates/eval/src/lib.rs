@@ -1,5 +1,6 @@
-//! Evaluation for i2sdf (DESIGN.md "Evaluation"): image metrics, marching cubes, PLY meshes, mesh
-//! metrics with visibility culling against the training views, and the `eval` JSON report.
+//! Evaluation for i2sdf (DESIGN.md "Evaluation"): image metrics, marching cubes, mesh metrics with
+//! visibility culling against the training views, and the `eval` JSON report. Meshes and their PLY
+//! I/O are the data layer's (`i2sdf_data::{mesh, ply}`), re-exported here for convenience.
 
 pub mod image_metrics;
 pub mod kdtree;
@@ -8,12 +9,11 @@ pub mod mc_tables;
 pub mod mesh;
 pub mod mesh_metrics;
 pub mod neural;
-pub mod ply;
 pub mod report;
 
+pub use i2sdf_data::ply::{read_ply, write_ply};
 pub use image_metrics::{depth_l1, normal_angular_l1, psnr, ssim, ImageRef};
 pub use marching_cubes::{marching_cubes, McGrid, McOptions};
 pub use mesh::TriangleMesh;
 pub use mesh_metrics::{mesh_metrics, visible_from_views, CullingView, MeshMetrics, MeshMetricsOptions, ObjectRecall};
-pub use ply::{read_ply, write_ply};
 pub use report::{EvalReport, GeometryMetrics, MeshReport};

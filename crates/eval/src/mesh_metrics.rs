@@ -8,98 +8,63 @@
 
 use crate::kdtree::KdTree;
 use crate::mesh::TriangleMesh;
-use i2sdf_data::DataError;
+use glam::{DMat4, DVec3};
+use i2sdf_data::{Camera, DataError};
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashSet};
 
-/// A training view for visibility culling: a pinhole camera in the OpenCV convention (x right,
-/// y down, z forward; pixel centres at +0.5) with the ground-truth z-depth it sees.
+/// A training view for visibility culling: the dataset's camera (OpenCV axes, pixel centres at
+/// +0.5) with the ground-truth z-depth it sees.
 #[derive(Clone, Debug)]
 pub struct CullingView {
-    pub fx: f32,
-    pub fy: f32,
-    pub cx: f32,
-    pub cy: f32,
-    pub width: usize,
-    pub height: usize,
-    /// Camera-to-world, row-major (`cam_to_world[row][col]`), acting on column vectors; the first
-    /// three columns are the camera's x, y, z axes in the world, the fourth its centre.
-    pub cam_to_world: [[f32; 4]; 4],
+    pub camera: Camera,
     /// Ground-truth z-depth along the camera's z axis, row-major `height × width`; a non-finite or
     /// non-positive value means no surface (nothing hides points there, no GT point is seen there).
     pub depth: Vec<f32>,
 }
 
-/// A view prepared for projection: world-to-camera as a 3×3 matrix and translation, in f64.
+/// A view prepared for projection: world-to-camera once, in f64.
 struct Projector<'a> {
     view: &'a CullingView,
-    rotation: [[f64; 3]; 3],
-    translation: [f64; 3],
+    w2c: DMat4,
 }
 
 impl<'a> Projector<'a> {
     fn new(view: &'a CullingView, index: usize) -> Result<Self, DataError> {
         let bad = |msg: String| DataError::invalid(format!("culling view {index}: {msg}"));
-        if view.depth.len() != view.width * view.height {
+        let c = &view.camera;
+        if view.depth.len() != c.width * c.height {
             return Err(bad(format!(
                 "depth has {} pixels, image is {}×{}",
                 view.depth.len(),
-                view.width,
-                view.height
+                c.width,
+                c.height
             )));
         }
-        let intrinsics = [view.fx, view.fy, view.cx, view.cy];
-        if view.fx <= 0.0 || view.fy <= 0.0 || intrinsics.iter().any(|x| !x.is_finite()) {
-            return Err(bad(format!("bad intrinsics {intrinsics:?}")));
-        }
-        let m = view.cam_to_world.map(|row| row.map(|x| x as f64));
-        let r = [
-            [m[0][0], m[0][1], m[0][2]],
-            [m[1][0], m[1][1], m[1][2]],
-            [m[2][0], m[2][1], m[2][2]],
-        ];
-        let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
-            + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
-        if !det.is_finite() || det.abs() < 1e-12 {
-            return Err(bad("camera-to-world rotation is singular".into()));
-        }
-        // Inverse by cofactors (the matrix need not be exactly orthonormal).
-        let inv: [[f64; 3]; 3] = std::array::from_fn(|i| {
-            std::array::from_fn(|j| {
-                let (a, b) = ((j + 1) % 3, (j + 2) % 3);
-                let (c, d) = ((i + 1) % 3, (i + 2) % 3);
-                (r[a][c] * r[b][d] - r[a][d] * r[b][c]) / det
-            })
-        });
-        let t = [m[0][3], m[1][3], m[2][3]];
-        let translation = std::array::from_fn(|i| -(0..3).map(|j| inv[i][j] * t[j]).sum::<f64>());
-        Ok(Projector {
-            view,
-            rotation: inv,
-            translation,
-        })
+        c.validate().map_err(bad)?;
+        Ok(Projector { view, w2c: c.w2c() })
     }
 
     /// The point's camera z and the GT depth of the pixel it falls in, when it is in front of the
     /// camera and inside the image.
     fn project(&self, p: [f32; 3]) -> Option<(f64, f32)> {
-        let p = p.map(|x| x as f64);
-        let c: [f64; 3] =
-            std::array::from_fn(|i| (0..3).map(|j| self.rotation[i][j] * p[j]).sum::<f64>() + self.translation[i]);
-        if c[2] <= 1e-6 {
+        let c = self
+            .w2c
+            .transform_point3(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
+        if c.z <= 1e-6 {
             return None;
         }
-        let v = self.view;
-        let u = v.fx as f64 * c[0] / c[2] + v.cx as f64;
-        let w = v.fy as f64 * c[1] / c[2] + v.cy as f64;
-        if !(u >= 0.0 && w >= 0.0 && u < v.width as f64 && w < v.height as f64) {
+        let cam = &self.view.camera;
+        let u = cam.fx * c.x / c.z + cam.cx;
+        let w = cam.fy * c.y / c.z + cam.cy;
+        if !(u >= 0.0 && w >= 0.0 && u < cam.width as f64 && w < cam.height as f64) {
             return None;
         }
         // Pixel (i, j) covers [i, i + 1) with its centre at i + 0.5.
         let (i, j) = (u as usize, w as usize);
-        Some((c[2], v.depth[j * v.width + i]))
+        Some((c.z, self.view.depth[j * cam.width + i]))
     }
 }
 
@@ -389,45 +354,31 @@ fn group_recall(group: &ObjectGroup, gt_ids: Option<&[i32]>, gt_faces: &[u32], g
 mod tests {
     use super::*;
     use crate::mesh::test_shapes::{box_mesh, concat};
+    use glam::Vec3;
 
     const W: usize = 96;
     const H: usize = 72;
 
-    /// An OpenCV camera at `eye` looking at `target`, world up +z.
-    fn look_at(eye: [f32; 3], target: [f32; 3]) -> [[f32; 4]; 4] {
-        let norm = |v: [f32; 3]| {
-            let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            v.map(|x| x / l)
-        };
-        let cross = |a: [f32; 3], b: [f32; 3]| {
-            [
-                a[1] * b[2] - a[2] * b[1],
-                a[2] * b[0] - a[0] * b[2],
-                a[0] * b[1] - a[1] * b[0],
-            ]
-        };
-        let f = norm([target[0] - eye[0], target[1] - eye[1], target[2] - eye[2]]);
-        let r = norm(cross(f, [0.0, 0.0, 1.0]));
-        let d = cross(f, r);
-        std::array::from_fn(|i| {
-            if i == 3 {
-                [0.0, 0.0, 0.0, 1.0]
-            } else {
-                [r[i], d[i], f[i], eye[i]]
-            }
-        })
-    }
-
-    /// Ground-truth z-depth by brute-force ray casting (Möller–Trumbore).
+    /// Ground-truth z-depth by brute-force ray casting (Möller–Trumbore) from an OpenCV camera at
+    /// `eye` looking at `target`, world up +z.
     fn render_view(gt: &TriangleMesh, eye: [f32; 3], target: [f32; 3]) -> CullingView {
-        let cam_to_world = look_at(eye, target);
-        let (fx, fy, cx, cy) = (40.0f32, 40.0f32, W as f32 / 2.0, H as f32 / 2.0);
+        let (eye, target) = (Vec3::from(eye).as_dvec3(), Vec3::from(target).as_dvec3());
+        let camera = Camera {
+            width: W,
+            height: H,
+            fx: 40.0,
+            fy: 40.0,
+            cx: W as f64 / 2.0,
+            cy: H as f64 / 2.0,
+            c2w: i2sdf_data::camera::look_at(eye, target, DVec3::Z),
+        };
         let mut depth = vec![f32::INFINITY; W * H];
         for j in 0..H {
             for i in 0..W {
-                let dc = [(i as f32 + 0.5 - cx) / fx, (j as f32 + 0.5 - cy) / fy, 1.0];
-                let dir: [f64; 3] = std::array::from_fn(|a| (0..3).map(|b| (cam_to_world[a][b] * dc[b]) as f64).sum());
-                let o = eye.map(|x| x as f64);
+                // z = 1 in the camera, so t along it is the z-depth.
+                let dir = camera.rotation() * camera.pixel_center_dir_cam(i, j);
+                let dir = dir.to_array();
+                let o = eye.to_array();
                 for f in 0..gt.num_faces() {
                     let [a, b, c] = gt.triangle(f).map(|p| p.map(|x| x as f64));
                     let e1: [f64; 3] = std::array::from_fn(|k| b[k] - a[k]);
@@ -443,22 +394,12 @@ mod tests {
                     let v = crate::mesh::dot(dir, q) / det;
                     let t = crate::mesh::dot(e2, q) / det;
                     if u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t > 0.0 {
-                        // dir has unit camera-z component, so t is the z-depth.
                         depth[j * W + i] = depth[j * W + i].min(t as f32);
                     }
                 }
             }
         }
-        CullingView {
-            fx,
-            fy,
-            cx,
-            cy,
-            width: W,
-            height: H,
-            cam_to_world,
-            depth,
-        }
+        CullingView { camera, depth }
     }
 
     fn room() -> TriangleMesh {

@@ -7,9 +7,9 @@ use crate::image_metrics::{depth_l1, normal_angular_l1, psnr, ssim, ImageRef};
 use crate::marching_cubes::{marching_cubes, McGrid, McOptions};
 use crate::mesh::TriangleMesh;
 use crate::mesh_metrics::{mesh_metrics, CullingView, MeshMetricsOptions, ObjectGroup};
-use crate::ply::read_ply;
 use crate::report::{EvalReport, MeshReport, ThinObjectsReport};
 use i2sdf_data::dataset::ObjectInfo;
+use i2sdf_data::ply::read_ply;
 use i2sdf_data::{Bounds, DataError, Dataset, Frame, Split};
 use i2sdf_model::images::render_view;
 use i2sdf_model::renderer::RenderSettings;
@@ -48,17 +48,8 @@ pub fn culling_views(dataset: &Dataset) -> Vec<CullingView> {
         .split(Split::Train)
         .filter_map(|f| {
             let depth = f.depth.as_ref()?;
-            let c = &f.camera;
-            let m = c.c2w;
-            let cam_to_world = std::array::from_fn(|r| std::array::from_fn(|col| m.col(col)[r] as f32));
             Some(CullingView {
-                fx: c.fx as f32,
-                fy: c.fy as f32,
-                cx: c.cx as f32,
-                cy: c.cy as f32,
-                width: c.width,
-                height: c.height,
-                cam_to_world,
+                camera: f.camera.clone(),
                 depth: depth.data.clone(),
             })
         })

@@ -11,8 +11,9 @@
 //! `cargo run --release -p i2sdf-synth --example noise_psnr -- [preset|scene.toml] [spp] [view] [seed] [out_dir] [--unbiased] [--regularize=RHO]`
 
 use glam::Vec3;
+use i2sdf_render::render_view;
 use i2sdf_synth::dataset::{auto_exposure, plan_views};
-use i2sdf_synth::tracer::{render_view, Estimator};
+use i2sdf_synth::tracer::Estimator;
 use i2sdf_synth::{RenderScene, RoomPreset, SynthOptions};
 
 fn main() {
@@ -48,17 +49,19 @@ fn main() {
     let views = plan_views(&scene, &opts).expect("cameras");
     let cam = &views[view].camera;
     let t = std::time::Instant::now();
-    let lo = render_view(&scene, cam, spp, seed, view as u32, opts.max_depth, &|| {});
+    let render = |scene: &RenderScene, spp: u32, seed: u64| {
+        render_view(
+            &scene.scene(),
+            cam,
+            &scene.view_settings(spp, seed, view as u32, opts.max_depth),
+            &|| {},
+        )
+    };
+    let lo = render(&scene, spp, seed);
     let t_lo = t.elapsed().as_secs_f64();
-    let hi = render_view(
-        &scene,
-        cam,
-        4 * spp,
-        seed + 1_000_003,
-        view as u32,
-        opts.max_depth,
-        &|| {},
-    );
+    let t = std::time::Instant::now();
+    let hi = render(&scene, 4 * spp, seed + 1_000_003);
+    let t_hi = t.elapsed().as_secs_f64();
     let exposure = auto_exposure(&[(&views[view], &hi)]);
     let ones = vec![Vec3::ONE; lo.emitters];
     let (a, b) = (lo.hdr(&ones), hi.hdr(&ones));
@@ -74,7 +77,7 @@ fn main() {
     let ldr = psnr(&|v| i2sdf_data::imageio::linear_to_srgb((v * exposure).clamp(0.0, 1.0)));
     let linear = psnr(&|v| (v * exposure).clamp(0.0, 1.0));
     println!("estimator: {:?}", scene.estimator);
-    println!("{name} view {view}: {spp} spp vs {} spp: PSNR {ldr:.2} dB (sRGB LDR), {linear:.2} dB (linear, clamped); {spp} spp took {t_lo:.1} s", 4 * spp);
+    println!("{name} view {view}: {spp} spp vs {} spp: PSNR {ldr:.2} dB (sRGB LDR), {linear:.2} dB (linear, clamped); {spp} spp took {t_lo:.1} s, {} spp {t_hi:.1} s", 4 * spp, 4 * spp);
     let (w, h) = (lo.width, lo.height);
     let ldr_lo = i2sdf_synth::output::ldr_image(w, h, &a, exposure);
     let ldr_hi = i2sdf_synth::output::ldr_image(w, h, &b, exposure);
@@ -97,7 +100,7 @@ fn main() {
         // changes a BRDF, so the difference is mostly the bias, not noise.
         let biased = scene.estimator;
         scene.estimator = Estimator::UNBIASED;
-        let ub = render_view(&scene, cam, spp, seed, view as u32, opts.max_depth, &|| {});
+        let ub = render(&scene, spp, seed);
         scene.estimator = biased;
         let c = ub.hdr(&ones);
         let ldr = |v: f32| i2sdf_data::imageio::linear_to_srgb((v * exposure).clamp(0.0, 1.0));

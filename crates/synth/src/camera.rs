@@ -1,65 +1,38 @@
-//! Pinhole cameras placed inside the room looking around (inside-out capture).
+//! Pinhole cameras placed inside the room looking around (inside-out capture), as the data
+//! layer's [`Camera`].
 
 use crate::tracer::RenderScene;
-use glam::{Mat3, Mat4, Vec3};
-use i2sdf_data::DataError;
+use glam::{Mat4, Vec3};
+use i2sdf_data::{Camera, DataError};
+use i2sdf_render::Ray;
 use rand::Rng;
 
-/// A pinhole camera: pixel (x, y) with centre at (x + 0.5, y + 0.5) looks along
-/// `rotation · ((x + 0.5 − cx)/fx, −(y + 0.5 − cy)/fy, −1)` (OpenGL camera axes: x right, y up,
-/// looking down −z), matching `transforms.json`'s camera-to-world matrices.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Camera {
-    pub position: Vec3,
-    /// Camera-to-world rotation, columns = camera x (right), y (up), z (backwards).
-    pub rotation: Mat3,
-    pub width: usize,
-    pub height: usize,
-    pub fx: f32,
-    pub fy: f32,
-    pub cx: f32,
-    pub cy: f32,
-}
-
-impl Camera {
-    /// A camera at `position` with yaw (about +y, 0 looks down −z) and pitch, in radians.
-    pub fn looking(position: Vec3, yaw: f32, pitch: f32, width: usize, height: usize, fov_x_deg: f32) -> Self {
-        let forward = Vec3::new(-yaw.sin() * pitch.cos(), pitch.sin(), -yaw.cos() * pitch.cos());
-        let right = forward.cross(Vec3::Y).normalize();
-        let up = right.cross(forward);
-        let fx = 0.5 * width as f32 / (0.5 * fov_x_deg.to_radians()).tan();
-        Camera {
-            position,
-            rotation: Mat3::from_cols(right, up, -forward),
-            width,
-            height,
-            fx,
-            fy: fx,
-            cx: 0.5 * width as f32,
-            cy: 0.5 * height as f32,
-        }
-    }
-
-    pub fn forward(&self) -> Vec3 {
-        -self.rotation.z_axis
-    }
-
-    /// Unit world direction through image point (px, py) in pixel units (pixel centres at +0.5).
-    #[inline]
-    pub fn ray_dir(&self, px: f32, py: f32) -> Vec3 {
-        let c = Vec3::new((px - self.cx) / self.fx, -(py - self.cy) / self.fy, -1.0);
-        (self.rotation * c).normalize()
-    }
-
-    /// 4×4 camera-to-world, OpenGL/nerfstudio convention.
-    pub fn c2w(&self) -> Mat4 {
-        Mat4::from_cols(
-            self.rotation.x_axis.extend(0.0),
-            self.rotation.y_axis.extend(0.0),
-            self.rotation.z_axis.extend(0.0),
-            self.position.extend(1.0),
-        )
-    }
+/// A camera (the data layer's: OpenCV axes, pixel centres at +0.5) at `position` with yaw (about
+/// +y, 0 looks down −z) and pitch, in radians, and a horizontal field of view. The pose is
+/// computed in f32 as the generator always has, so transforms.json's OpenGL matrices (written
+/// back in f32) are unchanged.
+pub fn looking(position: Vec3, yaw: f32, pitch: f32, width: usize, height: usize, fov_x_deg: f32) -> Camera {
+    let forward = Vec3::new(-yaw.sin() * pitch.cos(), pitch.sin(), -yaw.cos() * pitch.cos());
+    let right = forward.cross(Vec3::Y).normalize();
+    let up = right.cross(forward);
+    let fx = 0.5 * width as f32 / (0.5 * fov_x_deg.to_radians()).tan();
+    // OpenGL camera-to-world (x right, y up, z backwards), converted exactly (sign flips) to
+    // OpenCV by the data layer.
+    let c2w_gl = Mat4::from_cols(
+        right.extend(0.0),
+        up.extend(0.0),
+        (-forward).extend(0.0),
+        position.extend(1.0),
+    );
+    Camera::from_opengl_c2w(
+        width,
+        height,
+        fx as f64,
+        fx as f64,
+        (0.5 * width as f32) as f64,
+        (0.5 * height as f32) as f64,
+        c2w_gl.as_dmat4(),
+    )
 }
 
 /// Picks a camera inside the room: eye height and pitch from the scene's rig, outside every
@@ -104,18 +77,22 @@ pub fn place_camera(
         let pitch = rng
             .gen_range(desc.camera.pitch_deg[0]..=desc.camera.pitch_deg[1])
             .to_radians();
-        let cam = Camera::looking(p, yaw + jitter, pitch, width, height, desc.camera.fov_x_deg);
-        let clear = (0..5).all(|i| {
-            (0..4).all(|j| {
+        let cam = looking(p, yaw + jitter, pitch, width, height, desc.camera.fov_x_deg);
+        let gen = cam.ray_generator();
+        let probes: Vec<Ray> = (0..5)
+            .flat_map(|i| (0..4).map(move |j| (i, j)))
+            .map(|(i, j)| {
                 let px = (i as f32 + 0.5) / 5.0 * width as f32;
                 let py = (j as f32 + 0.5) / 4.0 * height as f32;
-                let d = cam.ray_dir(px, py);
-                scene
-                    .bvh
-                    .intersect(p, d, 0.0, f32::INFINITY)
-                    .is_some_and(|h| h.t * d.dot(cam.forward()) > min_clearance)
+                Ray::new(gen.origin, gen.dir(px, py), 0.0, f32::INFINITY)
             })
-        });
+            .collect();
+        let mut hits = vec![None; probes.len()];
+        i2sdf_render::Geometry::intersect(&scene.geometry, &probes, &mut hits);
+        let clear = probes
+            .iter()
+            .zip(&hits)
+            .all(|(r, h)| h.is_some_and(|h| h.t * r.dir.dot(gen.forward()) > min_clearance));
         if clear {
             return Ok(cam);
         }

@@ -3,15 +3,16 @@
 //! truth. The GT mesh carries a per-face `object_id`; transforms.json's `objects` names and tags
 //! each id.
 
-use crate::camera::{place_camera, Camera};
+use crate::camera::place_camera;
 use crate::edit::{EditOp, EditSpec};
 use crate::noise::DepthNoise;
 use crate::output::{self, FramePaths};
 use crate::scene::{SceneDesc, SceneObject};
-use crate::tracer::{render_view, Estimator, RenderScene, ViewRender};
+use crate::tracer::{Estimator, RenderScene, ViewRender};
 use glam::Vec3;
-use i2sdf_data::DataError;
+use i2sdf_data::{Camera, DataError};
 use i2sdf_render::color::luminance;
+use i2sdf_render::render_view;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use rayon::prelude::*;
@@ -195,7 +196,10 @@ pub fn generate(
     let renders: Vec<ViewRender> = views
         .iter()
         .enumerate()
-        .map(|(i, v)| render_view(&scene, &v.camera, opts.spp, opts.seed, i as u32, opts.max_depth, on_row))
+        .map(|(i, v)| {
+            let settings = scene.view_settings(opts.spp, opts.seed, i as u32, opts.max_depth);
+            render_view(&scene.scene(), &v.camera, &settings, on_row)
+        })
         .collect();
     let render_seconds = start.elapsed().as_secs_f64();
     for (v, r) in views.iter().zip(&renders) {
@@ -255,7 +259,7 @@ pub fn generate(
     Ok(SynthSummary {
         train_views: views.len() - n_test,
         test_views: n_test,
-        triangles: scene.mesh.triangles.len(),
+        triangles: scene.mesh.mesh.faces.len(),
         emitters: scene.emitters.len(),
         exposure,
         render_seconds,
@@ -276,10 +280,11 @@ fn estimator_json(e: &Estimator) -> serde_json::Value {
 }
 
 fn matrix_json(cam: &Camera) -> serde_json::Value {
-    let m = cam.c2w();
-    // Row-major rows, as nerfstudio writes them.
+    // OpenGL convention, row-major rows, as nerfstudio writes them; in f32, the precision the
+    // poses are made in (`camera::looking`), so the numbers are exactly those placed.
+    let m = cam.opengl_c2w();
     json!((0..4)
-        .map(|r| (0..4).map(|c| m.col(c)[r]).collect::<Vec<f32>>())
+        .map(|r| (0..4).map(|c| m.col(c)[r] as f32).collect::<Vec<f32>>())
         .collect::<Vec<_>>())
 }
 
@@ -316,7 +321,7 @@ fn transforms_json(
         DepthNoise::ThreeSigma => ("0.0001125 z^2 + 0.0048875", "3 (0.002925 z^2 + 0.003325)"),
     };
     json!({
-        "fl_x": cam.fx, "fl_y": cam.fy, "cx": cam.cx, "cy": cam.cy, "w": cam.width, "h": cam.height,
+        "fl_x": cam.fx as f32, "fl_y": cam.fy as f32, "cx": cam.cx as f32, "cy": cam.cy as f32, "w": cam.width, "h": cam.height,
         "ldr": {"transfer": "srgb", "exposure": exposure,
                 "encoding": "png = srgb(clamp(exposure * hdr, 0, 1)), 8 bit; hdr = linear radiance"},
         "depth": {"kind": "z-depth along the optical axis", "unit": "metre",

@@ -1,26 +1,26 @@
-//! Tessellation of every shape into one triangle mesh. The path tracer intersects exactly these
-//! triangles and the ground-truth PLY holds exactly these triangles, so depth back-projected from
-//! any view lies on the written mesh up to f32 rounding. Each triangle remembers its shape, and
+//! Tessellation of every shape into one triangle mesh (the data layer's [`TriangleMesh`]). The
+//! path tracer intersects exactly these triangles and the ground-truth PLY holds exactly these
+//! triangles, so depth back-projected from any view lies on the written mesh up to f32 rounding.
+//! Each triangle remembers its shape (a parallel array: the renderer's surface label), and
 //! through it its object, which the PLY writes per face.
 
 use crate::scene::{Geometry, SceneDesc};
 use glam::{Quat, Vec3};
-use i2sdf_data::DataError;
-use std::io::Write;
+use i2sdf_data::{DataError, TriangleMesh};
 use std::path::Path;
 
+/// The scene's triangles and, per triangle, the index of the shape it belongs to.
 #[derive(Clone, Debug, Default)]
-pub struct TriangleMesh {
-    pub positions: Vec<Vec3>,
+pub struct SceneMesh {
     /// Counter-clockwise seen from outside: the geometric normal is (p1 − p0) × (p2 − p0).
-    pub triangles: Vec<[u32; 3]>,
+    pub mesh: TriangleMesh,
     /// Index of the scene shape each triangle belongs to.
     pub shape_of: Vec<u32>,
 }
 
-impl TriangleMesh {
+impl SceneMesh {
     pub fn from_scene(scene: &SceneDesc) -> Self {
-        let mut mesh = TriangleMesh::default();
+        let mut mesh = SceneMesh::default();
         for (i, s) in scene.shapes.iter().enumerate() {
             mesh.add_geometry(&s.geometry, i as u32);
         }
@@ -28,20 +28,21 @@ impl TriangleMesh {
     }
 
     pub fn vertex(&self, t: usize, k: usize) -> Vec3 {
-        self.positions[self.triangles[t][k] as usize]
+        self.mesh.vertex(t, k)
     }
 
-    pub fn area(&self, t: usize) -> f32 {
-        0.5 * (self.vertex(t, 1) - self.vertex(t, 0))
-            .cross(self.vertex(t, 2) - self.vertex(t, 0))
-            .length()
+    /// The triangles of one shape.
+    pub fn shape_faces(&self, shape: u32) -> Vec<u32> {
+        (0..self.shape_of.len() as u32)
+            .filter(|&t| self.shape_of[t as usize] == shape)
+            .collect()
     }
 
     fn push(&mut self, verts: &[Vec3], tris: &[[u32; 3]], shape: u32) {
-        let base = self.positions.len() as u32;
-        self.positions.extend_from_slice(verts);
+        let base = self.mesh.positions.len() as u32;
+        self.mesh.positions.extend(verts.iter().map(|v| v.to_array()));
         for t in tris {
-            self.triangles.push([t[0] + base, t[1] + base, t[2] + base]);
+            self.mesh.faces.push([t[0] + base, t[1] + base, t[2] + base]);
             self.shape_of.push(shape);
         }
     }
@@ -82,10 +83,10 @@ impl TriangleMesh {
                 radius,
                 subdivisions,
             } => {
-                let (verts, tris) = icosphere(*subdivisions);
+                let unit = TriangleMesh::unit_icosphere(*subdivisions);
                 let c = Vec3::from(*center);
-                let verts: Vec<Vec3> = verts.iter().map(|v| c + *radius * *v).collect();
-                self.push(&verts, &tris, shape);
+                let verts: Vec<Vec3> = unit.positions.iter().map(|v| c + *radius * Vec3::from(*v)).collect();
+                self.push(&verts, &unit.faces, shape);
             }
             Geometry::Cylinder { a, b, radius, segments } => {
                 let (a, b) = (Vec3::from(*a), Vec3::from(*b));
@@ -132,9 +133,8 @@ impl TriangleMesh {
         (lo, hi)
     }
 
-    /// Binary little-endian PLY: `float x y z` vertices, `uchar int vertex_indices` faces, each
-    /// followed by its `int object_id` (`object_of_shape[shape]`, see [`SceneDesc::objects`]) — the
-    /// convention `i2sdf_eval::read_ply` reads.
+    /// The ground-truth PLY: the mesh with each face's `int object_id`
+    /// (`object_of_shape[shape]`, see [`SceneDesc::objects`]), through the data layer's writer.
     pub fn write_ply(&self, path: &Path, object_of_shape: &[i32]) -> Result<(), DataError> {
         if let Some(&s) = self.shape_of.iter().find(|&&s| s as usize >= object_of_shape.len()) {
             return Err(DataError::invalid(format!(
@@ -143,106 +143,23 @@ impl TriangleMesh {
                 object_of_shape.len()
             )));
         }
-        let mut buf = Vec::with_capacity(256 + self.positions.len() * 12 + self.triangles.len() * 17);
-        write!(
-            buf,
-            "ply\nformat binary_little_endian 1.0\ncomment i2sdf synth ground-truth mesh (metres, y up)\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nelement face {}\nproperty list uchar int vertex_indices\nproperty int object_id\nend_header\n",
-            self.positions.len(),
-            self.triangles.len()
-        )
-        .unwrap();
-        for p in &self.positions {
-            for c in p.to_array() {
-                buf.extend_from_slice(&c.to_le_bytes());
-            }
-        }
-        for (t, &shape) in self.triangles.iter().zip(&self.shape_of) {
-            buf.push(3);
-            for &i in t {
-                buf.extend_from_slice(&(i as i32).to_le_bytes());
-            }
-            buf.extend_from_slice(&object_of_shape[shape as usize].to_le_bytes());
-        }
-        crate::output::write_atomic(path, &buf)
+        let mut mesh = self.mesh.clone();
+        mesh.face_object_ids = Some(self.shape_of.iter().map(|&s| object_of_shape[s as usize]).collect());
+        i2sdf_data::ply::write_ply_with_comment(path, &mesh, "i2sdf synth ground-truth mesh (metres, y up)")
     }
-}
-
-/// Unit icosphere: the icosahedron with `subdivisions` midpoint subdivisions, projected onto the
-/// sphere; counter-clockwise seen from outside.
-fn icosphere(subdivisions: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
-    let t = (1.0 + 5f32.sqrt()) / 2.0;
-    let mut verts: Vec<Vec3> = [
-        [-1.0, t, 0.0],
-        [1.0, t, 0.0],
-        [-1.0, -t, 0.0],
-        [1.0, -t, 0.0],
-        [0.0, -1.0, t],
-        [0.0, 1.0, t],
-        [0.0, -1.0, -t],
-        [0.0, 1.0, -t],
-        [t, 0.0, -1.0],
-        [t, 0.0, 1.0],
-        [-t, 0.0, -1.0],
-        [-t, 0.0, 1.0],
-    ]
-    .iter()
-    .map(|p| Vec3::from(*p).normalize())
-    .collect();
-    let mut tris: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..subdivisions {
-        let mut mid = std::collections::HashMap::new();
-        let mut midpoint = |a: u32, b: u32, verts: &mut Vec<Vec3>| -> u32 {
-            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                verts.push((verts[a as usize] + verts[b as usize]).normalize());
-                verts.len() as u32 - 1
-            })
-        };
-        let mut next = Vec::with_capacity(tris.len() * 4);
-        for [a, b, c] in tris {
-            let ab = midpoint(a, b, &mut verts);
-            let bc = midpoint(b, c, &mut verts);
-            let ca = midpoint(c, a, &mut verts);
-            next.extend_from_slice(&[[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        tris = next;
-    }
-    (verts, tris)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    fn signed_volume(m: &TriangleMesh) -> f32 {
-        (0..m.triangles.len())
-            .map(|t| m.vertex(t, 0).dot(m.vertex(t, 1).cross(m.vertex(t, 2))) / 6.0)
-            .sum()
+    fn signed_volume(m: &SceneMesh) -> f32 {
+        m.mesh.signed_volume() as f32
     }
 
     #[test]
     fn closed_shapes_face_outwards_with_the_right_volume() {
-        let mut m = TriangleMesh::default();
+        let mut m = SceneMesh::default();
         m.add_geometry(
             &Geometry::Box {
                 min: [0.0, 0.0, 0.0],
@@ -252,7 +169,7 @@ mod tests {
             0,
         );
         assert!((signed_volume(&m) - 6.0).abs() < 1e-4);
-        let mut m = TriangleMesh::default();
+        let mut m = SceneMesh::default();
         m.add_geometry(
             &Geometry::Cylinder {
                 a: [0.0, 0.0, 0.0],
@@ -264,7 +181,7 @@ mod tests {
         );
         let prism = 0.5 * 64.0 * (std::f32::consts::TAU / 64.0).sin() * 2.0;
         assert!((signed_volume(&m) - prism).abs() < 1e-3);
-        let mut m = TriangleMesh::default();
+        let mut m = SceneMesh::default();
         m.add_geometry(
             &Geometry::Sphere {
                 center: [0.0; 3],

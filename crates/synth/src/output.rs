@@ -3,10 +3,10 @@
 //! EXR, emitter mask PNG (255 = emitter), and the GT material maps Kd, Ks (RGB EXR) and roughness
 //! ρ (EXR, channel Y).
 
-use crate::tracer::ViewRender;
 use glam::Vec3;
 use i2sdf_data::imageio::{self, ImageF32};
 use i2sdf_data::DataError;
+use i2sdf_render::ViewRender;
 use std::path::Path;
 
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {

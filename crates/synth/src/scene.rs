@@ -175,6 +175,13 @@ impl TextureDesc {
     }
 }
 
+/// The integrator's materials apply scene textures through this.
+impl i2sdf_render::KdTexture for TextureDesc {
+    fn kd_at(&self, base_kd: Vec3, p: Vec3) -> Vec3 {
+        TextureDesc::kd_at(self, base_kd, p)
+    }
+}
+
 fn finite3(a: &[f32; 3]) -> bool {
     a.iter().all(|x| x.is_finite())
 }

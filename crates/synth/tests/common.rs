@@ -103,50 +103,33 @@ impl Written {
     }
 }
 
-/// Reads a binary little-endian PLY of float vertices and int triangles.
+/// Reads the written mesh through the project's one PLY reader (`i2sdf_data::ply`).
 pub fn read_ply(path: &Path) -> (Vec<Vec3>, Vec<[u32; 3]>) {
     let (verts, faces, _) = read_ply_with_objects(path);
     (verts, faces)
 }
 
-/// Reads a binary little-endian PLY of float vertices and int triangles, with the per-face
-/// `int object_id` when the header declares one.
+/// [`read_ply`] with the per-face `object_id`, checking that the file is the binary
+/// little-endian layout the dataset format promises (float vertices, `uchar int` index lists,
+/// `int object_id`).
 pub fn read_ply_with_objects(path: &Path) -> (Vec<Vec3>, Vec<[u32; 3]>, Option<Vec<i32>>) {
     let bytes = std::fs::read(path).unwrap();
     let end = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
     let header = std::str::from_utf8(&bytes[..end]).unwrap();
-    assert!(header.contains("format binary_little_endian 1.0"));
-    let count = |el: &str| {
-        header
-            .lines()
-            .find(|l| l.starts_with(&format!("element {el} ")))
-            .unwrap()
-            .split_whitespace()
-            .nth(2)
-            .unwrap()
-            .parse::<usize>()
-            .unwrap()
-    };
-    let (nv, nf) = (count("vertex"), count("face"));
-    let has_ids = header.contains("property list uchar int vertex_indices\nproperty int object_id\n");
-    let stride = if has_ids { 17 } else { 13 };
-    let f32_at = |o: usize| f32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
-    let i32_at = |o: usize| i32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
-    let verts: Vec<Vec3> = (0..nv)
-        .map(|i| Vec3::new(f32_at(end + 12 * i), f32_at(end + 12 * i + 4), f32_at(end + 12 * i + 8)))
-        .collect();
-    let base = end + 12 * nv;
-    let faces: Vec<[u32; 3]> = (0..nf)
-        .map(|i| {
-            let o = base + stride * i;
-            assert_eq!(bytes[o], 3);
-            let idx = |k: usize| i32_at(o + 1 + 4 * k) as u32;
-            [idx(0), idx(1), idx(2)]
-        })
-        .collect();
-    let ids = has_ids.then(|| (0..nf).map(|i| i32_at(base + stride * i + 13)).collect());
-    assert_eq!(base + stride * nf, bytes.len());
-    (verts, faces, ids)
+    assert!(header.contains("format binary_little_endian 1.0"), "{header}");
+    assert!(
+        header.contains("property float x\nproperty float y\nproperty float z\n"),
+        "{header}"
+    );
+    let mesh = i2sdf_data::ply::read_ply(path).unwrap();
+    if mesh.face_object_ids.is_some() {
+        assert!(
+            header.contains("property list uchar int vertex_indices\nproperty int object_id\n"),
+            "{header}"
+        );
+    }
+    let verts = mesh.positions.iter().map(|p| Vec3::from(*p)).collect();
+    (verts, mesh.faces, mesh.face_object_ids)
 }
 
 /// Distance from `p` to triangle (a, b, c) (Ericson, Real-Time Collision Detection 5.1.5), f64.

@@ -1,12 +1,12 @@
-//! White-furnace test of the path tracer: a closed box whose walls all emit the same radiance Le
+//! White-furnace test of the synthetic scenes through the shared integrator (`i2sdf_render`): a closed box whose walls all emit the same radiance Le
 //! (and reflect nothing), holding objects of albedo 1 (Lambertian). Every path ends on a wall with
 //! throughput exactly 1, so every pixel's radiance is Le; NEE, MIS weights, light pdfs and Russian
 //! roulette must all be right for the estimate to agree.
 
 use glam::Vec3;
-use i2sdf_synth::camera::Camera;
+use i2sdf_render::render_view;
+use i2sdf_synth::camera::looking;
 use i2sdf_synth::scene::{CameraRig, Geometry, MaterialDesc, RoomBounds, SceneDesc, ShapeDesc};
-use i2sdf_synth::tracer::render_view;
 use i2sdf_synth::RenderScene;
 
 fn furnace_scene(le: [f32; 3], kd: [f32; 3]) -> SceneDesc {
@@ -101,8 +101,8 @@ fn mean_and_max_dev(le: [f32; 3], kd: [f32; 3], spp: u32) -> (Vec3, f32) {
     let desc = furnace_scene(le, kd);
     desc.validate(std::path::Path::new("furnace")).unwrap();
     let scene = RenderScene::new(desc);
-    let cam = Camera::looking(Vec3::new(0.0, 1.2, 1.5), 0.0, -0.2, 24, 18, 60.0);
-    let r = render_view(&scene, &cam, spp, 5, 0, 64, &|| {});
+    let cam = looking(Vec3::new(0.0, 1.2, 1.5), 0.0, -0.2, 24, 18, 60.0);
+    let r = render_view(&scene.scene(), &cam, &scene.view_settings(spp, 5, 0, 64), &|| {});
     let ones = vec![Vec3::ONE; r.emitters];
     let hdr = r.hdr(&ones);
     let mean = hdr.iter().copied().sum::<Vec3>() / hdr.len() as f32;

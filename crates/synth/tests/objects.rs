@@ -6,7 +6,7 @@
 mod common;
 
 use i2sdf_synth::scene::{tags, Geometry, SceneObject};
-use i2sdf_synth::{RoomPreset, SceneDesc, TriangleMesh};
+use i2sdf_synth::{RoomPreset, SceneDesc, SceneMesh};
 use std::collections::BTreeSet;
 use std::path::Path;
 
@@ -21,8 +21,8 @@ fn every_face_of_the_written_mesh_names_a_listed_object() {
     // The ids are exactly the scene's objects, face by face.
     let desc = RoomPreset::Livingroom.build(2);
     let (objects, object_of_shape) = desc.objects();
-    let mesh = TriangleMesh::from_scene(&desc);
-    assert_eq!(mesh.triangles.len(), faces.len());
+    let mesh = SceneMesh::from_scene(&desc);
+    assert_eq!(mesh.mesh.faces.len(), faces.len());
     for (f, &shape) in mesh.shape_of.iter().enumerate() {
         assert_eq!(ids[f], object_of_shape[shape as usize], "face {f}");
     }
@@ -103,7 +103,7 @@ fn presets_tag_thin_and_suspended_objects_by_their_geometry() {
                 if has(object, tags::SUSPENDED) {
                     // Hanging well above the floor and the furniture.
                     let mesh = {
-                        let mut m = TriangleMesh::default();
+                        let mut m = SceneMesh::default();
                         m.add_geometry(&shape.geometry, 0);
                         m
                     };

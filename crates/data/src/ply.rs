@@ -1,11 +1,12 @@
 //! PLY meshes: read ASCII and binary (little- and big-endian) files, write binary little-endian.
 //! Vertices are `x y z` of any numeric type; faces are a list property named `vertex_indices` or
 //! `vertex_index` (polygons are fan-triangulated) with an optional per-face `object_id`. Other
-//! elements and properties are skipped. Every error names the file.
+//! elements and properties are skipped. Every error names the file. The one PLY reader and writer
+//! of the house: the synthetic generator's ground-truth `mesh.ply` (per-face `object_id`), `i2sdf
+//! mesh`'s output and the meshes of the evaluation all go through it.
 
 use crate::mesh::TriangleMesh;
-use i2sdf_data::DataError;
-use std::io::{BufWriter, Write};
+use crate::DataError;
 use std::path::Path;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -347,8 +348,14 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<TriangleMesh, DataError> {
 /// Writes a binary little-endian PLY: float `x y z` vertices, faces as `uchar` count + `int`
 /// indices (`vertex_indices`), and an `int object_id` per face when the mesh has them.
 pub fn write_ply(path: impl AsRef<Path>, mesh: &TriangleMesh) -> Result<(), DataError> {
+    write_ply_with_comment(path, mesh, "written by i2sdf")
+}
+
+/// [`write_ply`] with the header's `comment` line saying what the mesh is (units, up axis). The
+/// file is written atomically (a temporary file renamed into place), so a reader never sees half a
+/// mesh.
+pub fn write_ply_with_comment(path: impl AsRef<Path>, mesh: &TriangleMesh, comment: &str) -> Result<(), DataError> {
     let path = path.as_ref();
-    let io = |e: std::io::Error| DataError::io(path, format!("cannot write: {e}"));
     if let Some(ids) = &mesh.face_object_ids {
         if ids.len() != mesh.faces.len() {
             return Err(DataError::invalid(format!(
@@ -359,10 +366,14 @@ pub fn write_ply(path: impl AsRef<Path>, mesh: &TriangleMesh) -> Result<(), Data
             )));
         }
     }
-    let file = std::fs::File::create(path).map_err(io)?;
-    let mut w = BufWriter::new(file);
+    if comment.contains('\n') {
+        return Err(DataError::invalid(format!(
+            "writing {}: a PLY comment must be one line",
+            path.display()
+        )));
+    }
     let mut header = format!(
-        "ply\nformat binary_little_endian 1.0\ncomment written by i2sdf\nelement vertex {}\n\
+        "ply\nformat binary_little_endian 1.0\ncomment {comment}\nelement vertex {}\n\
          property float x\nproperty float y\nproperty float z\nelement face {}\n\
          property list uchar int vertex_indices\n",
         mesh.positions.len(),
@@ -372,28 +383,32 @@ pub fn write_ply(path: impl AsRef<Path>, mesh: &TriangleMesh) -> Result<(), Data
         header.push_str("property int object_id\n");
     }
     header.push_str("end_header\n");
-    w.write_all(header.as_bytes()).map_err(io)?;
+    let mut buf = Vec::with_capacity(header.len() + mesh.positions.len() * 12 + mesh.faces.len() * 17);
+    buf.extend_from_slice(header.as_bytes());
     for p in &mesh.positions {
         for x in p {
-            w.write_all(&x.to_le_bytes()).map_err(io)?;
+            buf.extend_from_slice(&x.to_le_bytes());
         }
     }
     for (f, face) in mesh.faces.iter().enumerate() {
-        w.write_all(&[3u8]).map_err(io)?;
+        buf.push(3u8);
         for &v in face {
-            w.write_all(&(v as i32).to_le_bytes()).map_err(io)?;
+            buf.extend_from_slice(&(v as i32).to_le_bytes());
         }
         if let Some(ids) = &mesh.face_object_ids {
-            w.write_all(&ids[f].to_le_bytes()).map_err(io)?;
+            buf.extend_from_slice(&ids[f].to_le_bytes());
         }
     }
-    w.flush().map_err(io)
+    crate::imageio::write_bytes_atomic(path, &buf)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::test_shapes::box_mesh;
+
+    fn box_mesh(min: [f32; 3], max: [f32; 3]) -> TriangleMesh {
+        TriangleMesh::axis_box(min, max)
+    }
 
     #[test]
     fn binary_round_trip_with_object_ids() {
