@@ -1,6 +1,7 @@
-//! Rendering whole views of a [`NeuralScene`] (for `render`, `eval` and training previews):
+//! Volume rendering whole views of a [`NeuralScene`] (for `render`, `eval` and training previews):
 //! colour as the radiance field predicts it (the dataset's LDR encoding), z-depth in world units,
-//! world-space normals and the emitter probability.
+//! world-space normals and the emitter probability. (The Monte Carlo renderer of stage 2 and the
+//! editor lives in `i2sdf_render`.)
 
 use crate::renderer::{self, RenderSettings, RenderWorkspace};
 use crate::scene::NeuralScene;
@@ -20,8 +21,11 @@ pub struct RenderedView {
     pub opacity: ImageF32,
 }
 
-/// Renders every pixel of `camera` (pixel centres), deterministically, in chunks of rays.
-pub fn render_view(scene: &NeuralScene, settings: &RenderSettings, camera: &Camera) -> RenderedView {
+/// The former name of [`render_volume_view`], kept while `i2sdf_eval::neural` still calls it.
+pub use self::render_volume_view as render_view;
+
+/// Volume-renders every pixel of `camera` (pixel centres), deterministically, in chunks of rays.
+pub fn render_volume_view(scene: &NeuralScene, settings: &RenderSettings, camera: &Camera) -> RenderedView {
     let (w, h) = (camera.width, camera.height);
     let norm = &scene.normalization;
     let o = norm.to_normalized(camera.center());

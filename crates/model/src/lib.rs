@@ -1,12 +1,19 @@
 //! i2sdf fields (DESIGN.md "crates/model"): the SDF field F_d (distance + geometry feature z), the
 //! radiance field F_c (z, view direction, normal → LDR colour), the emitter field F_e (z →
 //! probability) and the VolSDF density's β, held together with the normalization as a
-//! [`NeuralScene`]; saved and loaded as safetensors with the configuration in the metadata.
+//! [`NeuralScene`]; saved and loaded as safetensors with the configuration in the metadata; the
+//! run directory; inference queries ([`SceneQuery`]) and the ray caster of the trained SDF
+//! ([`raycast`]).
 
 pub mod config;
 pub mod images;
+pub mod query;
+pub mod raycast;
 pub mod renderer;
+pub mod run_dir;
 pub mod scene;
 
 pub use config::{Backbone, ModelConfig};
-pub use scene::{Beta, NeuralScene, SceneQuery};
+pub use query::SceneQuery;
+pub use run_dir::{RunDir, RunInfo, StageProgress};
+pub use scene::{Beta, GroupSpec, LrClass, NeuralScene, ParamBlock, SceneGrads, SceneModule, Update};

@@ -6,8 +6,9 @@
 //! Extra points (eikonal, bubble and smoothness points of stage 1) ride in the same SDF batch as
 //! the ray samples, so one SDF forward and one SDF backward serve every loss term.
 
-use crate::scene::NeuralScene;
-use i2sdf_nn::{MlpWorkspace, SdfGrad, SdfWorkspace};
+use crate::scene::{NeuralScene, SceneGrads};
+use i2sdf_nn::sdf::SdfInferWorkspace;
+use i2sdf_nn::{MlpWorkspace, SdfWorkspace};
 use i2sdf_render::volume::{
     composite_batch, composite_batch_backward, error_bounded_samples, laplace_density_backward, laplace_density_batch,
     CompositeGrads, CompositeOutputs, ErrorBoundedSamplerConfig, PackedSamples, RaySampleSet,
@@ -43,6 +44,19 @@ impl Default for RenderSettings {
     }
 }
 
+impl RenderSettings {
+    /// The defaults with a run's sampler settings (`[sampling]`: samples after error-bounded
+    /// upsampling, uniform samples of the first pass, VolSDF's ε): the mapping training, `render`
+    /// and `eval` share, so a view is rendered as the run was trained.
+    pub fn with_sampling(samples: usize, coarse: usize, epsilon: f32) -> Self {
+        let mut s = RenderSettings::default();
+        s.sampler.num_samples = samples;
+        s.sampler.num_samples_eval = coarse;
+        s.sampler.eps = epsilon;
+        s
+    }
+}
+
 /// Per-ray results of a forward pass.
 #[derive(Clone, Debug, Default)]
 pub struct RayOutputs {
@@ -53,26 +67,6 @@ pub struct RayOutputs {
     pub normal: Vec<f32>,
     pub emitter: Vec<f32>,
     pub opacity: Vec<f32>,
-}
-
-/// Gradients of the parameters of a [`NeuralScene`].
-pub struct SceneGrads {
-    pub sdf: SdfGrad,
-    pub radiance: Vec<f32>,
-    pub emitter: Vec<f32>,
-    /// dL/dβ (the caller chains it into β's parametrization).
-    pub beta: f32,
-}
-
-impl SceneGrads {
-    pub fn new(scene: &NeuralScene) -> Self {
-        SceneGrads {
-            sdf: SdfGrad::new(&scene.sdf),
-            radiance: vec![0.0; scene.radiance.params.len()],
-            emitter: vec![0.0; scene.emitter.params.len()],
-            beta: 0.0,
-        }
-    }
 }
 
 /// Buffers of one batch, kept between iterations; after [`forward`] they hold every per-sample
@@ -87,7 +81,7 @@ pub struct RenderWorkspace {
     pub sdf: Vec<f32>,
     pub feature: Vec<f32>,
     /// ∇d at every point, flat xyz.
-    pub gradient: Vec<f32>,
+    pub gradient: Vec<[f32; 3]>,
     sigma: Vec<f32>,
     sample_dirs: Vec<f32>,
     radiance_input: Vec<f32>,
@@ -159,18 +153,15 @@ pub fn sample<R: Rng + ?Sized>(
     if ws.sampler_chunks.len() < chunks {
         ws.sampler_chunks.resize_with(chunks, SamplerChunk::default);
     }
-    let fdim = scene.feature_dim();
     let results: Vec<RaySampleSet> = ws.sampler_chunks[..chunks]
         .par_iter_mut()
         .enumerate()
         .map(|(c, chunk)| {
             let range = (c * per).min(rays)..((c + 1) * per).min(rays);
-            let SamplerChunk { sdf_ws, sdf, feature } = chunk;
+            let SamplerChunk { sdf_ws } = chunk;
+            // Distances only, through the inference path (nothing kept for a backward).
             let sdf_eval = |pts: &[[f32; 3]], out: &mut [f32]| {
-                sdf.resize(pts.len(), 0.0);
-                feature.resize(pts.len() * fdim, 0.0);
-                scene.sdf.forward(bytemuck_flat(pts), sdf_ws, sdf, feature);
-                out.copy_from_slice(&sdf[..pts.len()]);
+                scene.sdf.infer(pts.as_flattened(), sdf_ws, out, None, None);
             };
             let mut chunk_rng = seeds.as_ref().map(|s| rand_pcg::Pcg64::seed_from_u64(s[c]));
             let r = range.clone();
@@ -209,9 +200,7 @@ pub fn sample<R: Rng + ?Sized>(
 /// One parallel sampler task's buffers.
 #[derive(Default)]
 struct SamplerChunk {
-    sdf_ws: SdfWorkspace,
-    sdf: Vec<f32>,
-    feature: Vec<f32>,
+    sdf_ws: SdfInferWorkspace,
 }
 
 /// The differentiable part of [`forward`], at the samples already in `ws.samples`.
@@ -248,13 +237,13 @@ pub fn forward_with_samples(
     let fdim = scene.feature_dim();
     ws.sdf.resize(n, 0.0);
     ws.feature.resize(n * fdim, 0.0);
-    ws.gradient.resize(n * 3, 0.0);
+    ws.gradient.resize(n, [0.0; 3]);
     scene.sdf.forward_with_gradient(
         &ws.points,
         &mut ws.sdf_ws,
         &mut ws.sdf,
         &mut ws.feature,
-        &mut ws.gradient,
+        ws.gradient.as_flattened_mut(),
     );
     // 4. Density (eq. 2), F_c (eq. "c(x) = F_c(z, v)", with the normal as VolSDF), F_e.
     ws.sigma.resize(n_s, 0.0);
@@ -262,7 +251,7 @@ pub fn forward_with_samples(
     scene.radiance_input(
         &ws.feature[..n_s * fdim],
         &ws.sample_dirs,
-        &ws.gradient[..n_s * 3],
+        ws.gradient[..n_s].as_flattened(),
         &mut ws.radiance_input,
     );
     ws.radiance_out.resize(n_s * 3, 0.0);
@@ -278,7 +267,7 @@ pub fn forward_with_samples(
     for i in 0..n_s {
         let c = &mut ws.channels[i * CHANNELS..(i + 1) * CHANNELS];
         c[..3].copy_from_slice(&ws.radiance_out[i * 3..i * 3 + 3]);
-        let g = &ws.gradient[i * 3..i * 3 + 3];
+        let g = &ws.gradient[i];
         let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-8);
         c[3] = g[0] / len;
         c[4] = g[1] / len;
@@ -370,7 +359,9 @@ pub fn backward(
     );
     // Density backward: dL/dd for the samples and dL/dβ.
     let mut d_sdf_render = vec![0.0f32; n_s];
-    grads.beta += laplace_density_backward(&ws.sdf[..n_s], beta, &ws.grad_sigma, &mut d_sdf_render);
+    // Chained into β's raw parameter (β = β_min + exp(raw)).
+    grads.beta[0] +=
+        scene.beta.dvalue() * laplace_density_backward(&ws.sdf[..n_s], beta, &ws.grad_sigma, &mut d_sdf_render);
     for i in 0..n_s {
         d_sdf[i] += d_sdf_render[i];
     }
@@ -407,7 +398,7 @@ pub fn backward(
             gf[k] = row[k] + ws.grad_emitter_in[i * fdim + k];
         }
         // ∇d enters F_c raw and the normal channel as n̂ = ∇d/‖∇d‖: dn̂ = (I − n̂n̂ᵀ) d∇d / ‖∇d‖.
-        let g = &ws.gradient[i * 3..i * 3 + 3];
+        let g = &ws.gradient[i];
         let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-8);
         let nh = [g[0] / len, g[1] / len, g[2] / len];
         let dn = &ws.grad_channels[i * CHANNELS + 3..i * CHANNELS + 6];
@@ -423,12 +414,6 @@ pub fn backward(
         Some(d_gradient),
         &mut grads.sdf,
     );
-}
-
-/// Views a slice of points as flat floats.
-fn bytemuck_flat(pts: &[[f32; 3]]) -> &[f32] {
-    // SAFETY: [f32; 3] has the layout of three consecutive f32 and no padding.
-    unsafe { std::slice::from_raw_parts(pts.as_ptr() as *const f32, pts.len() * 3) }
 }
 
 #[cfg(test)]
@@ -479,7 +464,7 @@ mod tests {
         }
         let ns = ws.n_samples;
         for j in 0..extra.len() / 3 {
-            l += 0.5 * ws.sdf[ns + j] as f64 + 0.25 * ws.gradient[(ns + j) * 3 + 1] as f64;
+            l += 0.5 * ws.sdf[ns + j] as f64 + 0.25 * ws.gradient[ns + j][1] as f64;
         }
         l
     }
@@ -575,7 +560,7 @@ mod tests {
         for &k in idx.iter().take(6) {
             check(hg.values[k], table, k, "hash grid");
         }
-        check(grads.beta * s.beta.dvalue(), beta, 0, "beta");
+        check(grads.beta[0], beta, 0, "beta");
         assert!(checked > 10);
     }
 

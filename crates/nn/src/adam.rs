@@ -201,6 +201,23 @@ impl Adam {
         let g = &mut self.groups[group];
         (&mut g.m, &mut g.v)
     }
+
+    /// The group of this name.
+    pub fn group_id(&self, name: &str) -> Option<GroupId> {
+        self.groups.iter().position(|g| g.name == name)
+    }
+}
+
+impl ParamGroup {
+    /// Name, first and second moments, mutably (to load them from a checkpoint).
+    pub fn state_mut(&mut self) -> (&str, &mut [f32], &mut [f32]) {
+        (&self.name, &mut self.m, &mut self.v)
+    }
+
+    /// First and second moments.
+    pub fn state(&self) -> (&[f32], &[f32]) {
+        (&self.m, &self.v)
+    }
 }
 
 #[cfg(test)]

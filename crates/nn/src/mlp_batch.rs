@@ -2,7 +2,7 @@
 //! [`TILE`] points grouped in chunks, one rayon task per chunk, per-chunk gradient accumulators
 //! reduced at the end. Buffers live in a caller-kept [`MlpWorkspace`].
 
-use crate::linalg::{even_ranges, reduce_into, single_threaded_gemm, split_lengths_mut};
+use crate::linalg::{even_ranges, reduce_into, split_lengths_mut};
 use crate::mlp::{Mlp, TileScratch, TILE};
 use rayon::prelude::*;
 
@@ -23,7 +23,6 @@ pub struct MlpWorkspace {
 
 impl Mlp {
     fn prepare_batch(&self, ws: &mut MlpWorkspace, input: &[f32]) {
-        single_threaded_gemm();
         let d = self.input_dim();
         assert_eq!(input.len() % d, 0, "input must be [n × {d}]");
         ws.n = input.len() / d;
@@ -85,7 +84,6 @@ impl Mlp {
     /// of the last [`Mlp::forward`], and, when given, overwrite `d_input` (`[n × input_dim]`) with
     /// its gradient w.r.t. the input (e.g. to pass on to the SDF feature and the normal).
     pub fn backward(&self, ws: &mut MlpWorkspace, d_output: &[f32], grad: &mut [f32], d_input: Option<&mut [f32]>) {
-        single_threaded_gemm();
         let (n, d, od, aw) = (ws.n, self.input_dim(), self.output_dim(), self.activation_width());
         assert!(d_output.len() >= n * od && grad.len() == self.params.len());
         let ranges = even_ranges(n.div_ceil(TILE), ws.chunks.len());
@@ -136,6 +134,55 @@ impl Mlp {
     }
 }
 
+/// Buffers of [`Mlp::infer`]: one tile's activations and scratch per parallel task, sized by the
+/// network, never by the number of points.
+#[derive(Default)]
+pub struct MlpInferWorkspace {
+    chunks: Vec<(usize, TileScratch, Vec<f32>)>,
+}
+
+impl Mlp {
+    /// Inference without stored activations (the radiance and emitter fields queried at
+    /// arbitrary points): `output` (`[n × output_dim]`) for `input` (`[n × input_dim]`), tile by
+    /// tile, equal to [`Mlp::forward`]. A kept workspace makes repeated calls allocation-free.
+    pub fn infer(&self, input: &[f32], ws: &mut MlpInferWorkspace, output: &mut [f32]) {
+        let (d, od, aw) = (self.input_dim(), self.output_dim(), self.activation_width());
+        assert_eq!(input.len() % d, 0, "input must be [n × {d}]");
+        let n = input.len() / d;
+        assert!(output.len() >= n * od);
+        let tiles = n.div_ceil(TILE);
+        let tasks = (2 * rayon::current_num_threads()).min(tiles).max(1);
+        if ws
+            .chunks
+            .first()
+            .is_some_and(|c| c.0 != self.params.len() || c.2.len() != TILE * aw)
+        {
+            ws.chunks.clear();
+        }
+        while ws.chunks.len() < tasks {
+            ws.chunks
+                .push((self.params.len(), self.new_scratch(), vec![0.0; TILE * aw]));
+        }
+        let ranges = even_ranges(tiles, tasks);
+        let rows: Vec<usize> = ranges
+            .iter()
+            .map(|r| ((r.end * TILE).min(n) - (r.start * TILE).min(n)) * od)
+            .collect();
+        let outs = split_lengths_mut(&mut output[..n * od], &rows);
+        let work: Vec<_> = ranges.into_iter().zip(ws.chunks.iter_mut()).zip(outs).collect();
+        work.into_par_iter().for_each(|((range, (_, scratch, acts)), out_c)| {
+            self.prepare_transposed(scratch);
+            for t in range.clone() {
+                let (r0, m) = (t * TILE, TILE.min(n - t * TILE));
+                let local = r0 - range.start * TILE;
+                let a = &mut acts[..m * aw];
+                self.forward_tile(&input[r0 * d..(r0 + m) * d], m, a, scratch);
+                out_c[local * od..(local + m) * od].copy_from_slice(self.tile_output(a, m));
+            }
+        });
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use crate::gradcheck::{assert_grad_close, central_difference, Lcg};
@@ -182,5 +229,12 @@ mod tests {
             loss(&mlp, &xs)
         });
         assert_grad_close("batched MLP input", &dx[..40], &fdx, 2e-3, 2e-2);
+        // The inference path gives the same outputs without keeping activations.
+        let mut y2 = vec![0.0; n * 3];
+        let mut iws = crate::mlp_batch::MlpInferWorkspace::default();
+        mlp.infer(&x, &mut iws, &mut y2);
+        assert_eq!(y, y2);
+        mlp.infer(&x[..5 * 17], &mut iws, &mut y2[..3 * 17]);
+        assert_eq!(y[..3 * 17], y2[..3 * 17]);
     }
 }

@@ -20,6 +20,8 @@ pub enum ParamError {
     Format { path: String, message: String },
     #[error("{path}: tensor {name} is missing")]
     Missing { path: String, name: String },
+    #[error("{path}: tensor {name} is not part of this model (a checkpoint of another configuration or stage?)")]
+    Unknown { path: String, name: String },
     #[error("{path}: tensor {name} has shape {found:?} ({dtype}), expected {expected:?} (F32)")]
     Shape {
         path: String,
@@ -184,6 +186,103 @@ pub fn load_safetensors(
     }
 }
 
+impl ParamError {
+    /// The tensor at fault, if the error is about one.
+    pub fn tensor(&self) -> Option<&str> {
+        match self {
+            ParamError::Missing { name, .. } | ParamError::Unknown { name, .. } | ParamError::Shape { name, .. } => {
+                Some(name)
+            }
+            _ => None,
+        }
+    }
+}
+
+/// One module of [`load_modules`]: its tensors under `prefix`; an optional module whose tensors
+/// are all absent from the file keeps its current (freshly initialised) values.
+pub struct ModuleSlot<'a> {
+    pub prefix: &'a str,
+    pub module: &'a mut dyn Parameters,
+    pub required: bool,
+}
+
+/// Read a safetensors file into `modules`. A module is either wholly in the file (every tensor
+/// present, f32, with its shape) or, if optional, wholly absent (left as it is: a checkpoint of an
+/// earlier stage loads into a scene with more modules); every tensor of the file must belong to
+/// some module. Returns the header metadata and, per module, whether it was loaded.
+pub fn load_modules(
+    path: &Path,
+    modules: &mut [ModuleSlot],
+) -> Result<(HashMap<String, String>, Vec<bool>), ParamError> {
+    let p = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|source| ParamError::Io {
+        path: p.clone(),
+        source,
+    })?;
+    let format = |e: safetensors::SafeTensorError| ParamError::Format {
+        path: p.clone(),
+        message: e.to_string(),
+    };
+    let (_, header) = SafeTensors::read_metadata(&bytes).map_err(format)?;
+    let file = SafeTensors::deserialize(&bytes).map_err(format)?;
+    let mut claimed = std::collections::HashSet::new();
+    let mut loaded = Vec::with_capacity(modules.len());
+    for slot in modules.iter_mut() {
+        // Which of the module's tensors does the file hold?
+        let (mut names, mut present) = (Vec::new(), 0usize);
+        slot.module.visit(slot.prefix, &mut |name, _, _| {
+            present += usize::from(file.tensor(&name).is_ok());
+            names.push(name);
+        });
+        claimed.extend(names.iter().cloned());
+        if present == 0 && !slot.required {
+            loaded.push(false);
+            continue;
+        }
+        let mut first_error = None;
+        slot.module.visit_mut(slot.prefix, &mut |name, shape, dst| {
+            if first_error.is_some() {
+                return;
+            }
+            match file.tensor(&name) {
+                Err(_) => first_error = Some(ParamError::Missing { path: p.clone(), name }),
+                Ok(t) if t.dtype() != Dtype::F32 || t.shape() != shape.as_slice() => {
+                    first_error = Some(ParamError::Shape {
+                        path: p.clone(),
+                        name,
+                        found: t.shape().to_vec(),
+                        expected: shape,
+                        dtype: format!("{:?}", t.dtype()),
+                    })
+                }
+                Ok(t) => {
+                    for (d, c) in dst.iter_mut().zip(t.data().chunks_exact(4)) {
+                        *d = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+                    }
+                }
+            }
+        });
+        if let Some(e) = first_error {
+            return Err(e);
+        }
+        loaded.push(true);
+    }
+    let mut unknown: Vec<String> = file
+        .names()
+        .into_iter()
+        .filter(|n| !claimed.contains(*n))
+        .map(|n| n.to_string())
+        .collect();
+    unknown.sort_unstable();
+    if let Some(name) = unknown.first() {
+        return Err(ParamError::Unknown {
+            path: p.clone(),
+            name: name.to_string(),
+        });
+    }
+    Ok((header.metadata().clone().unwrap_or_default(), loaded))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -222,5 +321,83 @@ mod tests {
         assert!(matches!(err, ParamError::Shape { .. }), "{err}");
         let err = load_safetensors(&path, &mut [("radiance", &mut c)]).unwrap_err();
         assert!(matches!(err, ParamError::Missing { .. }), "{err}");
+    }
+
+    /// Optional modules absent from the file keep their values; required ones, partial modules,
+    /// wrong shapes and tensors no module claims are errors naming the tensor.
+    #[test]
+    fn load_modules_with_optional_and_unknown_tensors() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.safetensors");
+        let a = net(1, 7);
+        save_safetensors(&path, &[("sdf", &a)], None).unwrap();
+        let (mut b, mut extra) = (net(2, 7), net(3, 4));
+        let fresh = extra.mlp.params.clone();
+        let (_, loaded) = load_modules(
+            &path,
+            &mut [
+                ModuleSlot {
+                    prefix: "sdf",
+                    module: &mut b,
+                    required: true,
+                },
+                ModuleSlot {
+                    prefix: "material",
+                    module: &mut extra,
+                    required: false,
+                },
+            ],
+        )
+        .unwrap();
+        assert_eq!(loaded, vec![true, false]);
+        assert_eq!(b.mlp.params, a.mlp.params);
+        assert_eq!(extra.mlp.params, fresh);
+        let err = load_modules(
+            &path,
+            &mut [ModuleSlot {
+                prefix: "material",
+                module: &mut extra,
+                required: true,
+            }],
+        )
+        .unwrap_err();
+        assert_eq!(err.tensor(), Some("material.hash_grid.table"), "{err}");
+        // A file with a tensor nobody claims.
+        save_safetensors(&path, &[("sdf", &a), ("material", &extra)], None).unwrap();
+        let err = load_modules(
+            &path,
+            &mut [ModuleSlot {
+                prefix: "sdf",
+                module: &mut b,
+                required: true,
+            }],
+        )
+        .unwrap_err();
+        assert!(
+            matches!(err, ParamError::Unknown { .. }) && err.tensor().unwrap().starts_with("material."),
+            "{err}"
+        );
+        // Wrong shape: a module of another size under the same prefix.
+        let mut c = net(4, 5);
+        let err = load_modules(
+            &path,
+            &mut [
+                ModuleSlot {
+                    prefix: "sdf",
+                    module: &mut b,
+                    required: true,
+                },
+                ModuleSlot {
+                    prefix: "material",
+                    module: &mut c,
+                    required: false,
+                },
+            ],
+        )
+        .unwrap_err();
+        assert!(
+            matches!(err, ParamError::Shape { .. }) && err.to_string().contains("material.mlp"),
+            "{err}"
+        );
     }
 }

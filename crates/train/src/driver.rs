@@ -1,40 +1,230 @@
-//! The stage-1 driver behind `i2sdf train`: creates or resumes a run directory, runs the
-//! iterations, logs, and writes checkpoints atomically; the CLI only displays progress.
+//! The training driver shared by the stages behind `i2sdf train`: a stage says how to take one
+//! step and write its checkpoint ([`TrainStage`]); the driver owns everything around it — the RNG
+//! of each iteration seeded from (seed, iteration), so a resumed run draws exactly what the
+//! uninterrupted one would have; the streak of skipped non-finite steps; atomic checkpoints with
+//! the optimizer state every N iterations and at the end; the JSONL log; the stage's progress and
+//! time in `run.json`; progress events for the CLI. The CLI only displays them.
 
 use crate::config::TrainConfig;
-use crate::run_dir::{RunDir, RunInfo};
 use crate::stage1::{Stage1, StepStats};
 use i2sdf_data::{DataError, Dataset};
+use i2sdf_model::renderer::RenderSettings;
+use i2sdf_model::run_dir::{RunDir, RunInfo};
+use rand::SeedableRng;
+use rand_pcg::Pcg64;
+use serde::Serialize;
+use std::path::Path;
 use std::time::Instant;
 
-/// What the driver reports to its caller (the CLI's progress bar).
-pub enum Event<'a> {
-    Started { iteration: u64, total: u64 },
-    Step(&'a StepStats),
-    PdfInitialising,
-    Checkpoint { iteration: u64 },
+/// Consecutive non-finite steps tolerated before training stops as diverged.
+pub const MAX_NONFINITE_STREAK: u32 = 20;
+
+/// What one step reports.
+pub struct StepOutcome<S> {
+    pub stats: S,
+    /// False: the loss (or an output) was not finite and the step changed no parameter.
+    pub finite: bool,
 }
 
-/// Runs (or resumes) stage 1 into `run`. On resume the configuration is the run's own, with
-/// `overrides` applied on top (e.g. more iterations).
-pub fn train_geometry(
+/// One training stage, as the driver runs it.
+pub trait TrainStage {
+    /// Per-step statistics (one JSON object of the log).
+    type Stats: Serialize;
+    /// The stage's key in `run.json` (`"stage1"`, `"stage2"`), also the progress label.
+    fn key(&self) -> &'static str;
+    /// Iterations done (the next step's index).
+    fn iteration(&self) -> u64;
+    /// Iterations in all.
+    fn total(&self) -> u64;
+    /// The run's seed, mixed with the iteration into each step's RNG.
+    fn seed(&self) -> u64;
+    /// A slow step about to run (e.g. initialising error maps), announced to the display.
+    fn pending_pause(&self) -> Option<&'static str> {
+        None
+    }
+    /// One iteration with its RNG. Advances [`TrainStage::iteration`] by one whether or not the
+    /// step was finite; a non-finite step must leave every parameter and optimizer state as it was.
+    fn step(&mut self, rng: &mut Pcg64) -> Result<StepOutcome<Self::Stats>, DataError>;
+    /// Are the trained parameters finite?
+    fn is_finite(&self) -> bool;
+    /// Writes the parameters and the optimizer state (atomically) so that a stage resumed from
+    /// it continues bit for bit.
+    fn write_checkpoint(&self, path: &Path) -> Result<(), DataError>;
+}
+
+/// The RNG of iteration `i` of a run with `seed`.
+pub fn iteration_rng(seed: u64, iteration: u64) -> Pcg64 {
+    Pcg64::seed_from_u64(seed ^ iteration.wrapping_mul(0x9e37_79b9_7f4a_7c15))
+}
+
+/// A stage with the driver's per-step state: stepping it directly (tests, benchmarks) behaves
+/// exactly as inside [`drive`].
+pub struct Trainer<S> {
+    pub stage: S,
+    nonfinite_streak: u32,
+}
+
+impl<S: TrainStage> Trainer<S> {
+    pub fn new(stage: S) -> Self {
+        Trainer {
+            stage,
+            nonfinite_streak: 0,
+        }
+    }
+
+    pub fn done(&self) -> bool {
+        self.stage.iteration() >= self.stage.total()
+    }
+
+    /// One step with the iteration's RNG. A non-finite step is skipped; [`MAX_NONFINITE_STREAK`]
+    /// of them in a row stop training with an error (the last good checkpoint stays).
+    pub fn step(&mut self) -> Result<StepOutcome<S::Stats>, DataError> {
+        let it = self.stage.iteration();
+        let mut rng = iteration_rng(self.stage.seed(), it);
+        let outcome = self.stage.step(&mut rng)?;
+        debug_assert_eq!(self.stage.iteration(), it + 1, "a step advances one iteration");
+        if outcome.finite {
+            self.nonfinite_streak = 0;
+        } else {
+            self.nonfinite_streak += 1;
+            if self.nonfinite_streak >= MAX_NONFINITE_STREAK {
+                return Err(DataError::failed(format!(
+                    "training diverged: {} consecutive non-finite losses at iteration {}",
+                    self.nonfinite_streak,
+                    it + 1
+                )));
+            }
+        }
+        Ok(outcome)
+    }
+
+    /// Writes the checkpoint; refuses parameters that are not finite (the last good checkpoint
+    /// is kept).
+    pub fn save(&self, path: &Path) -> Result<(), DataError> {
+        if !self.stage.is_finite() {
+            return Err(DataError::failed(
+                "training diverged: non-finite parameters; checkpoint not written",
+            ));
+        }
+        self.stage.write_checkpoint(path)
+    }
+}
+
+/// What the driver reports to its caller (the CLI's progress bar).
+pub enum Event<'a, T> {
+    Started {
+        key: &'static str,
+        iteration: u64,
+        total: u64,
+    },
+    /// A step finished (`stats` of iteration `iteration`).
+    Step {
+        iteration: u64,
+        stats: &'a T,
+        finite: bool,
+    },
+    /// A slow step is about to run.
+    Pause(&'static str),
+    Checkpoint {
+        iteration: u64,
+    },
+}
+
+/// How often the driver checkpoints and logs.
+#[derive(Clone, Copy, Debug)]
+pub struct DriveOptions {
+    pub checkpoint_every: u64,
+    pub log_every: u64,
+}
+
+/// Runs `trainer` to its total into `run`: logs every `log_every` steps (and every skipped one),
+/// checkpoints every `checkpoint_every` and at the end, and keeps the stage's progress and
+/// wall-clock time (summed over resumed sessions) in `info`/`run.json`.
+pub fn drive<S: TrainStage>(
+    run: &RunDir,
+    info: &mut RunInfo,
+    trainer: &mut Trainer<S>,
+    options: DriveOptions,
+    mut on_event: impl FnMut(Event<S::Stats>),
+) -> Result<(), DataError> {
+    let key = trainer.stage.key();
+    let base_seconds = info.stage_mut(key)?.seconds;
+    on_event(Event::Started {
+        key,
+        iteration: trainer.stage.iteration(),
+        total: trainer.stage.total(),
+    });
+    let session_start = Instant::now();
+    let every = options.checkpoint_every.max(1);
+    let log_every = options.log_every.max(1);
+    while !trainer.done() {
+        if let Some(what) = trainer.stage.pending_pause() {
+            on_event(Event::Pause(what));
+        }
+        let it = trainer.stage.iteration();
+        let out = trainer.step()?;
+        if it % log_every == 0 || !out.finite {
+            let mut record = serde_json::to_value(&out.stats).expect("stats serialize");
+            if let Some(obj) = record.as_object_mut() {
+                obj.insert("stage".into(), key.into());
+                obj.insert(
+                    "time_s".into(),
+                    (base_seconds + session_start.elapsed().as_secs_f64()).into(),
+                );
+            }
+            run.append_log(&record)?;
+        }
+        on_event(Event::Step {
+            iteration: it,
+            stats: &out.stats,
+            finite: out.finite,
+        });
+        let now = trainer.stage.iteration();
+        if now % every == 0 || trainer.done() {
+            trainer.save(&run.checkpoint_path())?;
+            let progress = info.stage_mut(key)?;
+            progress.iterations = now;
+            progress.seconds = base_seconds + session_start.elapsed().as_secs_f64();
+            progress.done = trainer.done();
+            run.write_info(info)?;
+            on_event(Event::Checkpoint { iteration: now });
+        }
+    }
+    Ok(())
+}
+
+/// The run's configuration, as `RUN/config.toml` holds it.
+pub fn read_run_config(run: &RunDir) -> Result<TrainConfig, DataError> {
+    TrainConfig::load(Some(&run.config_path()), &[])
+}
+
+/// The volume renderer's settings of a run: its `[sampling]` section, as stage 1 trained with it
+/// (the one mapping that training, `render` and `eval` use).
+pub fn render_settings(config: &TrainConfig) -> RenderSettings {
+    let s = &config.sampling;
+    RenderSettings::with_sampling(s.samples, s.coarse, s.epsilon)
+}
+
+/// Opens a run directory for training: a fresh one (refused if it already holds a run) or, with
+/// `resume`, an existing one whose configuration (`config` if given, else the run's own) and
+/// dataset normalization are checked. Writes the configuration and `run.json`; any stage then
+/// [`drive`]s into it.
+pub fn open_run(
     run: &RunDir,
     dataset: &Dataset,
     data_arg: &str,
     config: Option<TrainConfig>,
     resume: bool,
-    mut on_event: impl FnMut(Event),
-) -> Result<Stage1, DataError> {
-    let (mut stage, mut info) = if resume {
+) -> Result<(TrainConfig, RunInfo), DataError> {
+    let (config, info) = if resume {
         if !run.checkpoint_path().is_file() {
             return Err(DataError::file(run.checkpoint_path(), "no checkpoint to resume from"));
         }
         let config = match config {
             Some(c) => c,
-            None => run.read_config()?,
+            None => read_run_config(run)?,
         };
         let info = run.read_info()?;
-        let stage = Stage1::resume(dataset, config, &run.checkpoint_path())?;
         if let Some(n) = info.normalization {
             if n != dataset.normalization {
                 return Err(DataError::invalid(format!(
@@ -43,7 +233,7 @@ pub fn train_geometry(
                 )));
             }
         }
-        (stage, info)
+        (config, info)
     } else {
         if run.exists() || run.checkpoint_path().exists() {
             return Err(DataError::file(
@@ -52,48 +242,40 @@ pub fn train_geometry(
             ));
         }
         run.create()?;
-        let config = config.unwrap_or_default();
-        let stage = Stage1::new(dataset, config);
         let info = RunInfo {
             data: data_arg.to_string(),
             normalization: Some(dataset.normalization),
             bounds: Some(dataset.bounds),
             ..Default::default()
         };
-        (stage, info)
+        (config.unwrap_or_default(), info)
     };
-    run.write_config(&stage.config)?;
+    run.write_config_toml(&config.to_toml())?;
     run.write_info(&info)?;
-    let total = stage.config.train.iterations;
-    on_event(Event::Started {
-        iteration: stage.iteration,
-        total,
-    });
-    let session_start = Instant::now();
-    let base_seconds = info.stage1_seconds;
-    let every = stage.config.train.checkpoint_every.max(1);
-    let log_every = stage.config.train.log_every.max(1);
-    while !stage.done() {
-        if stage.phase() == crate::schedule::Phase::Bubble && stage.needs_pdf() {
-            on_event(Event::PdfInitialising);
-        }
-        let stats = stage.step()?;
-        if stats.iteration % log_every == 0 || stats.skipped {
-            let mut record = serde_json::to_value(&stats).expect("stats serialize");
-            record["time_s"] = serde_json::json!(base_seconds + session_start.elapsed().as_secs_f64());
-            run.append_log(&record)?;
-        }
-        on_event(Event::Step(&stats));
-        if stage.iteration % every == 0 || stage.done() {
-            stage.save(&run.checkpoint_path())?;
-            info.stage1_iterations = stage.iteration;
-            info.stage1_seconds = base_seconds + session_start.elapsed().as_secs_f64();
-            info.stage1_done = stage.done();
-            run.write_info(&info)?;
-            on_event(Event::Checkpoint {
-                iteration: stage.iteration,
-            });
-        }
-    }
-    Ok(stage)
+    Ok((config, info))
+}
+
+/// Runs (or resumes) stage 1 into `run`. On resume the configuration is the run's own unless
+/// `config` is given (the CLI applies `--set` overrides on top of the run's).
+pub fn train_geometry(
+    run: &RunDir,
+    dataset: &Dataset,
+    data_arg: &str,
+    config: Option<TrainConfig>,
+    resume: bool,
+    on_event: impl FnMut(Event<StepStats>),
+) -> Result<Stage1, DataError> {
+    let (config, mut info) = open_run(run, dataset, data_arg, config, resume)?;
+    let options = DriveOptions {
+        checkpoint_every: config.train.checkpoint_every,
+        log_every: config.train.log_every,
+    };
+    let stage = if resume {
+        Stage1::resume(dataset, config, &run.checkpoint_path())?
+    } else {
+        Stage1::new(dataset, config)
+    };
+    let mut trainer = Trainer::new(stage);
+    drive(run, &mut info, &mut trainer, options, on_event)?;
+    Ok(trainer.stage)
 }

@@ -1,11 +1,11 @@
-//! i2sdf training: the stage-1 loop (geometry, radiance and emitter fields), its losses, the
-//! three-step schedule, error-guided adaptive sampling, checkpoints and the run directory.
+//! i2sdf training: the driver shared by the stages (seeding, skipped steps, checkpoints, resume,
+//! log and progress), stage 1 (geometry, radiance and emitter fields), its losses, the three-step
+//! schedule and error-guided adaptive sampling. The run directory is `i2sdf_model::run_dir`.
 
 pub mod config;
 pub mod driver;
 pub mod losses;
 pub mod pdf_map;
 pub mod rays;
-pub mod run_dir;
 pub mod schedule;
 pub mod stage1;

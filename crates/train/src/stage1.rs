@@ -6,27 +6,28 @@
 //! An iteration: draw rays uniformly over the training pixels; draw the extra points of the point
 //! losses (uniform eikonal points, bubble points from the PDF maps, smoothness pairs near the
 //! depth surface); one forward of the renderer over rays and points; the losses and their
-//! gradients; one backward; Adam. The RNG of iteration i is seeded from (seed, i), so a resumed
-//! run draws exactly what the uninterrupted one would have.
+//! gradients; one backward; Adam. Stage 1 is a [`TrainStage`]: the shared driver seeds each
+//! iteration's RNG, skips non-finite steps and writes the checkpoints.
 
 use crate::config::TrainConfig;
+use crate::driver::{render_settings, StepOutcome, TrainStage};
 use crate::losses;
 use crate::pdf_map::{PdfMaps, PixelRef};
 use crate::rays::{train_images, RayBatch, TrainImage};
 use crate::schedule::Phase;
 use i2sdf_data::{DataError, Dataset};
-use i2sdf_model::renderer::{self, RayGrads, RenderSettings, RenderWorkspace, SceneGrads};
-use i2sdf_model::NeuralScene;
-use i2sdf_nn::{Adam, AdamConfig, GroupId, LrSchedule, Parameters, SdfEncoding};
-use rand::{Rng, SeedableRng};
+use i2sdf_model::renderer::{self, RayGrads, RenderSettings, RenderWorkspace};
+use i2sdf_model::scene::{GradMut, GroupSpec, LrClass, Update};
+use i2sdf_model::{NeuralScene, SceneGrads};
+use i2sdf_nn::params::ModuleSlot;
+use i2sdf_nn::{Adam, AdamConfig, LrSchedule, Parameters};
+use rand::Rng;
 use rand_pcg::Pcg64;
 use serde::Serialize;
 use std::path::Path;
 
 /// Half-width of the random perturbation ε of the smoothness loss (eq. 8), normalized units.
 const SMOOTH_EPS: f32 = 0.01;
-/// Consecutive non-finite steps tolerated before training stops.
-const MAX_NONFINITE_STREAK: u32 = 20;
 
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct StepStats {
@@ -54,43 +55,35 @@ pub struct StepStats {
     pub ms_backward: f32,
 }
 
-struct Groups {
-    sdf_mlp: GroupId,
-    hash: Option<GroupId>,
-    radiance: GroupId,
-    emitter: GroupId,
-    beta: GroupId,
+/// One optimizer group's moments as the checkpoint tensors `adam.{group}.m` / `.v`.
+struct AdamGroupState<'a> {
+    m: &'a [f32],
+    v: &'a [f32],
+}
+struct AdamGroupStateMut<'a> {
+    m: &'a mut [f32],
+    v: &'a mut [f32],
 }
 
-/// Adam's moments as named tensors, so they travel in the checkpoint.
-struct AdamState<'a>(&'a Adam);
-struct AdamStateMut<'a>(&'a mut Adam);
-
-impl Parameters for AdamState<'_> {
+impl Parameters for AdamGroupState<'_> {
     fn visit(&self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &[f32])) {
-        for (i, g) in self.0.groups.iter().enumerate() {
-            let (m, v) = self.0.moments(i);
-            f(format!("{prefix}.{}.m", g.name), vec![m.len()], m);
-            f(format!("{prefix}.{}.v", g.name), vec![v.len()], v);
-        }
+        f(format!("{prefix}.m"), vec![self.m.len()], self.m);
+        f(format!("{prefix}.v"), vec![self.v.len()], self.v);
     }
     fn visit_mut(&mut self, _: &str, _: &mut dyn FnMut(String, Vec<usize>, &mut [f32])) {
         unreachable!("read-only view")
     }
 }
 
-impl Parameters for AdamStateMut<'_> {
+impl Parameters for AdamGroupStateMut<'_> {
     fn visit(&self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &[f32])) {
-        AdamState(self.0).visit(prefix, f)
+        f(format!("{prefix}.m"), vec![self.m.len()], self.m);
+        f(format!("{prefix}.v"), vec![self.v.len()], self.v);
     }
     fn visit_mut(&mut self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &mut [f32])) {
-        for i in 0..self.0.groups.len() {
-            let name = self.0.groups[i].name.clone();
-            let (m, v) = self.0.moments_mut(i);
-            let len = m.len();
-            f(format!("{prefix}.{name}.m"), vec![len], m);
-            f(format!("{prefix}.{name}.v"), vec![len], v);
-        }
+        let len = self.m.len();
+        f(format!("{prefix}.m"), vec![len], self.m);
+        f(format!("{prefix}.v"), vec![len], self.v);
     }
 }
 
@@ -99,22 +92,15 @@ pub struct Stage1 {
     pub scene: NeuralScene,
     pub iteration: u64,
     images: Vec<TrainImage>,
+    /// One group per [`NeuralScene::modules`] entry, in that order.
     adam: Adam,
-    groups: Groups,
+    specs: Vec<GroupSpec>,
     grads: SceneGrads,
     ws: RenderWorkspace,
     settings: RenderSettings,
     pdf: Option<PdfMaps>,
     batch: RayBatch,
     extra: Vec<f32>,
-    nonfinite_streak: u32,
-}
-
-fn hash_grid_params(scene: &mut NeuralScene) -> Option<&mut Vec<f32>> {
-    match &mut scene.sdf.encoding {
-        SdfEncoding::HashGrid(g) => Some(&mut g.params),
-        SdfEncoding::Frequency(_) => None,
-    }
 }
 
 impl Stage1 {
@@ -134,52 +120,61 @@ impl Stage1 {
             eps: 1e-15,
             ..Default::default()
         });
-        let sdf_mlp = adam.add_group("sdf_mlp", scene.sdf.mlp.params.len(), t.lr_mlp, schedule(t.lr_warmup));
-        let hash = match &scene.sdf.encoding {
-            SdfEncoding::HashGrid(g) => {
-                Some(adam.add_group("hash_grid", g.params.len(), t.lr_grid, schedule(t.lr_warmup)))
-            }
-            SdfEncoding::Frequency(_) => None,
-        };
-        let radiance = adam.add_group("radiance", scene.radiance.params.len(), t.lr_mlp, schedule(t.lr_warmup));
-        let emitter = adam.add_group("emitter", scene.emitter.params.len(), t.lr_mlp, schedule(t.lr_warmup));
-        let beta = adam.add_group("beta", 1, t.lr_beta, schedule(0));
-        let mut settings = RenderSettings::default();
-        settings.sampler.num_samples = config.sampling.samples;
-        settings.sampler.num_samples_eval = config.sampling.coarse;
-        settings.sampler.eps = config.sampling.epsilon;
+        let specs: Vec<GroupSpec> = scene.modules().into_iter().map(|(s, _)| s).collect();
+        for (spec, (_, m)) in specs.iter().zip(scene.modules()) {
+            let (lr, warmup) = match spec.lr {
+                LrClass::Grid => (t.lr_grid, t.lr_warmup),
+                LrClass::Mlp => (t.lr_mlp, t.lr_warmup),
+                // β has no warm-up: it must sharpen from the first steps.
+                LrClass::Beta => (t.lr_beta, 0),
+            };
+            adam.add_group(&spec.name, m.values().len(), lr, schedule(warmup));
+        }
+        let settings = render_settings(&config);
         let grads = SceneGrads::new(&scene);
         Stage1 {
             images: train_images(dataset),
             adam,
-            groups: Groups {
-                sdf_mlp,
-                hash,
-                radiance,
-                emitter,
-                beta,
-            },
+            specs,
             grads,
             ws: RenderWorkspace::default(),
             settings,
             pdf: None,
             batch: RayBatch::default(),
             extra: Vec::new(),
-            nonfinite_streak: 0,
             iteration: 0,
             config,
             scene,
         }
     }
 
-    /// Resumes from a checkpoint written by [`Stage1::save`].
+    /// Resumes from a checkpoint written by [`TrainStage::write_checkpoint`]. Optimizer groups of
+    /// optional modules that the checkpoint lacks start with zero moments.
     pub fn resume(dataset: &Dataset, config: TrainConfig, checkpoint: &Path) -> Result<Self, DataError> {
         let (scene, meta) = NeuralScene::load_config(checkpoint)?;
         let mut s = Self::with_scene(dataset, config, scene);
         {
-            let Stage1 { scene, adam, .. } = &mut s;
-            let mut state = AdamStateMut(adam);
-            scene.load_params(checkpoint, &mut [("adam", &mut state)])?;
+            let Stage1 { scene, adam, specs, .. } = &mut s;
+            let prefixes: Vec<String> = specs.iter().map(|g| format!("adam.{}", g.name)).collect();
+            let mut states: Vec<AdamGroupStateMut> = adam
+                .groups
+                .iter_mut()
+                .map(|g| {
+                    let (_, m, v) = g.state_mut();
+                    AdamGroupStateMut { m, v }
+                })
+                .collect();
+            let mut slots: Vec<ModuleSlot> = prefixes
+                .iter()
+                .zip(states.iter_mut())
+                .zip(specs.iter())
+                .map(|((prefix, st), spec)| ModuleSlot {
+                    prefix,
+                    module: st,
+                    required: spec.required,
+                })
+                .collect();
+            scene.load_params(checkpoint, &mut slots)?;
         }
         let get = |k: &str| -> Result<u64, DataError> {
             meta.get(k)
@@ -189,24 +184,6 @@ impl Stage1 {
         s.iteration = get("iteration")?;
         s.adam.step = get("adam_step")?;
         Ok(s)
-    }
-
-    /// Writes the checkpoint atomically; refuses parameters that are not finite.
-    pub fn save(&self, path: &Path) -> Result<(), DataError> {
-        if !self.scene.is_finite() {
-            return Err(DataError::failed(
-                "training diverged: non-finite parameters; checkpoint not written",
-            ));
-        }
-        let state = AdamState(&self.adam);
-        self.scene.save_with(
-            path,
-            &[
-                ("iteration", self.iteration.to_string()),
-                ("adam_step", self.adam.step.to_string()),
-            ],
-            &[("adam", &state)],
-        )
     }
 
     pub fn done(&self) -> bool {
@@ -221,10 +198,6 @@ impl Stage1 {
 
     pub fn phase(&self) -> Phase {
         self.config.schedule.phase(self.iteration, self.config.train.iterations)
-    }
-
-    fn rng(&self) -> Pcg64 {
-        Pcg64::seed_from_u64(self.config.train.seed ^ self.iteration.wrapping_mul(0x9e37_79b9_7f4a_7c15))
     }
 
     /// Error maps at the end of warm-up (paper Sec. 4.1.2): each training image's depth error,
@@ -274,12 +247,11 @@ impl Stage1 {
         self.pdf = Some(pdf);
     }
 
-    /// One iteration. Returns its statistics; a non-finite loss skips the update.
-    pub fn step(&mut self) -> Result<StepStats, DataError> {
+    /// One iteration with the iteration's RNG. A non-finite loss skips the update.
+    fn step_with(&mut self, rng: &mut Pcg64) -> StepOutcome<StepStats> {
         let total = self.config.train.iterations;
         let phase = self.config.schedule.phase(self.iteration, total);
         let w = self.config.schedule.weights(phase, &self.config.loss);
-        let mut rng = self.rng();
         if w.bubble > 0.0 && self.pdf.is_none() {
             self.init_pdf();
         }
@@ -287,7 +259,7 @@ impl Stage1 {
             self.pdf = None;
         }
         let t = &self.config.train;
-        self.batch.sample_uniform(&self.images, t.rays, &mut rng);
+        self.batch.sample_uniform(&self.images, t.rays, rng);
 
         // Extra points: [eikonal | bubble | smooth x | smooth x + ε].
         self.extra.clear();
@@ -304,7 +276,7 @@ impl Stage1 {
         if w.bubble > 0.0 {
             let mut picks = Vec::new();
             if let Some(pdf) = &self.pdf {
-                pdf.sample(t.bubble_points, &mut rng, &mut picks);
+                pdf.sample(t.bubble_points, rng, &mut picks);
             }
             for p in &picks {
                 if let Some(x) = self.images[p.image as usize].surface_point(p.pixel as usize) {
@@ -342,7 +314,7 @@ impl Stage1 {
             &self.batch.origin,
             &self.batch.dir,
             &mut self.ws,
-            Some(&mut rng),
+            Some(rng),
         );
         let t1 = std::time::Instant::now();
         renderer::forward_with_samples(
@@ -399,9 +371,9 @@ impl Stage1 {
         let n_s = self.ws.n_samples;
         let n = self.ws.sdf.len();
         let mut d_sdf = vec![0.0f32; n];
-        let mut d_grad = vec![0.0f32; n * 3];
-        let grads3: &[[f32; 3]] = as_vec3(&self.ws.gradient);
-        let d_grad3: &mut [[f32; 3]] = as_vec3_mut(&mut d_grad);
+        let mut d_grad = vec![[0.0f32; 3]; n];
+        let grads3: &[[f32; 3]] = &self.ws.gradient;
+        let d_grad3: &mut [[f32; 3]] = &mut d_grad;
         if w.eikonal > 0.0 {
             st.eikonal = losses::eikonal(&grads3[..n_s + n_eik], w.eikonal, &mut d_grad3[..n_s + n_eik]);
         }
@@ -450,35 +422,27 @@ impl Stage1 {
 
         if !st.loss.is_finite() || !self.ws.out.rgb.iter().all(|v| v.is_finite()) {
             st.skipped = true;
-            self.nonfinite_streak += 1;
             self.iteration += 1;
-            if self.nonfinite_streak > MAX_NONFINITE_STREAK {
-                return Err(DataError::failed(format!(
-                    "training diverged: {} consecutive non-finite losses at iteration {}",
-                    self.nonfinite_streak, self.iteration
-                )));
-            }
-            return Ok(st);
+            return StepOutcome {
+                stats: st,
+                finite: false,
+            };
         }
-        self.nonfinite_streak = 0;
 
         // Backward and update.
-        let flat = |v: &[[f32; 3]]| -> Vec<f32> { v.iter().flatten().copied().collect() };
-        let (g_rgb, g_normal) = (flat(&g_rgb), flat(&g_normal));
         let zeros = vec![0.0f32; rays];
-        self.grads.beta = 0.0;
         renderer::backward(
             &self.scene,
             &mut self.ws,
             &RayGrads {
-                rgb: &g_rgb,
+                rgb: g_rgb.as_flattened(),
                 depth: &g_depth,
-                normal: &g_normal,
+                normal: g_normal.as_flattened(),
                 emitter: &g_emitter,
                 opacity: &zeros,
             },
             &mut d_sdf,
-            &mut d_grad,
+            d_grad.as_flattened_mut(),
             &mut self.grads,
         );
         self.apply_adam();
@@ -486,50 +450,79 @@ impl Stage1 {
         st.ms_forward = (t2 - t1).as_secs_f32() * 1e3;
         st.ms_backward = t2.elapsed().as_secs_f32() * 1e3;
         self.iteration += 1;
-        Ok(st)
+        StepOutcome {
+            stats: st,
+            finite: true,
+        }
     }
 
+    /// Adam over every group of the scene, in the order the groups were registered.
     fn apply_adam(&mut self) {
-        let g = &self.groups;
         self.adam.begin_step();
-        self.adam
-            .update(g.sdf_mlp, &mut self.scene.sdf.mlp.params, &mut self.grads.sdf.mlp);
-        if let (Some(h), Some(hg)) = (g.hash, self.grads.sdf.hash_grid.as_mut()) {
-            let row = self.scene.sdf.config_features_per_level();
-            if let Some(params) = hash_grid_params(&mut self.scene) {
-                self.adam.update_sparse(h, params, hg, row);
+        let groups = self.scene.groups(Some(&mut self.grads));
+        for (id, g) in groups.into_iter().enumerate() {
+            debug_assert_eq!(self.adam.groups[id].name, g.spec.name);
+            match (g.grad.expect("groups with gradients"), g.spec.update) {
+                (GradMut::Sparse(hg), Update::SparseRows(row)) => {
+                    self.adam.update_sparse(id, g.module.values_mut(), hg, row)
+                }
+                (GradMut::Dense(grad), _) => self.adam.update(id, g.module.values_mut(), grad),
+                (GradMut::Sparse(_), Update::Dense) => unreachable!("a sparse gradient of a dense group"),
             }
         }
-        self.adam
-            .update(g.radiance, &mut self.scene.radiance.params, &mut self.grads.radiance);
-        self.adam
-            .update(g.emitter, &mut self.scene.emitter.params, &mut self.grads.emitter);
-        let mut gb = [self.grads.beta * self.scene.beta.dvalue()];
-        self.adam.update(g.beta, &mut self.scene.beta.raw, &mut gb);
+    }
+
+    fn checkpoint(&self, path: &Path) -> Result<(), DataError> {
+        let prefixes: Vec<String> = self.specs.iter().map(|g| format!("adam.{}", g.name)).collect();
+        let states: Vec<AdamGroupState> = self
+            .adam
+            .groups
+            .iter()
+            .map(|g| {
+                let (m, v) = g.state();
+                AdamGroupState { m, v }
+            })
+            .collect();
+        let modules: Vec<(&str, &dyn Parameters)> = prefixes
+            .iter()
+            .zip(&states)
+            .map(|(p, s)| (p.as_str(), s as &dyn Parameters))
+            .collect();
+        self.scene.save_with(
+            path,
+            &[
+                ("iteration", self.iteration.to_string()),
+                ("adam_step", self.adam.step.to_string()),
+            ],
+            &modules,
+        )
     }
 }
 
-trait FeaturesPerLevel {
-    fn config_features_per_level(&self) -> usize;
-}
-
-impl FeaturesPerLevel for i2sdf_nn::SdfNetwork {
-    fn config_features_per_level(&self) -> usize {
-        match &self.encoding {
-            SdfEncoding::HashGrid(g) => g.config.features_per_level,
-            SdfEncoding::Frequency(_) => 0,
-        }
+impl TrainStage for Stage1 {
+    type Stats = StepStats;
+    fn key(&self) -> &'static str {
+        "stage1"
     }
-}
-
-fn as_vec3(v: &[f32]) -> &[[f32; 3]] {
-    assert_eq!(v.len() % 3, 0);
-    // SAFETY: [f32; 3] is three consecutive f32 without padding.
-    unsafe { std::slice::from_raw_parts(v.as_ptr() as *const [f32; 3], v.len() / 3) }
-}
-
-fn as_vec3_mut(v: &mut [f32]) -> &mut [[f32; 3]] {
-    assert_eq!(v.len() % 3, 0);
-    // SAFETY: as above; the borrow is unique.
-    unsafe { std::slice::from_raw_parts_mut(v.as_mut_ptr() as *mut [f32; 3], v.len() / 3) }
+    fn iteration(&self) -> u64 {
+        self.iteration
+    }
+    fn total(&self) -> u64 {
+        self.config.train.iterations
+    }
+    fn seed(&self) -> u64 {
+        self.config.train.seed
+    }
+    fn pending_pause(&self) -> Option<&'static str> {
+        self.needs_pdf().then_some("initialising the error maps")
+    }
+    fn step(&mut self, rng: &mut Pcg64) -> Result<StepOutcome<StepStats>, DataError> {
+        Ok(self.step_with(rng))
+    }
+    fn is_finite(&self) -> bool {
+        self.scene.is_finite()
+    }
+    fn write_checkpoint(&self, path: &Path) -> Result<(), DataError> {
+        self.checkpoint(path)
+    }
 }

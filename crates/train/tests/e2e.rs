@@ -2,9 +2,9 @@
 //! margin), and a run interrupted and resumed must continue exactly where it stopped.
 
 use i2sdf_data::fixture::{self, FixtureOptions};
+use i2sdf_model::run_dir::RunDir;
 use i2sdf_train::config::TrainConfig;
-use i2sdf_train::driver::train_geometry;
-use i2sdf_train::run_dir::RunDir;
+use i2sdf_train::driver::{train_geometry, Trainer};
 use i2sdf_train::stage1::Stage1;
 
 fn tiny_config(iterations: u64) -> TrainConfig {
@@ -51,12 +51,13 @@ fn depth_errors(stats: &[f32], k: usize) -> (f32, f32) {
 #[test]
 fn tiny_scene_training_reduces_depth_error() {
     let (_dir, ds) = dataset();
-    let mut stage = Stage1::new(&ds, tiny_config(300));
+    let mut stage = Trainer::new(Stage1::new(&ds, tiny_config(300)));
     let mut depth = Vec::new();
     let mut psnr = Vec::new();
     while !stage.done() {
-        let s = stage.step().unwrap();
-        assert!(!s.skipped);
+        let out = stage.step().unwrap();
+        let s = out.stats;
+        assert!(out.finite && !s.skipped);
         depth.push(s.depth);
         psnr.push(s.psnr);
     }
@@ -77,17 +78,18 @@ fn interrupted_and_resumed_run_continues_exactly() {
     // inside the bubble step re-initialises the PDF maps from the current fields, so it continues
     // equivalently rather than bit for bit; the smooth step is exact.)
     let ckpt = runs.path().join("at100.safetensors");
-    let mut part = Stage1::new(&ds, tiny_config(120));
-    while part.iteration < 100 {
+    let mut part = Trainer::new(Stage1::new(&ds, tiny_config(120)));
+    while part.stage.iteration < 100 {
         part.step().unwrap();
     }
     part.save(&ckpt).unwrap();
     drop(part);
-    let mut b = Stage1::resume(&ds, tiny_config(120), &ckpt).unwrap();
-    assert_eq!(b.iteration, 100);
+    let mut b = Trainer::new(Stage1::resume(&ds, tiny_config(120), &ckpt).unwrap());
+    assert_eq!(b.stage.iteration, 100);
     while !b.done() {
         b.step().unwrap();
     }
+    let b = b.stage;
     assert_eq!(a.scene.sdf.mlp.params, b.scene.sdf.mlp.params);
     assert_eq!(a.scene.radiance.params, b.scene.radiance.params);
     assert_eq!(a.scene.emitter.params, b.scene.emitter.params);
@@ -95,6 +97,10 @@ fn interrupted_and_resumed_run_continues_exactly() {
     // The driver resumes a run directory, and refuses a fresh run into an existing one.
     let more = train_geometry(&full, &ds, "fixture", Some(tiny_config(130)), true, |_| {}).unwrap();
     assert_eq!(more.iteration, 130);
+    let info = full.read_info().unwrap();
+    assert_eq!((info.stage1.iterations, info.stage1.done), (130, true));
+    let log = std::fs::read_to_string(full.log_path()).unwrap();
+    assert!(log.lines().count() >= 13 && log.contains("\"stage\":\"stage1\""));
     let e = train_geometry(&full, &ds, "fixture", None, false, |_| {})
         .err()
         .unwrap();
@@ -105,30 +111,32 @@ fn interrupted_and_resumed_run_continues_exactly() {
 fn non_finite_losses_are_skipped_and_never_checkpointed() {
     let (_dir, ds) = dataset();
     let runs = tempfile::tempdir().unwrap();
-    let mut stage = Stage1::new(&ds, tiny_config(100));
+    let mut stage = Trainer::new(Stage1::new(&ds, tiny_config(100)));
     stage.step().unwrap();
     let ckpt = runs.path().join("ok.safetensors");
     stage.save(&ckpt).unwrap();
     let good = std::fs::read(&ckpt).unwrap();
     // Poison the radiance field: every rendered colour becomes NaN.
-    stage.scene.radiance.params.iter_mut().for_each(|p| *p = f32::NAN);
-    let before = stage.scene.sdf.mlp.params.clone();
-    let s = stage.step().unwrap();
-    assert!(s.skipped && !s.loss.is_finite());
+    stage.stage.scene.radiance.params.iter_mut().for_each(|p| *p = f32::NAN);
+    let before = stage.stage.scene.sdf.mlp.params.clone();
+    let out = stage.step().unwrap();
+    let s = out.stats;
+    assert!(!out.finite && s.skipped && !s.loss.is_finite());
     assert_eq!(
-        stage.scene.sdf.mlp.params, before,
+        stage.stage.scene.sdf.mlp.params, before,
         "a skipped step must not update anything"
     );
     let e = stage.save(&ckpt).unwrap_err().to_string();
     assert!(e.contains("non-finite"), "{e}");
     assert_eq!(std::fs::read(&ckpt).unwrap(), good, "the last good checkpoint is kept");
     // A run that keeps diverging stops with an error instead of spinning.
-    let mut result = Ok(s);
+    let mut result = Ok(());
     for _ in 0..30 {
-        result = stage.step();
+        result = stage.step().map(|_| ());
         if result.is_err() {
             break;
         }
     }
-    assert!(result.unwrap_err().to_string().contains("diverged"));
+    let e = result.unwrap_err();
+    assert!(e.to_string().contains("diverged") && !e.is_bad_input(), "{e}");
 }

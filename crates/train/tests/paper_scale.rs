@@ -4,6 +4,7 @@
 
 use i2sdf_data::fixture::{self, FixtureOptions};
 use i2sdf_train::config::TrainConfig;
+use i2sdf_train::driver::Trainer;
 use i2sdf_train::stage1::Stage1;
 use std::time::Instant;
 
@@ -26,10 +27,10 @@ fn paper_sized_scene_loads_and_trains() {
     eprintln!("loaded in {:.1} s", t.elapsed().as_secs_f64());
     // Iterations chosen so the bubble step (and its PDF maps over all 55 M training pixels) runs.
     let config = TrainConfig::load(None, &["train.iterations=40".into()]).unwrap();
-    let mut stage = Stage1::new(&ds, config);
+    let mut stage = Trainer::new(Stage1::new(&ds, config));
     let t = Instant::now();
     while !stage.done() {
-        let s = stage.step().unwrap();
+        let s = stage.step().unwrap().stats;
         assert!(!s.skipped);
         if s.iteration % 10 == 0 {
             eprintln!(

@@ -47,8 +47,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         json: false,
     })?;
 
-    let info = i2sdf_train::run_dir::RunDir::new(&run_dir);
-    let done = info.read_info().map(|i| i.stage1_done).unwrap_or(false);
+    let info = i2sdf_model::RunDir::new(&run_dir);
+    let done = info.read_info().map(|i| i.stage1.done).unwrap_or(false);
     if !done {
         eprintln!("== 2/5 train stage 1 into {}", run_dir.display());
         let set = if args.quick {

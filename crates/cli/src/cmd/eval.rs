@@ -28,12 +28,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let dataset = i2sdf_data::load(&args.data)?;
     let mut options = EvalOptions {
         mesh_resolution: args.mesh_resolution,
+        render: super::run_render_settings(&args.run)?,
         ..Default::default()
     };
     options.mesh.threshold = args.threshold;
     let (mut report, mesh) = evaluate(&scene, &dataset, &dataset.bounds, &options)?;
-    report.time_s.stage1 = (info.stage1_iterations > 0).then_some(info.stage1_seconds);
-    report.time_s.stage2 = info.stage2_seconds;
+    report.time_s.stage1 = (info.stage1.iterations > 0).then_some(info.stage1.seconds);
+    report.time_s.stage2 = info.stage2.filter(|s| s.iterations > 0).map(|s| s.seconds);
     let json = report.to_json();
     imageio::write_bytes_atomic(&args.out, json.as_bytes())?;
     i2sdf_eval::write_ply(&args.out.with_extension("ply"), &mesh)?;

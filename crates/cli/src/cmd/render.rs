@@ -5,8 +5,7 @@
 
 use clap::Args as ClapArgs;
 use i2sdf_data::{imageio, DataError, ImageF32, Split};
-use i2sdf_model::images::render_view;
-use i2sdf_model::renderer::RenderSettings;
+use i2sdf_model::images::render_volume_view;
 use indicatif::ProgressBar;
 use std::path::PathBuf;
 
@@ -46,10 +45,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let data = args.data.clone().unwrap_or_else(|| PathBuf::from(&info.data));
     let dataset = i2sdf_data::load(&data)?;
     let frames: Vec<_> = dataset.split(split).collect();
-    let settings = RenderSettings::default();
+    let settings = super::run_render_settings(&args.run)?;
     let bar = ProgressBar::new(frames.len() as u64);
     for f in frames {
-        let v = render_view(&scene, &settings, &f.camera);
+        let v = render_volume_view(&scene, &settings, &f.camera);
         let dir = |m: &str| args.out.join(m);
         if what.contains(&"rgb") {
             imageio::write_png(&dir("rgb").join(format!("{}.png", f.name)), &v.rgb)?;

@@ -2,9 +2,9 @@
 //! checkpoints and logs live in `i2sdf_train::driver`.
 
 use clap::{Args as ClapArgs, ValueEnum};
+use i2sdf_model::RunDir;
 use i2sdf_train::config::TrainConfig;
 use i2sdf_train::driver::{train_geometry, Event};
-use i2sdf_train::run_dir::RunDir;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -83,16 +83,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         config,
         args.resume,
         |e| match e {
-            Event::Started { iteration, total } => {
+            Event::Started { iteration, total, .. } => {
                 first = iteration;
                 bar.set_length(total);
                 bar.set_position(iteration);
             }
-            Event::PdfInitialising => bar.set_message("initialising the error maps…"),
-            Event::Step(s) => {
-                bar.set_position(s.iteration + 1);
-                if s.iteration % 10 == 0 {
-                    let its = (s.iteration + 1 - first) as f64 / start.elapsed().as_secs_f64().max(1e-9);
+            Event::Pause(what) => bar.set_message(format!("{what}…")),
+            Event::Step {
+                iteration, stats: s, ..
+            } => {
+                bar.set_position(iteration + 1);
+                if iteration % 10 == 0 {
+                    let its = (iteration + 1 - first) as f64 / start.elapsed().as_secs_f64().max(1e-9);
                     let msg = format!(
                         "{:?} loss {:.4} psnr {:.2} depth {:.4} β {:.4} {:.1} it/s",
                         s.phase.unwrap(),
@@ -103,7 +105,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                         its
                     );
                     if args.quiet {
-                        eprintln!("{} {msg}", s.iteration);
+                        eprintln!("{iteration} {msg}");
                     }
                     bar.set_message(msg);
                 }

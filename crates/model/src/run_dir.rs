@@ -1,0 +1,224 @@
+//! The run directory: everything a run writes, in one place, so `mesh`, `render`, `eval`, `edit`
+//! and `--resume` find it without depending on the trainer.
+//!
+//! ```text
+//! RUN/config.toml                the full configuration in force (defaults filled in)
+//! RUN/run.json                   dataset path, normalization, per-stage progress and timings
+//! RUN/checkpoint.safetensors     fields + optimizer state, written atomically
+//! RUN/log.jsonl                  one JSON object of losses per logged step
+//! ```
+//!
+//! The configuration is stored as TOML text: its type (the trainer's `TrainConfig`) lives above
+//! this crate, so the trainer parses it back; commands that only read fields never need it.
+
+use i2sdf_data::{imageio, Bounds, DataError, Normalization};
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// Progress of one training stage.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct StageProgress {
+    /// Iterations completed (the checkpoint's).
+    pub iterations: u64,
+    pub done: bool,
+    /// Wall-clock seconds of training, summed over resumed sessions.
+    pub seconds: f64,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(from = "RunInfoFile")]
+pub struct RunInfo {
+    /// The dataset the run was trained on (as given on the command line).
+    pub data: String,
+    pub normalization: Option<Normalization>,
+    /// The dataset's scene bounds in world units (where `mesh` looks for the surface).
+    pub bounds: Option<Bounds>,
+    /// Stage 1 (geometry, radiance, emitters).
+    pub stage1: StageProgress,
+    /// Stage 2 (materials, emissions); `None` until it starts.
+    pub stage2: Option<StageProgress>,
+}
+
+impl RunInfo {
+    /// The progress record of a stage by its key (`"stage1"`, `"stage2"`), created on first use.
+    pub fn stage_mut(&mut self, key: &str) -> Result<&mut StageProgress, DataError> {
+        match key {
+            "stage1" => Ok(&mut self.stage1),
+            "stage2" => Ok(self.stage2.get_or_insert_with(StageProgress::default)),
+            other => Err(DataError::failed(format!("unknown training stage {other:?}"))),
+        }
+    }
+
+    /// The progress of a stage by its key, if it has started.
+    pub fn stage(&self, key: &str) -> Option<&StageProgress> {
+        match key {
+            "stage1" => Some(&self.stage1),
+            "stage2" => self.stage2.as_ref(),
+            _ => None,
+        }
+    }
+}
+
+/// What `run.json` may hold: the current layout, and the flat `stage1_*` keys that runs written
+/// before the per-stage records used (so an existing run still opens).
+#[derive(Deserialize)]
+struct RunInfoFile {
+    data: String,
+    #[serde(default)]
+    normalization: Option<Normalization>,
+    #[serde(default)]
+    bounds: Option<Bounds>,
+    #[serde(default)]
+    stage1: Option<StageProgress>,
+    #[serde(default)]
+    stage2: Option<StageProgress>,
+    #[serde(default)]
+    stage1_iterations: Option<u64>,
+    #[serde(default)]
+    stage1_done: Option<bool>,
+    #[serde(default)]
+    stage1_seconds: Option<f64>,
+    #[serde(default)]
+    stage2_seconds: Option<f64>,
+}
+
+impl From<RunInfoFile> for RunInfo {
+    fn from(f: RunInfoFile) -> Self {
+        let stage1 = f.stage1.unwrap_or(StageProgress {
+            iterations: f.stage1_iterations.unwrap_or(0),
+            done: f.stage1_done.unwrap_or(false),
+            seconds: f.stage1_seconds.unwrap_or(0.0),
+        });
+        let stage2 = f.stage2.or(f.stage2_seconds.map(|seconds| StageProgress {
+            seconds,
+            ..Default::default()
+        }));
+        RunInfo {
+            data: f.data,
+            normalization: f.normalization,
+            bounds: f.bounds,
+            stage1,
+            stage2,
+        }
+    }
+}
+
+pub struct RunDir {
+    pub root: PathBuf,
+}
+
+impl RunDir {
+    pub fn new(root: &Path) -> Self {
+        RunDir {
+            root: root.to_path_buf(),
+        }
+    }
+
+    pub fn config_path(&self) -> PathBuf {
+        self.root.join("config.toml")
+    }
+    pub fn info_path(&self) -> PathBuf {
+        self.root.join("run.json")
+    }
+    pub fn checkpoint_path(&self) -> PathBuf {
+        self.root.join("checkpoint.safetensors")
+    }
+    pub fn log_path(&self) -> PathBuf {
+        self.root.join("log.jsonl")
+    }
+
+    pub fn exists(&self) -> bool {
+        self.info_path().is_file()
+    }
+
+    pub fn create(&self) -> Result<(), DataError> {
+        std::fs::create_dir_all(&self.root)
+            .map_err(|e| DataError::io(&self.root, format!("cannot create the run directory: {e}")))
+    }
+
+    /// Writes the configuration (TOML text), atomically.
+    pub fn write_config_toml(&self, toml: &str) -> Result<(), DataError> {
+        imageio::write_bytes_atomic(&self.config_path(), toml.as_bytes())
+    }
+
+    /// The configuration's TOML text (parsed by the trainer's config type).
+    pub fn read_config_toml(&self) -> Result<String, DataError> {
+        let p = self.config_path();
+        std::fs::read_to_string(&p)
+            .map_err(|e| DataError::file(&p, format!("cannot read (is this a run directory?): {e}")))
+    }
+
+    pub fn write_info(&self, info: &RunInfo) -> Result<(), DataError> {
+        let text = serde_json::to_string_pretty(info).expect("run info serializes");
+        imageio::write_bytes_atomic(&self.info_path(), text.as_bytes())
+    }
+
+    pub fn read_info(&self) -> Result<RunInfo, DataError> {
+        let p = self.info_path();
+        let text = std::fs::read_to_string(&p)
+            .map_err(|e| DataError::file(&p, format!("cannot read (is this a run directory?): {e}")))?;
+        serde_json::from_str(&text).map_err(|e| DataError::file(&p, format!("invalid run info: {e}")))
+    }
+
+    /// Appends one record to the loss log. The log is advisory: a resumed run appends after the
+    /// last checkpoint's records, so the log may repeat the steps between the last checkpoint and
+    /// the interruption (each record carries its iteration).
+    pub fn append_log(&self, record: &serde_json::Value) -> Result<(), DataError> {
+        let p = self.log_path();
+        let mut f = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&p)
+            .map_err(|e| DataError::io(&p, format!("cannot open: {e}")))?;
+        writeln!(f, "{record}").map_err(|e| DataError::io(&p, format!("cannot write: {e}")))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trips() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::new(&dir.path().join("run"));
+        assert!(!run.exists());
+        run.create().unwrap();
+        run.write_config_toml("[train]\niterations = 123\n").unwrap();
+        assert_eq!(run.read_config_toml().unwrap(), "[train]\niterations = 123\n");
+        let mut info = RunInfo {
+            data: "x".into(),
+            ..Default::default()
+        };
+        info.stage_mut("stage1").unwrap().iterations = 5;
+        info.stage_mut("stage2").unwrap().seconds = 2.5;
+        assert!(info.stage_mut("stage3").is_err());
+        run.write_info(&info).unwrap();
+        assert!(run.exists());
+        assert_eq!(run.read_info().unwrap(), info);
+        run.append_log(&serde_json::json!({"it": 1})).unwrap();
+        run.append_log(&serde_json::json!({"it": 2})).unwrap();
+        assert_eq!(std::fs::read_to_string(run.log_path()).unwrap().lines().count(), 2);
+        let e = RunDir::new(dir.path()).read_info().unwrap_err().to_string();
+        assert!(e.contains("run.json"), "{e}");
+    }
+
+    /// A `run.json` written before the per-stage records still opens.
+    #[test]
+    fn reads_the_flat_layout() {
+        let old = r#"{"data": "scene", "normalization": null, "bounds": null,
+            "stage1_iterations": 500, "stage1_done": true, "stage1_seconds": 12.5, "stage2_seconds": null}"#;
+        let info: RunInfo = serde_json::from_str(old).unwrap();
+        assert_eq!(
+            info.stage1,
+            StageProgress {
+                iterations: 500,
+                done: true,
+                seconds: 12.5
+            }
+        );
+        assert_eq!(info.stage2, None);
+    }
+}
