@@ -2,11 +2,10 @@
 //! packing-free AVX-512 kernel with matrixmultiply (`I2SDF_GEMM=matrixmultiply`):
 //! `cargo run --release -p i2sdf-nn --example gemm_shapes`.
 
-use i2sdf_nn::linalg::{gemm_a_b, gemm_a_bt, gemm_at_b_acc, single_threaded_gemm};
+use i2sdf_nn::linalg::{gemm_a_b, gemm_a_bt, gemm_at_b_acc};
 use std::time::Instant;
 
 fn main() {
-    single_threaded_gemm();
     let shapes: &[(usize, usize, usize, &str)] = &[
         (256, 64, 64, "A·B"),
         (256, 35, 64, "A·Bᵀ"),

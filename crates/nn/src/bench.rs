@@ -7,7 +7,6 @@
 //! L2 colour loss per point, eikonal loss, a distance cotangent; radiance backward (into `z` and
 //! `∇d`), SDF double backward into MLP and hash tables; Adam (dense MLPs, lazy tables).
 
-use crate::linalg::single_threaded_gemm;
 use crate::{
     Activation, Adam, AdamConfig, FrequencyEncoding, LrSchedule, Mlp, MlpConfig, MlpWorkspace, SdfEncoding, SdfGrad,
     SdfNetwork, SdfNetworkConfig, SdfWorkspace, SphericalHarmonics,
@@ -125,7 +124,6 @@ pub fn sgemm_peak_gflops() -> f64 {
 
 fn sgemm_rate(small_kernel: bool) -> f64 {
     use rayon::prelude::*;
-    single_threaded_gemm();
     let n = 1024;
     let a: Vec<f32> = (0..n * n).map(|i| ((i % 97) as f32) * 0.01).collect();
     let b: Vec<f32> = (0..n * n).map(|i| ((i % 89) as f32) * 0.01).collect();
@@ -496,7 +494,6 @@ impl Pipeline {
 
 /// Run the benchmark.
 pub fn run(opts: &BenchOptions) -> BenchReport {
-    single_threaded_gemm();
     let load_average = load_average();
     let peak_before = sgemm_peak_gflops();
     let mut rep = Pipeline::new(

@@ -70,7 +70,7 @@
 //!   gradient (3.37 M); only those are read and written.
 //! * The tile products run on a packing-free AVX-512 kernel ([`smallgemm`]) when the build has
 //!   AVX-512 (`-C target-cpu=native` here), matrixmultiply otherwise; matrixmultiply's own
-//!   threading is kept off ([`linalg::single_threaded_gemm`]) so it never competes with rayon.
+//!   threading is compiled out (no `threading` feature) so it never competes with rayon.
 
 pub mod activation;
 pub mod adam;

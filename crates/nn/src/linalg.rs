@@ -4,13 +4,9 @@
 //! All matrices are row-major with an explicit leading dimension (row stride). The engine calls these
 //! from inside rayon tasks, one tile per call, so matrixmultiply's own threading must stay off: it
 //! would split a 64×256×64 weight-gradient product over a second thread pool and fight rayon for the
-//! same two cores. [`single_threaded_gemm`] pins it to one thread (its pool is configured once, from
-//! `MATMUL_NUM_THREADS`, on first use); the sgemm peak of the benchmark splits its product over rayon
-//! instead, so it measures the same kernel the engine runs.
-
-use std::sync::Once;
-
-static GEMM_THREADS: Once = Once::new();
+//! same two cores. The workspace builds it without its `threading` feature, so it is single-threaded
+//! by construction (no environment variable to set before first use); the sgemm peak of the
+//! benchmark splits its product over rayon instead, so it measures the same kernel the engine runs.
 
 /// Whether a product with inner dimension `k` and output width `n` runs on [`crate::smallgemm`]:
 /// on AVX-512 builds, unless both are wide (the paper's 256-wide layers), where matrixmultiply's
@@ -31,17 +27,6 @@ fn use_small_gemm() -> bool {
 std::thread_local! {
     /// `Bᵀ` of [`gemm_a_bt`] for the small kernel (a weight matrix; reused, never shrunk).
     static TRANSPOSED: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
-}
-
-/// Configure matrixmultiply for one thread per call (before its first use). Called by every engine
-/// entry point; harmless when the caller already set `MATMUL_NUM_THREADS`.
-pub fn single_threaded_gemm() {
-    GEMM_THREADS.call_once(|| {
-        if std::env::var_os("MATMUL_NUM_THREADS").is_none() {
-            // SAFETY of intent: runs once, before any engine thread reads the environment.
-            std::env::set_var("MATMUL_NUM_THREADS", "1");
-        }
-    });
 }
 
 /// `C[m×n] = beta·C + A[m×k] · Bᵀ`, with `B` stored `[n×k]` (a layer's weight `W[out×in]`).
@@ -260,7 +245,6 @@ mod tests {
 
     #[test]
     fn gemm_wrappers_match_naive_products() {
-        single_threaded_gemm();
         let (m, k, n) = (5, 7, 3);
         let a: Vec<f32> = (0..m * k).map(|i| (i as f32 * 0.37).sin()).collect();
         let bt: Vec<f32> = (0..n * k).map(|i| (i as f32 * 0.91).cos()).collect();
