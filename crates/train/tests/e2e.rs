@@ -1,10 +1,13 @@
 //! A tiny scene trained for a few hundred steps must really improve (depth error falls by a clear
-//! margin), and a run interrupted and resumed must continue exactly where it stopped.
+//! margin) and the ray caster must find its surface where the volume renderer does; a run
+//! interrupted and resumed must continue exactly where it stopped.
+
+mod common;
 
 use i2sdf_data::fixture::{self, FixtureOptions};
 use i2sdf_model::run_dir::RunDir;
 use i2sdf_train::config::TrainConfig;
-use i2sdf_train::driver::{train_geometry, Trainer};
+use i2sdf_train::driver::{render_settings, train_geometry, Trainer};
 use i2sdf_train::stage1::Stage1;
 
 fn tiny_config(iterations: u64) -> TrainConfig {
@@ -65,6 +68,20 @@ fn tiny_scene_training_reduces_depth_error() {
     let (p0, p1) = depth_errors(&psnr, 20);
     assert!(d1 < 0.4 * d0, "depth error {d0:.4} → {d1:.4}");
     assert!(p1 > p0 + 3.0, "batch PSNR {p0:.2} → {p1:.2}");
+
+    // The ray caster on the trained SDF against the volume-rendered depth of every pixel.
+    let scene = &stage.stage.scene;
+    let rays = common::view_rays(&ds);
+    let (t_volume, opacity, _) = common::volume_depths(scene, &render_settings(&stage.stage.config), &rays);
+    let (hits, _) = common::cast(scene, &rays, 1);
+    let a = common::agreement(scene, &rays, &hits, &t_volume, &opacity);
+    let beta = scene.beta.value() as f64;
+    eprintln!("β = {beta:.4}: {a}");
+    assert!(a.counted * 10 > 9 * a.rays && a.misses * 100 < a.rays, "{a}");
+    // VolSDF's expected depth lies within a fraction of β of the zero crossing (measured: median
+    // 0.2 β, p95 0.7 β at β = 0.1), and the cast surface is at least as close to the true room.
+    assert!(a.median < 0.4 * beta && a.p95 < 1.5 * beta, "{a}");
+    assert!(a.cast_gt.0 < 1.1 * a.volume_gt.0 + 1e-3, "{a}");
 }
 
 #[test]
