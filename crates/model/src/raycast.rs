@@ -12,7 +12,9 @@
 
 use crate::renderer::sphere_exit;
 use crate::scene::NeuralScene;
+use glam::Vec3;
 use i2sdf_nn::sdf::SdfInferWorkspace;
+use i2sdf_render::{Geometry, Hit as RenderHit, Ray};
 use rayon::prelude::*;
 use std::sync::Mutex;
 
@@ -108,13 +110,28 @@ impl<'a> SdfCaster<'a> {
     /// Casts rays `origins[i] + t·dirs[i]` (unit directions, normalized frame) for
     /// `t ∈ [near, t_max[i]]` (also ending at the bound sphere) into `out[i]`.
     pub fn cast(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], t_max: &[f32], out: &mut [Hit]) {
+        self.cast_segments(origins, dirs, None, t_max, out)
+    }
+
+    /// [`SdfCaster::cast`] with a start per ray as well (`t ≥ max(near, t_min[i])`). A ray that
+    /// starts inside the surface (d ≤ 0 at its start) hits at its start.
+    pub fn cast_segments(
+        &self,
+        origins: &[[f32; 3]],
+        dirs: &[[f32; 3]],
+        t_min: Option<&[f32]>,
+        t_max: &[f32],
+        out: &mut [Hit],
+    ) {
         let n = origins.len();
         assert!(dirs.len() == n && t_max.len() == n && out.len() >= n);
+        assert!(t_min.is_none_or(|t| t.len() == n));
         out[..n].par_chunks_mut(CAST_CHUNK).enumerate().for_each(|(c, hits)| {
             let r0 = c * CAST_CHUNK;
             let r1 = r0 + hits.len();
             let mut ws = self.pool.lock().unwrap().pop().unwrap_or_default();
-            self.cast_chunk(&origins[r0..r1], &dirs[r0..r1], &t_max[r0..r1], hits, &mut ws);
+            let t_min = t_min.map(|t| &t[r0..r1]);
+            self.cast_chunk(&origins[r0..r1], &dirs[r0..r1], t_min, &t_max[r0..r1], hits, &mut ws);
             self.pool.lock().unwrap().push(ws);
         });
     }
@@ -141,6 +158,7 @@ impl<'a> SdfCaster<'a> {
         &self,
         origins: &[[f32; 3]],
         dirs: &[[f32; 3]],
+        t_min: Option<&[f32]>,
         t_max: &[f32],
         hits: &mut [Hit],
         ws: &mut CastWorkspace,
@@ -149,12 +167,13 @@ impl<'a> SdfCaster<'a> {
         let n = origins.len();
         ws.state.clear();
         ws.state.extend((0..n).map(|i| {
+            let t0 = t_min.map_or(s.near, |t| t[i].max(s.near));
             let t_end = t_max[i].min(sphere_exit(origins[i], dirs[i], s.bound_radius));
             RayState {
-                t: s.near,
+                t: t0,
                 t_end,
-                t_lo: s.near,
-                phase: if t_end > s.near { 0 } else { 3 },
+                t_lo: t0,
+                phase: if t_end > t0 { 0 } else { 3 },
                 ..Default::default()
             }
         }));
@@ -274,6 +293,57 @@ impl<'a> SdfCaster<'a> {
     }
 }
 
+/// The caster as the Monte Carlo integrator's geometry ([`i2sdf_render::Geometry`]): rays in
+/// world units, mapped into the normalized frame of the fields and back. Normals are the SDF's
+/// gradient (outward: towards free space); `surface` and `prim` are 0 (stage 2 labels emitters).
+pub struct SdfGeometry<'a> {
+    pub caster: SdfCaster<'a>,
+}
+
+impl SdfGeometry<'_> {
+    fn cast_world(&self, rays: &[Ray]) -> Vec<Hit> {
+        let norm = &self.caster.scene.normalization;
+        let (c, s) = (norm.center.map(|v| v as f32), norm.scale as f32);
+        let origins: Vec<[f32; 3]> = rays
+            .iter()
+            .map(|r| {
+                [
+                    (r.origin.x - c[0]) / s,
+                    (r.origin.y - c[1]) / s,
+                    (r.origin.z - c[2]) / s,
+                ]
+            })
+            .collect();
+        let dirs: Vec<[f32; 3]> = rays.iter().map(|r| r.dir.to_array()).collect();
+        let t_min: Vec<f32> = rays.iter().map(|r| r.t_min / s).collect();
+        let t_max: Vec<f32> = rays.iter().map(|r| r.t_max / s).collect();
+        let mut hits = vec![Hit::default(); rays.len()];
+        self.caster
+            .cast_segments(&origins, &dirs, Some(&t_min), &t_max, &mut hits);
+        hits
+    }
+}
+
+impl Geometry for SdfGeometry<'_> {
+    fn intersect(&self, rays: &[Ray], out: &mut [Option<RenderHit>]) {
+        let s = self.caster.scene.normalization.scale as f32;
+        for (o, h) in out.iter_mut().zip(self.cast_world(rays)) {
+            *o = h.hit.then(|| RenderHit {
+                t: h.t * s,
+                normal: Vec3::from_array(h.normal),
+                surface: 0,
+                prim: 0,
+            });
+        }
+    }
+
+    fn occluded(&self, rays: &[Ray], occluded: &mut [bool]) {
+        for (o, h) in occluded.iter_mut().zip(self.cast_world(rays)) {
+            *o = h.hit;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -364,6 +434,42 @@ mod tests {
             assert!(dot < -0.5, "normal {:?} along {:?}", h.normal, d);
         }
         assert!(misses < 5, "{misses} rays without a crossing");
+        // The same rays in world units through the integrator's geometry interface (a scene
+        // normalization that is not the identity), with a start and an end per ray.
+        let mut ws = s.clone();
+        ws.normalization = Normalization {
+            center: [1.0, -2.0, 0.5],
+            scale: 2.5,
+        };
+        let geometry = SdfGeometry {
+            caster: SdfCaster::new(&ws, CastSettings::default()),
+        };
+        let rays: Vec<Ray> = (0..n)
+            .step_by(97)
+            .map(|i| {
+                let o = Vec3::from_array(origins[i]) * 2.5 + Vec3::new(1.0, -2.0, 0.5);
+                Ray::new(o, Vec3::from_array(dirs[i]), 0.01, f32::INFINITY)
+            })
+            .collect();
+        let mut world = vec![None; rays.len()];
+        geometry.intersect(&rays, &mut world);
+        let mut blocked = vec![false; rays.len()];
+        let short: Vec<Ray> = rays.iter().map(|r| Ray { t_max: 0.2, ..*r }).collect();
+        geometry.occluded(&short, &mut blocked);
+        for (k, i) in (0..n).step_by(97).enumerate() {
+            match world[k] {
+                Some(h) => {
+                    assert!(
+                        hits[i].hit && (h.t - 2.5 * hits[i].t).abs() < 1e-3,
+                        "{h:?} vs {:?}",
+                        hits[i]
+                    );
+                    assert!((h.normal - Vec3::from_array(hits[i].normal)).length() < 1e-3);
+                }
+                None => assert!(!hits[i].hit),
+            }
+            assert!(!blocked[k], "nothing within 0.2 world units of the centre");
+        }
         let mut short = vec![Hit::default(); 5];
         caster.cast(&origins[..5], &dirs[..5], &[0.2; 5], &mut short);
         assert!(short.iter().all(|h| !h.hit && h.t <= 0.2));
