@@ -60,12 +60,32 @@ impl Estimator {
     };
 }
 
-/// What the integrator renders: geometry, materials and emitters behind their interfaces.
+/// Radiance leaving non-emitting surfaces, for estimators that end paths there instead of
+/// scattering further: stage 2's frozen radiance field F_c (paper eq:radiance: a traced ray's
+/// radiance is L[k] if it hits emitter k, else the radiance field's Ĉ(r)). Batched like the
+/// other interfaces (a field is a network).
+pub trait RadianceField: Sync {
+    /// `out[i]`: radiance leaving `hits[i]` back along `rays[i]` (towards the ray's origin).
+    fn radiance_batch(&self, rays: &[Ray], hits: &[Hit], out: &mut [Vec3]);
+}
+
+/// What the integrator renders: geometry, materials and emitters behind their interfaces, and
+/// optionally a radiance field that answers for paths reaching a non-emitting surface after
+/// `max_depth` scattering events (without one, those paths end there, carrying nothing more).
 #[derive(Clone, Copy)]
 pub struct Scene<'a> {
     pub geometry: &'a dyn Geometry,
     pub material: &'a dyn Material,
     pub lights: &'a LightSet,
+    pub radiance_field: Option<&'a dyn RadianceField>,
+}
+
+impl Scene<'_> {
+    /// Radiance slots per path or pixel: one per emitter, plus one for the radiance field's
+    /// part when there is one (it cannot be attributed to an emitter, so it is not relit).
+    pub fn slots(&self) -> usize {
+        self.lights.len() + self.radiance_field.is_some() as usize
+    }
 }
 
 /// One path to trace: its camera ray, the stratified uniforms of its first bounces and its own
@@ -106,15 +126,16 @@ struct Pending {
 }
 
 impl Integrator {
-    /// Traces `paths`, adding each emitter's part of path `i`'s radiance estimate to
-    /// `radiance[i · lights.len() + k]`.
+    /// Traces `paths`, adding emitter k's part of path `i`'s radiance estimate to
+    /// `radiance[i · scene.slots() + k]` (and the radiance field's part, if any, to the last slot).
     pub fn trace(&self, scene: &Scene, paths: &mut [PathStart], radiance: &mut [Vec3]) {
-        let ne = scene.lights.len();
+        let ne = scene.slots();
         assert_eq!(
             radiance.len(),
             paths.len() * ne,
-            "one radiance slot per path and emitter"
+            "radiance slots: one per path and emitter"
         );
+        let (mut field_rays, mut field_hits, mut field_paths) = (Vec::new(), Vec::new(), Vec::new());
         let mut state: Vec<PathState> = paths
             .iter()
             .map(|p| PathState {
@@ -168,6 +189,10 @@ impl Integrator {
                 }
                 if depth < self.max_depth {
                     shading.push((i, hit));
+                } else if scene.radiance_field.is_some() {
+                    field_rays.push(rays[j]);
+                    field_hits.push(hit);
+                    field_paths.push(i);
                 }
             }
             if shading.is_empty() {
@@ -211,7 +236,7 @@ impl Integrator {
                 } else {
                     std::array::from_fn(|_| path.rng.gen())
                 };
-                for k in 0..ne {
+                for k in 0..scene.lights.len() {
                     let Some(ls) = scene.lights.get(k).sample(origin_out, [u[0], u[1], u[2]]) else {
                         continue;
                     };
@@ -279,6 +304,15 @@ impl Integrator {
             }
             std::mem::swap(&mut active, &mut next);
         }
+        // Paths that reached a non-emitting surface after their last scattering event take its
+        // radiance from the field, weight 1: no other strategy samples it.
+        if let Some(field) = scene.radiance_field {
+            let mut l = vec![Vec3::ZERO; field_rays.len()];
+            field.radiance_batch(&field_rays, &field_hits, &mut l);
+            for (&i, l) in field_paths.iter().zip(&l) {
+                radiance[i as usize * ne + ne - 1] += state[i as usize].beta * *l;
+            }
+        }
     }
 }
 
@@ -306,6 +340,7 @@ pub(crate) mod test_scenes {
                 geometry: &self.geometry,
                 material: &self.material,
                 lights: &self.lights,
+                radiance_field: None,
             }
         }
     }
@@ -472,6 +507,52 @@ mod tests {
         let r = trace_many(&grey, integrator, origin, (targets[0] - origin).normalize(), 4000, 8);
         let mean = r.iter().copied().sum::<Vec3>() / r.len() as f32;
         assert!(mean.x < 0.9 * le.x, "{mean}");
+    }
+
+    /// A radiance field that knows the furnace's answer (every surface leaves Le) completes
+    /// one-bounce paths: the estimate is Le again, with the field's part in its own slot; without
+    /// it, one bounce loses the light of later ones.
+    #[test]
+    fn radiance_field_answers_for_paths_ending_on_surfaces() {
+        struct Uniform(Vec3);
+        impl RadianceField for Uniform {
+            fn radiance_batch(&self, _: &[Ray], _: &[Hit], out: &mut [Vec3]) {
+                out.fill(self.0);
+            }
+        }
+        let le = Vec3::new(1.0, 0.5, 2.0);
+        let owned = furnace(le, 1.0);
+        let field = Uniform(le);
+        let mut scene = owned.scene();
+        scene.radiance_field = Some(&field);
+        assert_eq!(scene.slots(), 2);
+        let integrator = Integrator {
+            estimator: Estimator::UNBIASED,
+            max_depth: 1,
+        };
+        // The top of the box, right under the sphere: much of what it sees is an object.
+        let origin = Vec3::new(0.0, 1.2, 1.5);
+        let dir = (Vec3::new(-0.5, 0.9, -0.5) - origin).normalize();
+        let n = 20_000;
+        let mut rng = Pcg32::seed_from_u64(2);
+        let mut paths: Vec<PathStart> = (0..n)
+            .map(|i| PathStart {
+                origin,
+                dir,
+                strata: random_strata(&mut rng),
+                rng: Pcg32::new(5, i as u64),
+            })
+            .collect();
+        let mut radiance = vec![Vec3::ZERO; 2 * n];
+        integrator.trace(&scene, &mut paths, &mut radiance);
+        let total = radiance.iter().copied().sum::<Vec3>() / n as f32;
+        let from_field = radiance.iter().skip(1).step_by(2).copied().sum::<Vec3>() / n as f32;
+        assert!(((total - le) / le).abs().max_element() < 0.01, "{total} vs {le}");
+        assert!(from_field.x > 0.2 * le.x, "the field's part {from_field}");
+        let without = trace_many(&owned, integrator, origin, dir, n, 2);
+        let without = without.iter().copied().sum::<Vec3>() / n as f32;
+        println!("with field {total} (field part {from_field}), without {without}, Le {le}");
+        assert!(((total - without) / le).min_element() > 0.2, "{without} vs {total}");
     }
 
     /// Direct light from a sphere of radiance L onto a Lambertian point below its centre at

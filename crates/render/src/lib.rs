@@ -32,7 +32,7 @@ pub use bvh::Bvh;
 pub use color::luminance;
 pub use constant_material::ConstantMaterial;
 pub use geometry::{Geometry, Hit, Ray};
-pub use integrator::{Estimator, Integrator, PathStart, Scene};
+pub use integrator::{Estimator, Integrator, PathStart, RadianceField, Scene};
 pub use light::{Light, LightSample, LightSet, Visibility};
 pub use material::{KdTexture, Material, SurfacePoint};
 pub use mesh_geometry::MeshGeometry;

@@ -27,7 +27,8 @@ pub struct ViewSettings {
 }
 
 /// The rendered buffers of one view. `radiance` holds `emitters` RGB values per pixel (the
-/// contribution of each emitter), row-major; the ground-truth maps come from the pixel-centre
+/// contribution of each emitter, and last the radiance field's where the scene has one: see
+/// [`Scene::slots`]), row-major; the ground-truth maps come from the pixel-centre
 /// ray. Pixels that see nothing have infinite depth and zero maps.
 pub struct ViewRender {
     pub width: usize,
@@ -64,7 +65,7 @@ pub fn pixel_rng(seed: u64, view: u32, pixel: u32) -> Pcg32 {
 /// pixel-centre ray for the ground-truth maps. `on_row` is called after each row (progress).
 pub fn render_view(scene: &Scene, cam: &Camera, settings: &ViewSettings, on_row: &(dyn Fn() + Sync)) -> ViewRender {
     use rayon::prelude::*;
-    let (w, h, ne) = (cam.width, cam.height, scene.lights.len());
+    let (w, h, ne) = (cam.width, cam.height, scene.slots());
     let gen = cam.ray_generator();
     let spp = settings.spp.max(1);
     let strata = (spp as f32).sqrt().floor().max(1.0) as u32;

@@ -227,7 +227,7 @@ pub fn generate(
             output::write_view(out, paths, r, &r.hdr(&ones), &depth, exposure)
         })?;
 
-    // Relit ground truth of the test views (exact by linearity in the emitters; see tracer.rs).
+    // Relit ground truth of the test views (exact by linearity in the emitters; see `i2sdf_render::integrator`).
     let mut relight_json = Vec::new();
     for (name, spec) in default_relight_specs(&scene) {
         let spec_rel = format!("relight/{name}.toml");

@@ -114,6 +114,7 @@ impl RenderScene {
             geometry: &self.geometry,
             material: &self.material,
             lights: &self.lights,
+            radiance_field: None,
         }
     }
 
