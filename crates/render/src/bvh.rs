@@ -168,9 +168,7 @@ impl Bvh {
         let mut hit = None;
         stack.clear();
         let mut node = 0u32;
-        if slab(&self.nodes[0], origin, inv, t_min, best).is_none() {
-            return None;
-        }
+        slab(&self.nodes[0], origin, inv, t_min, best)?;
         loop {
             let nd = &self.nodes[node as usize];
             if nd.count > 0 {

@@ -10,7 +10,7 @@ use std::path::Path;
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     assert!(
-        !args.is_empty() && args.len() % 2 == 0,
+        !args.is_empty() && args.len().is_multiple_of(2),
         "usage: png_psnr A.png B.png [C.png D.png ...]"
     );
     for pair in args.chunks(2) {
