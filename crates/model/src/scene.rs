@@ -418,7 +418,9 @@ impl NeuralScene {
     /// and `extra` slots (optimizer state) from the same file. Required groups must be there;
     /// optional groups (modules a later stage added) that the file lacks keep their
     /// initialisation; a tensor of the wrong shape or type, or one that no group claims, is an
-    /// error naming it. Returns, per group of [`NeuralScene::modules`], whether it was loaded.
+    /// error naming it — except the optimizer state (tensors under [`OPTIMIZER_PREFIX`]), which
+    /// only the slots in `extra` claim (a resumed trainer) and an inference load skips. Returns,
+    /// per group of [`NeuralScene::modules`], whether it was loaded.
     pub fn load_params(&mut self, path: &Path, extra: &mut [ModuleSlot]) -> Result<Vec<bool>, DataError> {
         let groups = self.groups(None);
         let (specs, mut views): (Vec<GroupSpec>, Vec<AsParamsMut>) =
@@ -440,7 +442,7 @@ impl NeuralScene {
                 required: e.required,
             });
         }
-        let (_, loaded) = load_modules(path, &mut slots).map_err(|e| param_error(path, e))?;
+        let (_, loaded) = load_modules(path, &mut slots, Some(OPTIMIZER_PREFIX)).map_err(|e| param_error(path, e))?;
         Ok(loaded[..n].to_vec())
     }
 
@@ -451,6 +453,9 @@ impl NeuralScene {
             .all(|(_, m)| m.values().iter().all(|x| x.is_finite()))
     }
 }
+
+/// Prefix of the optimizer-state tensors in a checkpoint (`adam.{group}.m` / `.v`).
+pub const OPTIMIZER_PREFIX: &str = "adam.";
 
 /// A parameter-file error as the house's error: unreadable files are the file's fault, a
 /// tensor at fault is named as the field.
@@ -664,6 +669,20 @@ mod tests {
         s3.extra.push(table(4, 0.0));
         assert!(s3.load_params(&p2, &mut []).unwrap().iter().all(|&l| l));
         assert_eq!(s3.extra[0].values()[7], 2.0);
+        // Optimizer state in the file is skipped by an inference load.
+        let state = vec![0.5f32; 12];
+        struct State<'a>(&'a [f32]);
+        impl Parameters for State<'_> {
+            fn visit(&self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &[f32])) {
+                f(format!("{prefix}.m"), vec![self.0.len()], self.0);
+            }
+            fn visit_mut(&mut self, _: &str, _: &mut dyn FnMut(String, Vec<usize>, &mut [f32])) {
+                unreachable!()
+            }
+        }
+        let p3 = dir.path().join("with_state.safetensors");
+        s1.save_with(&p3, &[], &[("adam.radiance", &State(&state))]).unwrap();
+        assert_eq!(NeuralScene::load(&p3).unwrap().0.radiance.params, s1.radiance.params);
         // A stage-1 scene does not silently drop the stage-2 tensors.
         let e = NeuralScene::load(&p2).unwrap_err();
         assert!(e.to_string().contains("emission.values") && e.is_bad_input(), "{e}");

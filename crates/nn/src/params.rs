@@ -209,10 +209,12 @@ pub struct ModuleSlot<'a> {
 /// Read a safetensors file into `modules`. A module is either wholly in the file (every tensor
 /// present, f32, with its shape) or, if optional, wholly absent (left as it is: a checkpoint of an
 /// earlier stage loads into a scene with more modules); every tensor of the file must belong to
-/// some module. Returns the header metadata and, per module, whether it was loaded.
+/// some module, except those under `unclaimed_prefix` (e.g. optimizer state that an inference
+/// load does not want). Returns the header metadata and, per module, whether it was loaded.
 pub fn load_modules(
     path: &Path,
     modules: &mut [ModuleSlot],
+    unclaimed_prefix: Option<&str>,
 ) -> Result<(HashMap<String, String>, Vec<bool>), ParamError> {
     let p = path.display().to_string();
     let bytes = std::fs::read(path).map_err(|source| ParamError::Io {
@@ -270,7 +272,7 @@ pub fn load_modules(
     let mut unknown: Vec<String> = file
         .names()
         .into_iter()
-        .filter(|n| !claimed.contains(*n))
+        .filter(|n| !claimed.contains(*n) && !unclaimed_prefix.is_some_and(|p| n.starts_with(p)))
         .map(|n| n.to_string())
         .collect();
     unknown.sort_unstable();
@@ -347,6 +349,7 @@ mod tests {
                     required: false,
                 },
             ],
+            None,
         )
         .unwrap();
         assert_eq!(loaded, vec![true, false]);
@@ -359,6 +362,7 @@ mod tests {
                 module: &mut extra,
                 required: true,
             }],
+            None,
         )
         .unwrap_err();
         assert_eq!(err.tensor(), Some("material.hash_grid.table"), "{err}");
@@ -371,12 +375,20 @@ mod tests {
                 module: &mut b,
                 required: true,
             }],
+            None,
         )
         .unwrap_err();
         assert!(
             matches!(err, ParamError::Unknown { .. }) && err.tensor().unwrap().starts_with("material."),
             "{err}"
         );
+        // … unless it is under the prefix the caller leaves unclaimed (optimizer state).
+        let slot = ModuleSlot {
+            prefix: "sdf",
+            module: &mut b,
+            required: true,
+        };
+        assert!(load_modules(&path, &mut [slot], Some("material.")).is_ok());
         // Wrong shape: a module of another size under the same prefix.
         let mut c = net(4, 5);
         let err = load_modules(
@@ -393,6 +405,7 @@ mod tests {
                     required: false,
                 },
             ],
+            None,
         )
         .unwrap_err();
         assert!(

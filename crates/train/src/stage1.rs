@@ -17,7 +17,7 @@ use crate::rays::{train_images, RayBatch, TrainImage};
 use crate::schedule::Phase;
 use i2sdf_data::{DataError, Dataset};
 use i2sdf_model::renderer::{self, RayGrads, RenderSettings, RenderWorkspace};
-use i2sdf_model::scene::{GradMut, GroupSpec, LrClass, Update};
+use i2sdf_model::scene::{GradMut, GroupSpec, LrClass, Update, OPTIMIZER_PREFIX};
 use i2sdf_model::{NeuralScene, SceneGrads};
 use i2sdf_nn::params::ModuleSlot;
 use i2sdf_nn::{Adam, AdamConfig, LrSchedule, Parameters};
@@ -155,7 +155,7 @@ impl Stage1 {
         let mut s = Self::with_scene(dataset, config, scene);
         {
             let Stage1 { scene, adam, specs, .. } = &mut s;
-            let prefixes: Vec<String> = specs.iter().map(|g| format!("adam.{}", g.name)).collect();
+            let prefixes: Vec<String> = specs.iter().map(|g| format!("{OPTIMIZER_PREFIX}{}", g.name)).collect();
             let mut states: Vec<AdamGroupStateMut> = adam
                 .groups
                 .iter_mut()
@@ -473,7 +473,11 @@ impl Stage1 {
     }
 
     fn checkpoint(&self, path: &Path) -> Result<(), DataError> {
-        let prefixes: Vec<String> = self.specs.iter().map(|g| format!("adam.{}", g.name)).collect();
+        let prefixes: Vec<String> = self
+            .specs
+            .iter()
+            .map(|g| format!("{OPTIMIZER_PREFIX}{}", g.name))
+            .collect();
         let states: Vec<AdamGroupState> = self
             .adam
             .groups

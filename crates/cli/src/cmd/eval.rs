@@ -24,6 +24,13 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if !(args.threshold.is_finite() && args.threshold > 0.0) {
+        return Err(i2sdf_data::DataError::invalid(format!(
+            "--threshold {}: must be a positive distance in world units",
+            args.threshold
+        ))
+        .into());
+    }
     let (scene, info) = super::load_run(&args.run)?;
     let dataset = i2sdf_data::load(&args.data)?;
     let mut options = EvalOptions {
