@@ -1,6 +1,11 @@
 //! Inference on a trained scene at arbitrary points — the queries of `render`, `mesh`, the ray
 //! caster and (stage 2) the secondary rays, which make millions of them: no training workspace,
 //! no stored activations, and no allocation per call once the buffers have grown.
+//!
+//! Measured on the default backbone (16-level hash grid, 2^19 entries, 64-wide MLPs; 1 M random
+//! points, the 2 cores shared with other builds): distances 1.6 M points/s (the training forward,
+//! which stores every activation for a backward, 0.9 M points/s); distances + ∇d 0.8 M points/s;
+//! F_c at arbitrary points (z, ∇d, F_c) 0.7 M points/s (`query_speed`, ignored).
 
 use crate::scene::NeuralScene;
 use i2sdf_nn::mlp_batch::MlpInferWorkspace;

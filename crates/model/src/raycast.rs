@@ -9,6 +9,25 @@
 //! brackets; a few iterations already reach the float resolution of t here). Rays are traced in
 //! chunks in parallel; within a chunk, every active ray's next point goes into one SDF batch per
 //! iteration, through the inference path (no stored activations).
+//!
+//! # Measured (2 shared cores; `crates/train/tests/raycast.rs`, ignored, and the e2e test)
+//! On the tiny fixture room (32×24, 7 views, 5,376 rays; scale 3.09 world units per normalized
+//! unit) trained for 800 iterations (β = 0.083), |t_cast − t_volume| over the opaque rays has a
+//! median of 0.017 and a 95th percentile of 0.055 normalized units (0.052 / 0.169 world units),
+//! i.e. 0.2 β / 0.7 β — the spread of VolSDF's expected depth around the zero crossing; against
+//! the analytic room the cast hit is as close as the volume depth (median 0.035 vs 0.032 world
+//! units). After 300 iterations (β = 0.10, the e2e test): 0.019 / 0.071. Speed: ~200k rays/s
+//! (about 20× the deterministic volume renderer on the same rays).
+//!
+//! The alternative, the marching-cubes mesh in `i2sdf_render::Bvh`: 64³ costs 0.04 s of
+//! extraction + 6 ms of build and traces 3.7 M rays/s; 128³ 0.27 s + 26 ms, 4.0 M rays/s; 256³
+//! 2.4 s + 0.12 s, 2.2 M rays/s. Its hits agree with the sphere tracer to a median of 1e-4 and a
+//! p95 of 9e-4 (64³) normalized units, and one Newton step on the SDF (t ← t − d/(∇d·v), 0.5–1.3
+//! M rays/s) brings the p95 to 1e-4. But 6–13 % of the rays missed the mesh there (the extraction
+//! box clips surfaces at the scene bounds). So: the sphere tracer is the reference and the
+//! default (exact, no precomputation, nothing to clip); for stage 2's millions of secondary rays
+//! in the frozen SDF, a baked mesh in the BVH refined by one Newton step is 10–20× faster per ray,
+//! provided the mesh is extracted over generous bounds and misses fall back to the tracer.
 
 use crate::renderer::sphere_exit;
 use crate::scene::NeuralScene;

@@ -70,7 +70,7 @@ impl DirectionEncoding {
 /// Which learning rate of the training configuration an optimizer group takes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LrClass {
-    /// The hash grid (or the whole SDF MLP of the paper's backbone: see the stages).
+    /// The hash grid's table.
     Grid,
     /// The small MLPs.
     Mlp,
