@@ -279,3 +279,149 @@ pub fn train_geometry(
     drive(run, &mut info, &mut trainer, options, on_event)?;
     Ok(trainer.stage)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::Rng;
+
+    /// A stage that is not stage 1: noisy gradient descent on ‖x‖², checkpointed as JSON. It
+    /// uses the driver exactly as stage 2 will.
+    struct Toy {
+        x: Vec<f32>,
+        iteration: u64,
+        total: u64,
+        /// Iterations from which every step is non-finite.
+        poison_from: u64,
+    }
+
+    impl TrainStage for Toy {
+        type Stats = serde_json::Value;
+        fn key(&self) -> &'static str {
+            "stage2"
+        }
+        fn iteration(&self) -> u64 {
+            self.iteration
+        }
+        fn total(&self) -> u64 {
+            self.total
+        }
+        fn seed(&self) -> u64 {
+            7
+        }
+        fn step(&mut self, rng: &mut Pcg64) -> Result<StepOutcome<Self::Stats>, DataError> {
+            self.iteration += 1;
+            if self.iteration > self.poison_from {
+                return Ok(StepOutcome {
+                    stats: serde_json::json!({"loss": null}),
+                    finite: false,
+                });
+            }
+            for v in &mut self.x {
+                *v -= 0.1 * (2.0 * *v + rng.gen_range(-0.5f32..0.5));
+            }
+            let loss: f32 = self.x.iter().map(|v| v * v).sum();
+            Ok(StepOutcome {
+                stats: serde_json::json!({ "iteration": self.iteration - 1, "loss": loss }),
+                finite: true,
+            })
+        }
+        fn is_finite(&self) -> bool {
+            self.x.iter().all(|v| v.is_finite())
+        }
+        fn write_checkpoint(&self, path: &Path) -> Result<(), DataError> {
+            let text = serde_json::json!({ "x": self.x, "iteration": self.iteration }).to_string();
+            i2sdf_data::imageio::write_bytes_atomic(path, text.as_bytes())
+        }
+    }
+
+    fn toy(total: u64) -> Toy {
+        Toy {
+            x: vec![1.0, -2.0, 0.5],
+            iteration: 0,
+            total,
+            poison_from: u64::MAX,
+        }
+    }
+
+    fn resume(path: &Path, total: u64) -> Toy {
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+        Toy {
+            x: serde_json::from_value(v["x"].clone()).unwrap(),
+            iteration: v["iteration"].as_u64().unwrap(),
+            total,
+            poison_from: u64::MAX,
+        }
+    }
+
+    const OPTIONS: DriveOptions = DriveOptions {
+        checkpoint_every: 10,
+        log_every: 5,
+    };
+
+    /// Checkpoints, log, progress in run.json, events; a run stopped and resumed ends bit for bit
+    /// where the uninterrupted one does.
+    #[test]
+    fn drives_any_stage_and_resumes_exactly() {
+        let dir = tempfile::tempdir().unwrap();
+        let (full, part) = (RunDir::new(&dir.path().join("a")), RunDir::new(&dir.path().join("b")));
+        let mut info = RunInfo::default();
+        full.create().unwrap();
+        let mut a = Trainer::new(toy(30));
+        let mut events = Vec::new();
+        drive(&full, &mut info, &mut a, OPTIONS, |e| {
+            events.push(match e {
+                Event::Started { key, iteration, total } => format!("start {key} {iteration}/{total}"),
+                Event::Step { .. } => "step".into(),
+                Event::Pause(w) => w.into(),
+                Event::Checkpoint { iteration } => format!("ckpt {iteration}"),
+            })
+        })
+        .unwrap();
+        assert_eq!(events.first().unwrap(), "start stage2 0/30");
+        assert_eq!(events.iter().filter(|e| e.starts_with("ckpt")).count(), 3);
+        let stage2 = full.read_info().unwrap().stage2.unwrap();
+        assert!(stage2.done && stage2.iterations == 30 && stage2.seconds >= 0.0);
+        let log = std::fs::read_to_string(full.log_path()).unwrap();
+        assert_eq!(log.lines().count(), 6);
+        assert!(log
+            .lines()
+            .all(|l| l.contains("\"stage\":\"stage2\"") && l.contains("time_s")));
+
+        part.create().unwrap();
+        let mut info = RunInfo::default();
+        let mut b = Trainer::new(toy(20));
+        drive(&part, &mut info, &mut b, OPTIONS, |_| {}).unwrap();
+        assert!(!a.stage.x.iter().zip(&b.stage.x).all(|(p, q)| p == q));
+        let mut b = Trainer::new(resume(&part.checkpoint_path(), 30));
+        let mut info = part.read_info().unwrap();
+        drive(&part, &mut info, &mut b, OPTIONS, |_| {}).unwrap();
+        assert_eq!(a.stage.x, b.stage.x);
+        assert_eq!(part.read_info().unwrap().stage2.unwrap().iterations, 30);
+    }
+
+    /// Non-finite steps are skipped and logged; a streak of them stops the run as diverged (not
+    /// the input's fault), and non-finite parameters are never checkpointed.
+    #[test]
+    fn a_diverging_stage_stops_and_keeps_the_last_checkpoint() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::new(dir.path());
+        let mut t = Trainer::new(Toy {
+            poison_from: 12,
+            ..toy(100)
+        });
+        let e = drive(&run, &mut RunInfo::default(), &mut t, OPTIONS, |_| {}).unwrap_err();
+        assert!(e.to_string().contains("diverged") && !e.is_bad_input(), "{e}");
+        assert_eq!(t.stage.iteration, 12 + MAX_NONFINITE_STREAK as u64);
+        // Skipped steps count as iterations but leave the parameters alone: the checkpoints after
+        // iteration 12 hold its parameters (the last at 30; the streak ended the run at 32).
+        let saved = resume(&run.checkpoint_path(), 100);
+        assert_eq!((saved.iteration, &saved.x), (30, &t.stage.x));
+        let skipped = std::fs::read_to_string(run.log_path()).unwrap();
+        assert!(skipped.lines().filter(|l| l.contains("\"loss\":null")).count() >= MAX_NONFINITE_STREAK as usize - 1);
+        t.stage.x[0] = f32::NAN;
+        let e = t.save(&run.checkpoint_path()).unwrap_err();
+        assert!(e.to_string().contains("non-finite"));
+        assert_eq!(resume(&run.checkpoint_path(), 100).x, saved.x);
+    }
+}
