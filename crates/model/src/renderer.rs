@@ -1,5 +1,5 @@
-//! Volume rendering of a [`NeuralScene`] (paper eqs. 3–5 and the emitter mask of Sec. 4.2), with
-//! the backward pass beside the forward: rays → VolSDF error-bounded samples → F_d (distance,
+//! Volume rendering of a [`NeuralScene`] (paper eq:rgb and eq:depth, and the emitter mask of
+//! Sec. 4.2), with the backward pass beside the forward: rays → VolSDF error-bounded samples → F_d (distance,
 //! feature, gradient) → F_c and F_e → composited colour, depth, normal and emitter probability.
 //! Training and inference (`render`, `eval`, PDF-map initialisation) share this one path.
 //!
@@ -245,7 +245,7 @@ pub fn forward_with_samples(
         &mut ws.feature,
         ws.gradient.as_flattened_mut(),
     );
-    // 4. Density (eq. 2), F_c (eq. "c(x) = F_c(z, v)", with the normal as VolSDF), F_e.
+    // 4. Density (eq:density), F_c (the radiance line of eq:sdf, with the normal as VolSDF), F_e.
     ws.sigma.resize(n_s, 0.0);
     laplace_density_batch(&ws.sdf[..n_s], beta, &mut ws.sigma);
     scene.radiance_input(
@@ -262,7 +262,7 @@ pub fn forward_with_samples(
     scene
         .emitter
         .forward(&ws.feature[..n_s * fdim], &mut ws.emitter_ws, &mut ws.emitter_out);
-    // 5. Channels and compositing (eqs. 3–5, emitter mask).
+    // 5. Channels and compositing (eq:rgb, eq:depth, emitter mask).
     ws.channels.resize(n_s * CHANNELS, 0.0);
     for i in 0..n_s {
         let c = &mut ws.channels[i * CHANNELS..(i + 1) * CHANNELS];

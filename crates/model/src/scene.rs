@@ -10,7 +10,7 @@ use i2sdf_nn::{
 use std::collections::HashMap;
 use std::path::Path;
 
-/// The learnable β of the VolSDF density (paper eq. 2), kept as β = β_min + exp(raw): positive
+/// The learnable β of the VolSDF density (paper eq:density), kept as β = β_min + exp(raw): positive
 /// whatever the optimizer does, and learned in log space so that a short CPU schedule can move it
 /// over orders of magnitude (0.1 → 0.001) at a constant relative rate.
 #[derive(Clone, Debug, PartialEq)]

@@ -1,5 +1,5 @@
-//! The stage-1 loss terms (paper Sec. 4.1–4.2, eq. 7 "bubble", "eikonal", "depth", "normal",
-//! "smooth", "emitter BCE", eq. 13 "L_rgb"), each as a value plus its gradient with respect to what
+//! The stage-1 loss terms (paper Sec. 4.1–4.2, eq:bubble, "eikonal", "depth", "normal",
+//! "smooth", "emitter BCE", eq:train1 "L_rgb"), each as a value plus its gradient with respect to what
 //! the renderer or the SDF produced. Every term is a mean over its batch (as in VolSDF's
 //! implementation) so that weights do not depend on the batch size. Callers add the weighted
 //! gradients into their upstream buffers (`grad += w · ∂term`).
@@ -94,7 +94,7 @@ pub fn eikonal(gradients: &[[f32; 3]], w: f32, grad: &mut [[f32; 3]]) -> f32 {
     (loss / n as f64) as f32
 }
 
-/// L_smooth = mean over pairs of ‖∇d(x) − ∇d(x + ε)‖₂ (eq. 8). Adds gradients for both members.
+/// L_smooth = mean over pairs of ‖∇d(x) − ∇d(x + ε)‖₂ (eq:smooth). Adds gradients for both members.
 pub fn smoothness(a: &[[f32; 3]], b: &[[f32; 3]], w: f32, grad_a: &mut [[f32; 3]], grad_b: &mut [[f32; 3]]) -> f32 {
     let n = a.len().max(1) as f32;
     let mut loss = 0.0f64;
@@ -113,7 +113,7 @@ pub fn smoothness(a: &[[f32; 3]], b: &[[f32; 3]], w: f32, grad_a: &mut [[f32; 3]
     (loss / n as f64) as f32
 }
 
-/// L_bubble = mean over bubble points of |d(x)| (eq. 7: surface points from depth must lie on the
+/// L_bubble = mean over bubble points of |d(x)| (eq:bubble: surface points from depth must lie on the
 /// zero level set).
 pub fn bubble(sdf: &[f32], w: f32, grad: &mut [f32]) -> f32 {
     let n = sdf.len().max(1) as f32;

@@ -76,7 +76,7 @@ impl TrainImage {
         self.width * self.height
     }
 
-    /// The surface point seen at a pixel according to its depth (paper eq. 6), normalized frame.
+    /// The surface point seen at a pixel according to its depth (paper eq:unproj), normalized frame.
     pub fn surface_point(&self, pixel: usize) -> Option<[f32; 3]> {
         let t = self.depth[pixel];
         (t > 0.0).then(|| {

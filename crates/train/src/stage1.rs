@@ -1,6 +1,6 @@
 //! Stage 1 (paper Sec. 5 "Training of geometry and radiance fields"; supp. B–C): F_d, F_c and F_e
-//! trained end to end by volume rendering with L_1 = L_rgb + λ_geo L_geo + λ_emi L_emi (eq. 13),
-//! L_geo = λ1 eikonal + λ2 depth + λ3 normal + λ4 smooth + λ5 bubble (eq. 9), over the three steps
+//! trained end to end by volume rendering with L_1 = L_rgb + λ_geo L_geo + λ_emi L_emi (eq:train1),
+//! L_geo = λ1 eikonal + λ2 depth + λ3 normal + λ4 smooth + λ5 bubble (eq:traing), over the three steps
 //! of [`crate::schedule`], with error-guided adaptive sampling of the bubble points.
 //!
 //! An iteration: draw rays uniformly over the training pixels; draw the extra points of the point
@@ -26,7 +26,7 @@ use rand_pcg::Pcg64;
 use serde::Serialize;
 use std::path::Path;
 
-/// Half-width of the random perturbation ε of the smoothness loss (eq. 8), normalized units.
+/// Half-width of the random perturbation ε of the smoothness loss (eq:smooth), normalized units.
 const SMOOTH_EPS: f32 = 0.01;
 
 #[derive(Clone, Debug, Default, Serialize)]
