@@ -98,7 +98,7 @@ impl Camera {
         (self.center(), d_world, 1.0 / len)
     }
 
-    /// The world point seen at pixel (i, j)'s centre with z-depth `depth` (paper eq. 6:
+    /// The world point seen at pixel (i, j)'s centre with z-depth `depth` (paper eq:unproj:
     /// x = t + D · R K⁻¹ [u, v, 1]ᵀ).
     pub fn backproject(&self, i: usize, j: usize, depth: f64) -> DVec3 {
         self.center() + self.rotation() * (self.pixel_center_dir_cam(i, j) * depth)

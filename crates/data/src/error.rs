@@ -58,7 +58,10 @@ impl DataError {
     /// Whether the user's input is at fault (exit code 2) rather than the machine or the
     /// computation (exit code 1).
     pub fn is_bad_input(&self) -> bool {
-        matches!(self, DataError::File { .. } | DataError::Field { .. } | DataError::Invalid(_))
+        matches!(
+            self,
+            DataError::File { .. } | DataError::Field { .. } | DataError::Invalid(_)
+        )
     }
 }
 

@@ -11,7 +11,7 @@ use crate::report::{EvalReport, MeshReport, ThinObjectsReport};
 use i2sdf_data::dataset::ObjectInfo;
 use i2sdf_data::ply::read_ply;
 use i2sdf_data::{Bounds, DataError, Dataset, Frame, Split};
-use i2sdf_model::images::render_view;
+use i2sdf_model::images::render_volume_view;
 use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::{NeuralScene, SceneQuery};
 
@@ -88,7 +88,7 @@ pub fn view_metrics(
     let (mut p, mut s, mut d, mut n) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let test: Vec<&Frame> = dataset.split(Split::Test).collect();
     for f in test {
-        let v = render_view(scene, settings, &f.camera);
+        let v = render_volume_view(scene, settings, &f.camera);
         let (w, h) = (f.camera.width, f.camera.height);
         let pred = ImageRef::new(&v.rgb.data, w, h, 3)?;
         let gt = ImageRef::new(&f.rgb.data, w, h, 3)?;

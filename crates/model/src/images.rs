@@ -21,9 +21,6 @@ pub struct RenderedView {
     pub opacity: ImageF32,
 }
 
-/// The former name of [`render_volume_view`], kept while `i2sdf_eval::neural` still calls it.
-pub use self::render_volume_view as render_view;
-
 /// Volume-renders every pixel of `camera` (pixel centres), deterministically, in chunks of rays.
 pub fn render_volume_view(scene: &NeuralScene, settings: &RenderSettings, camera: &Camera) -> RenderedView {
     let (w, h) = (camera.width, camera.height);

@@ -1,7 +1,7 @@
 //! The geometry interface of the Monte Carlo integrator: batched closest-hit and occlusion
 //! queries. The integrator never sees triangles: a triangle-mesh BVH ([`crate::MeshGeometry`]), an
-//! SDF sphere tracer (stage 2 traces its secondary rays in the frozen SDF, paper eq. 10–11) or a
-//! union of both (edited scenes: the SDF surface ∪ inserted meshes) answer the same two calls.
+//! SDF sphere tracer (stage 2 traces its secondary rays in the frozen SDF, paper eq:render and
+//! eq:radiance) or a union of both (edited scenes: the SDF surface ∪ inserted meshes) answer the same two calls.
 //! Queries come in batches (a tile of paths at one bounce), so an implementation can vectorise
 //! them: an SDF tracer evaluates its network on all rays of the batch at once.
 

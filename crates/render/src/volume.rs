@@ -1,7 +1,7 @@
-//! VolSDF volume rendering (paper Sec. 3, eqs. 4–6, and the emitter mask of Sec. 4.2): the Laplace
-//! density of the SDF with its derivatives, compositing of any number of per-sample channels along
-//! packed rays with an O(M) backward pass, and the ray samplers, the reference being VolSDF's
-//! error-bounded sampler (Yariv et al. 2021, Sec. 3.3 and Alg. 1).
+//! VolSDF volume rendering (paper Sec. 3, eq:density, eq:rgb and eq:depth, and the emitter mask of
+//! Sec. 4.2): the Laplace density of the SDF with its derivatives, compositing of any number of
+//! per-sample channels along packed rays with an O(M) backward pass, and the ray samplers, the
+//! reference being VolSDF's error-bounded sampler (Yariv et al. 2021, Sec. 3.3 and Alg. 1).
 //!
 //! Layout of a batch: rays are packed ray-major; `ray_offsets` (length rays + 1) says that ray `r`
 //! owns samples `ray_offsets[r]..ray_offsets[r + 1]` of every per-sample array, and per-sample
@@ -58,7 +58,7 @@ impl_real!(f64);
 // ---------------------------------------------------------------------------------------------
 // Density
 
-/// VolSDF density, paper eq. 4: σ(d) = (1/β) Ψ_β(−d), Ψ_β the CDF of the zero-mean Laplace
+/// VolSDF density, paper eq:density: σ(d) = (1/β) Ψ_β(−d), Ψ_β the CDF of the zero-mean Laplace
 /// distribution with scale β. Written with e = exp(−|d|/β) ≤ 1 so that neither sign overflows:
 /// σ = e / (2β) for d ≥ 0, (1 − e/2) / β for d < 0.
 #[inline]
@@ -132,13 +132,14 @@ pub fn laplace_density_backward(sdf: &[f32], beta: f32, grad_sigma: &[f32], grad
 /// The scalar outputs of one ray.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RayComposite<T> {
-    /// Expected depth Σ w_i t_i (eq. 6), not normalized by the opacity.
+    /// Expected depth Σ w_i t_i (eq:depth), not normalized by the opacity.
     pub depth: T,
     /// Accumulated opacity Σ w_i = 1 − T_{M+1}.
     pub opacity: T,
 }
 
-/// Composites one ray (eqs. 5–6 and the emitter mask M̂_e of Sec. 4.2, for any K channels):
+/// Composites one ray (eq:rgb and eq:depth, and the emitter mask M̂_e of Sec. 4.2, for any K
+/// channels):
 /// α_i = 1 − exp(−σ_i δ_i), T_i = Π_{j<i} (1 − α_j), w_i = T_i α_i; `out_channels[c] = Σ w_i
 /// channels[i K + c]`; `weights[i] = w_i`. K is `out_channels.len()`.
 pub fn composite_ray<T: Real>(

@@ -73,7 +73,7 @@ fn composite_matches_its_definition() {
     let mut out = vec![0.0; k];
     let mut w = vec![0.0; m];
     let res = composite_ray(&t, &delta, &sigma, &channels, &mut out, &mut w);
-    // Direct O(M²) evaluation of eqs. 5–6.
+    // Direct O(M²) evaluation of eq:rgb and eq:depth.
     let alpha: Vec<f64> = (0..m).map(|i| 1.0 - (-sigma[i] * delta[i]).exp()).collect();
     let trans = |i: usize| (0..i).map(|j| 1.0 - alpha[j]).product::<f64>();
     for i in 0..m {

@@ -346,7 +346,7 @@ fn published_model_gains_energy_at_grazing_views() {
     // Documented behaviour, not a goal: the supplementary's f_d is not weighted by (1 − F) and
     // F90 = 1 once lum(Ks) ≥ 0.04, so at grazing views Kd/π plus a specular lobe whose Fresnel
     // tends to 1 exceeds 1. Renderers that need strict conservation must clamp Kd + Ks < 1 and
-    // avoid grazing-heavy rough-glossy surfaces; stage 2's energy regularizer (paper eq. 9) only
+    // avoid grazing-heavy rough-glossy surfaces; stage 2's energy regularizer (paper eq:material) only
     // bounds Kd + Ks.
     let b = GgxBrdf::new(Vec3::splat(0.9), Vec3::splat(0.1), 0.45);
     let a = albedo_quadrature(&b, view_at(80.0));
