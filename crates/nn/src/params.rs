@@ -137,53 +137,55 @@ pub fn save_safetensors(
 }
 
 /// Read a safetensors file into `modules` (each under its prefix); every tensor they expect must be
-/// present, f32, with their shape. Returns the header metadata.
+/// present, f32, with their shape, and every tensor of the file must belong to one of them.
+/// Returns the header metadata. (The all-required case of [`load_modules`].)
 pub fn load_safetensors(
     path: &Path,
     modules: &mut [(&str, &mut dyn Parameters)],
 ) -> Result<HashMap<String, String>, ParamError> {
-    let p = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| ParamError::Io {
-        path: p.clone(),
-        source,
-    })?;
-    let (_, header) = SafeTensors::read_metadata(&bytes).map_err(|e| ParamError::Format {
-        path: p.clone(),
-        message: e.to_string(),
-    })?;
-    let file = SafeTensors::deserialize(&bytes).map_err(|e| ParamError::Format {
-        path: p.clone(),
-        message: e.to_string(),
-    })?;
+    let mut slots: Vec<ModuleSlot> = modules
+        .iter_mut()
+        .map(|(prefix, module)| ModuleSlot {
+            prefix,
+            module: &mut **module,
+            required: true,
+        })
+        .collect();
+    load_modules(path, &mut slots, None).map(|(meta, _)| meta)
+}
+
+/// Copies the tensors of `module` (under `prefix`) out of `file`: each must be there, f32, with the
+/// module's shape. The first offending tensor is named.
+fn read_module(file: &SafeTensors, p: &str, prefix: &str, module: &mut dyn Parameters) -> Result<(), ParamError> {
     let mut first_error = None;
-    for (prefix, module) in modules.iter_mut() {
-        module.visit_mut(prefix, &mut |name, shape, dst| {
-            if first_error.is_some() {
-                return;
+    module.visit_mut(prefix, &mut |name, shape, dst| {
+        if first_error.is_some() {
+            return;
+        }
+        match file.tensor(&name) {
+            Err(_) => {
+                first_error = Some(ParamError::Missing {
+                    path: p.to_string(),
+                    name,
+                })
             }
-            match file.tensor(&name) {
-                Err(_) => first_error = Some(ParamError::Missing { path: p.clone(), name }),
-                Ok(t) if t.dtype() != Dtype::F32 || t.shape() != shape.as_slice() => {
-                    first_error = Some(ParamError::Shape {
-                        path: p.clone(),
-                        name,
-                        found: t.shape().to_vec(),
-                        expected: shape,
-                        dtype: format!("{:?}", t.dtype()),
-                    })
-                }
-                Ok(t) => {
-                    for (d, c) in dst.iter_mut().zip(t.data().chunks_exact(4)) {
-                        *d = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
-                    }
+            Ok(t) if t.dtype() != Dtype::F32 || t.shape() != shape.as_slice() => {
+                first_error = Some(ParamError::Shape {
+                    path: p.to_string(),
+                    name,
+                    found: t.shape().to_vec(),
+                    expected: shape,
+                    dtype: format!("{:?}", t.dtype()),
+                })
+            }
+            Ok(t) => {
+                for (d, c) in dst.iter_mut().zip(t.data().chunks_exact(4)) {
+                    *d = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
                 }
             }
-        });
-    }
-    match first_error {
-        Some(e) => Err(e),
-        None => Ok(header.metadata().clone().unwrap_or_default()),
-    }
+        }
+    });
+    first_error.map_or(Ok(()), Err)
 }
 
 impl ParamError {
@@ -241,32 +243,7 @@ pub fn load_modules(
             loaded.push(false);
             continue;
         }
-        let mut first_error = None;
-        slot.module.visit_mut(slot.prefix, &mut |name, shape, dst| {
-            if first_error.is_some() {
-                return;
-            }
-            match file.tensor(&name) {
-                Err(_) => first_error = Some(ParamError::Missing { path: p.clone(), name }),
-                Ok(t) if t.dtype() != Dtype::F32 || t.shape() != shape.as_slice() => {
-                    first_error = Some(ParamError::Shape {
-                        path: p.clone(),
-                        name,
-                        found: t.shape().to_vec(),
-                        expected: shape,
-                        dtype: format!("{:?}", t.dtype()),
-                    })
-                }
-                Ok(t) => {
-                    for (d, c) in dst.iter_mut().zip(t.data().chunks_exact(4)) {
-                        *d = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
-                    }
-                }
-            }
-        });
-        if let Some(e) = first_error {
-            return Err(e);
-        }
+        read_module(&file, &p, slot.prefix, slot.module)?;
         loaded.push(true);
     }
     let mut unknown: Vec<String> = file

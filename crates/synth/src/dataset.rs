@@ -231,7 +231,7 @@ pub fn generate(
     let mut relight_json = Vec::new();
     for (name, spec) in default_relight_specs(&scene) {
         let spec_rel = format!("relight/{name}.toml");
-        output::write_atomic(&out.join(&spec_rel), spec.to_toml_string().as_bytes())?;
+        i2sdf_data::imageio::write_bytes_atomic(&out.join(&spec_rel), spec.to_toml_string().as_bytes())?;
         let gains = spec.emitter_gains(&scene.emitters);
         let mut frames = Vec::new();
         for (v, r) in pairs.iter().filter(|(v, _)| v.test) {
@@ -249,9 +249,9 @@ pub fn generate(
 
     let (objects, object_of_shape) = scene.desc.objects();
     scene.mesh.write_ply(&out.join("mesh.ply"), &object_of_shape)?;
-    output::write_atomic(&out.join("scene.toml"), scene.desc.to_toml_string().as_bytes())?;
+    i2sdf_data::imageio::write_bytes_atomic(&out.join("scene.toml"), scene.desc.to_toml_string().as_bytes())?;
     let transforms = transforms_json(&scene, opts, &views, &frame_paths, exposure, relight_json, &objects);
-    output::write_atomic(
+    i2sdf_data::imageio::write_bytes_atomic(
         &out.join("transforms.json"),
         serde_json::to_string_pretty(&transforms).expect("JSON").as_bytes(),
     )?;

@@ -9,10 +9,6 @@ use i2sdf_data::DataError;
 use i2sdf_render::ViewRender;
 use std::path::Path;
 
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
-    imageio::write_bytes_atomic(path, bytes)
-}
-
 pub fn rgb_image(w: usize, h: usize, px: &[Vec3]) -> ImageF32 {
     ImageF32::from_data(w, h, 3, px.iter().flat_map(|p| p.to_array()).collect())
 }
