@@ -192,9 +192,9 @@ mod tests {
         let mut z = vec![0.0; n * fd];
         let mut ws = SdfWorkspace::default();
         let t = std::time::Instant::now();
-        scene.sdf.evaluate(&pts, &mut ws, &mut d, Some(&mut z), None);
+        scene.sdf.forward(&pts, &mut ws, &mut d, &mut z);
         eprintln!(
-            "training forward (evaluate): {:.2} M points/s",
+            "training forward: {:.2} M points/s",
             n as f64 / t.elapsed().as_secs_f64() / 1e6
         );
     }

@@ -82,6 +82,7 @@ pub mod mlp;
 pub mod mlp_batch;
 pub mod params;
 pub mod sdf;
+pub mod sdf_infer;
 pub mod smallgemm;
 
 #[cfg(test)]
@@ -94,6 +95,4 @@ pub use hashgrid::{HashGrid, HashGridConfig, HashGridGrad};
 pub use mlp::{GeometricInit, Mlp, MlpConfig, TILE};
 pub use mlp_batch::MlpWorkspace;
 pub use params::{load_safetensors, save_safetensors, ParamError, Parameters};
-pub use sdf::{
-    SdfEncoding, SdfEncodingConfig, SdfGrad, SdfNetwork, SdfNetworkConfig, SdfTimings, SdfWorkspace, EVAL_BATCH,
-};
+pub use sdf::{SdfEncoding, SdfEncodingConfig, SdfGrad, SdfNetwork, SdfNetworkConfig, SdfTimings, SdfWorkspace};

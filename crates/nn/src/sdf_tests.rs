@@ -254,21 +254,6 @@ fn central_differences_agree_with_analytic_gradient() {
     );
 }
 
-/// Batched inference equals one big forward.
-#[test]
-fn evaluate_in_batches_matches_forward() {
-    let net = network(small_hash_config());
-    let n = EVAL_BATCH + 1000;
-    let x = points(&net, n, 23);
-    let mut ws = SdfWorkspace::default();
-    let (mut sdf, mut feat, mut grad) = (vec![0.0; n], vec![0.0; n * 3], vec![0.0; n * 3]);
-    net.forward_with_gradient(&x, &mut ws, &mut sdf, &mut feat, &mut grad);
-    let (mut s2, mut g2) = (vec![0.0; n], vec![0.0; n * 3]);
-    net.evaluate(&x, &mut SdfWorkspace::default(), &mut s2, None, Some(&mut g2));
-    assert_eq!(sdf, s2);
-    assert_eq!(grad, g2);
-}
-
 #[test]
 fn empty_batches_are_fine() {
     let net = network(small_hash_config());
