@@ -366,26 +366,11 @@ impl Geometry for SdfGeometry<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::ModelConfig;
     use crate::SceneQuery;
     use i2sdf_data::Normalization;
 
     fn scene() -> NeuralScene {
-        let c = ModelConfig {
-            hash_levels: 4,
-            hash_log2_table: 12,
-            hash_finest_resolution: 64,
-            init_radius: 0.7,
-            ..Default::default()
-        };
-        NeuralScene::new(
-            &c,
-            Normalization {
-                center: [0.0; 3],
-                scale: 1.0,
-            },
-            1,
-        )
+        crate::scene::tiny_test_scene()
     }
 
     /// On the initial inverted sphere, the cast hit is the zero crossing found by bisection, the

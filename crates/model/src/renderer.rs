@@ -419,26 +419,10 @@ pub fn backward(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::ModelConfig;
-    use i2sdf_data::Normalization;
     use rand::SeedableRng;
 
     fn scene() -> NeuralScene {
-        let c = ModelConfig {
-            hash_levels: 4,
-            hash_log2_table: 12,
-            hash_finest_resolution: 64,
-            init_radius: 0.7,
-            ..Default::default()
-        };
-        let mut s = NeuralScene::new(
-            &c,
-            Normalization {
-                center: [0.0; 3],
-                scale: 1.0,
-            },
-            1,
-        );
+        let mut s = crate::scene::tiny_test_scene();
         // Break the symmetry of the fresh init so every parameter matters.
         for (i, p) in s.radiance.params.iter_mut().enumerate() {
             *p += 0.01 * ((i as f32) * 0.37).sin();

@@ -500,6 +500,27 @@ fn safetensors_header(bytes: &[u8]) -> Result<HashMap<String, String>, String> {
     Ok(meta.metadata().clone().unwrap_or_default())
 }
 
+/// The small scene the model's unit tests share: a 4-level hash grid, inverted sphere of radius
+/// 0.7, identity normalization.
+#[cfg(test)]
+pub(crate) fn tiny_test_scene() -> NeuralScene {
+    let c = ModelConfig {
+        hash_levels: 4,
+        hash_log2_table: 12,
+        hash_finest_resolution: 64,
+        init_radius: 0.7,
+        ..Default::default()
+    };
+    NeuralScene::new(
+        &c,
+        Normalization {
+            center: [0.0; 3],
+            scale: 1.0,
+        },
+        1,
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -4,7 +4,6 @@
 
 mod common;
 
-use i2sdf_data::fixture::{self, FixtureOptions};
 use i2sdf_model::run_dir::RunDir;
 use i2sdf_train::config::TrainConfig;
 use i2sdf_train::driver::{render_settings, train_geometry, Trainer};
@@ -30,20 +29,6 @@ fn tiny_config(iterations: u64) -> TrainConfig {
     .unwrap()
 }
 
-fn dataset() -> (tempfile::TempDir, i2sdf_data::Dataset) {
-    let dir = tempfile::tempdir().unwrap();
-    let opts = FixtureOptions {
-        width: 32,
-        height: 24,
-        train_views: 6,
-        test_views: 1,
-        ..Default::default()
-    };
-    fixture::write_native(dir.path(), &opts);
-    let ds = i2sdf_data::load(dir.path()).unwrap();
-    (dir, ds)
-}
-
 /// Mean depth error over the first and last `k` logged steps.
 fn depth_errors(stats: &[f32], k: usize) -> (f32, f32) {
     let first = stats[..k].iter().sum::<f32>() / k as f32;
@@ -53,7 +38,7 @@ fn depth_errors(stats: &[f32], k: usize) -> (f32, f32) {
 
 #[test]
 fn tiny_scene_training_reduces_depth_error() {
-    let (_dir, ds) = dataset();
+    let (_dir, ds) = common::dataset();
     let mut stage = Trainer::new(Stage1::new(&ds, tiny_config(300)));
     let mut depth = Vec::new();
     let mut psnr = Vec::new();
@@ -86,7 +71,7 @@ fn tiny_scene_training_reduces_depth_error() {
 
 #[test]
 fn interrupted_and_resumed_run_continues_exactly() {
-    let (_dir, ds) = dataset();
+    let (_dir, ds) = common::dataset();
     let runs = tempfile::tempdir().unwrap();
     // Uninterrupted: 120 iterations (warm-up 0–30, bubble 30–90, smooth 90–120).
     let full = RunDir::new(&runs.path().join("full"));
@@ -126,7 +111,7 @@ fn interrupted_and_resumed_run_continues_exactly() {
 
 #[test]
 fn non_finite_losses_are_skipped_and_never_checkpointed() {
-    let (_dir, ds) = dataset();
+    let (_dir, ds) = common::dataset();
     let runs = tempfile::tempdir().unwrap();
     let mut stage = Trainer::new(Stage1::new(&ds, tiny_config(100)));
     stage.step().unwrap();

@@ -7,7 +7,7 @@
 mod common;
 
 use glam::Vec3;
-use i2sdf_data::fixture::{self, FixtureOptions};
+use i2sdf_data::fixture;
 use i2sdf_model::SceneQuery;
 use i2sdf_render::Bvh;
 use i2sdf_train::config::TrainConfig;
@@ -19,16 +19,7 @@ use std::time::Instant;
 #[test]
 #[ignore]
 fn sphere_tracing_against_the_mesh_in_the_bvh() {
-    let dir = tempfile::tempdir().unwrap();
-    let opts = FixtureOptions {
-        width: 32,
-        height: 24,
-        train_views: 6,
-        test_views: 1,
-        ..Default::default()
-    };
-    fixture::write_native(dir.path(), &opts);
-    let ds = i2sdf_data::load(dir.path()).unwrap();
+    let (_dir, ds) = common::dataset();
     let config = TrainConfig::load(
         None,
         &[

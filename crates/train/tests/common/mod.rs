@@ -134,3 +134,18 @@ impl std::fmt::Display for Agreement {
         )
     }
 }
+
+/// The tiny fixture room both tests train on (32×24, 6 training views, 1 test view).
+pub fn dataset() -> (tempfile::TempDir, Dataset) {
+    let dir = tempfile::tempdir().unwrap();
+    let opts = i2sdf_data::fixture::FixtureOptions {
+        width: 32,
+        height: 24,
+        train_views: 6,
+        test_views: 1,
+        ..Default::default()
+    };
+    i2sdf_data::fixture::write_native(dir.path(), &opts);
+    let ds = i2sdf_data::load(dir.path()).unwrap();
+    (dir, ds)
+}
