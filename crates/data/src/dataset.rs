@@ -90,6 +90,16 @@ pub struct ObjectInfo {
     pub tags: Vec<String>,
 }
 
+/// One ground-truth emitter: its name, HDR emission (linear, the HDR images' units) and
+/// axis-aligned box in world units.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GtEmitter {
+    pub name: String,
+    pub emission: [f64; 3],
+    pub bounds_min: [f64; 3],
+    pub bounds_max: [f64; 3],
+}
+
 /// Similarity transform from world units into the normalized frame of the neural fields:
 /// `x_n = (x_w − center) / scale`. The whole scene lies in the unit sphere of the normalized frame.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -135,6 +145,12 @@ pub struct Dataset {
     pub frames: Vec<Frame>,
     /// How the LDR images encode light: "srgb" (default) or "linear".
     pub ldr_transfer: String,
+    /// The exposure the LDR images were made with (`ldr.exposure`: LDR = transfer(exposure · HDR)),
+    /// when the dataset states it: stage 2 scales HDR images by it into the LDR images' linear
+    /// units, and reports each emitter's radiance as emission / exposure.
+    pub ldr_exposure: Option<f64>,
+    /// The ground-truth emitters (native format, top-level `emitters`), for evaluation only.
+    pub emitters: Vec<GtEmitter>,
     /// Ground-truth mesh (PLY) in world units, if the dataset has one.
     pub mesh_path: Option<PathBuf>,
     pub relight: Vec<RelightSet>,

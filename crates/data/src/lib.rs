@@ -14,7 +14,7 @@ pub mod ply;
 pub mod summary;
 
 pub use camera::Camera;
-pub use dataset::{load, Bounds, Dataset, Format, Frame, Normalization, RelightSet, Split};
+pub use dataset::{load, Bounds, Dataset, Format, Frame, GtEmitter, Normalization, RelightSet, Split};
 pub use error::DataError;
 pub use imageio::ImageF32;
 pub use mesh::TriangleMesh;

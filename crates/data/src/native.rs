@@ -13,7 +13,7 @@
 //! (the GT mesh's per-face `object_id`s, named and tagged). Unknown keys are ignored.
 
 use crate::camera::Camera;
-use crate::dataset::{self, Dataset, Format, Frame, ObjectInfo, RelightSet, Split};
+use crate::dataset::{self, Dataset, Format, Frame, GtEmitter, ObjectInfo, RelightSet, Split};
 use crate::error::{DataError, Result};
 use glam::DMat4;
 use rayon::prelude::*;
@@ -308,12 +308,28 @@ pub fn load(root: &Path) -> Result<Dataset> {
             format!("'{ldr_transfer}' is not \"srgb\" or \"linear\""),
         ));
     }
+    let ldr_exposure = match top.get("ldr").and_then(|l| l.get("exposure")) {
+        None | Some(Value::Null) => None,
+        Some(v) => match v.as_f64() {
+            Some(e) if e.is_finite() && e > 0.0 => Some(e),
+            _ => {
+                return Err(DataError::field(
+                    &json_path,
+                    "ldr.exposure",
+                    format!("expected a positive finite number, found {v}"),
+                ))
+            }
+        },
+    };
+    let emitters = parse_emitters(&json_path, top)?;
     let (bounds, bounds_source, normalization) = dataset::measure_bounds(&frames);
     Ok(Dataset {
         root: root.to_path_buf(),
         format: Format::Native,
         frames,
         ldr_transfer,
+        ldr_exposure,
+        emitters,
         mesh_path,
         relight,
         objects,
@@ -372,6 +388,54 @@ fn load_relight(
 
 /// The optional top-level `objects: [{"id": 7, "name": "lamp_pole", "tags": ["thin"]}, …]`; ids
 /// are distinct integers, `tags` may be left out.
+/// The top-level `emitters` list (`[{name, emission, bounds_min, bounds_max}]`), as `i2sdf synth`
+/// writes it; absent means none.
+fn parse_emitters(json_path: &Path, top: &Map<String, Value>) -> Result<Vec<GtEmitter>> {
+    let list = match top.get("emitters") {
+        None | Some(Value::Null) => return Ok(Vec::new()),
+        Some(Value::Array(a)) => a,
+        Some(v) => return Err(DataError::field(json_path, "emitters", format!("not a list: {v}"))),
+    };
+    list.iter()
+        .enumerate()
+        .map(|(i, entry)| {
+            let key = |field: &str| format!("emitters[{i}].{field}");
+            let vec3 = |field: &str| -> Result<[f64; 3]> {
+                let v = entry
+                    .get(field)
+                    .ok_or_else(|| DataError::field(json_path, key(field), "missing"))?;
+                let a = v.as_array().filter(|a| a.len() == 3);
+                let vals: Option<Vec<f64>> = a.map(|a| a.iter().map(Value::as_f64).collect()).flatten();
+                match vals {
+                    Some(x) if x.iter().all(|c| c.is_finite()) => Ok([x[0], x[1], x[2]]),
+                    _ => Err(DataError::field(
+                        json_path,
+                        key(field),
+                        format!("expected three finite numbers, found {v}"),
+                    )),
+                }
+            };
+            let name = match entry.get("name") {
+                Some(Value::String(s)) => s.clone(),
+                None | Some(Value::Null) => format!("emitter {i}"),
+                Some(v) => {
+                    return Err(DataError::field(
+                        json_path,
+                        key("name"),
+                        format!("expected a string, found {v}"),
+                    ))
+                }
+            };
+            Ok(GtEmitter {
+                name,
+                emission: vec3("emission")?,
+                bounds_min: vec3("bounds_min")?,
+                bounds_max: vec3("bounds_max")?,
+            })
+        })
+        .collect()
+}
+
 fn parse_objects(json_path: &Path, top: &Map<String, Value>) -> Result<Vec<ObjectInfo>> {
     let list = match top.get("objects") {
         None | Some(Value::Null) => return Ok(Vec::new()),
@@ -425,6 +489,25 @@ mod tests {
 
     fn parse(v: Value) -> Result<Vec<ObjectInfo>> {
         parse_objects(Path::new("scene/transforms.json"), v.as_object().unwrap())
+    }
+
+    #[test]
+    fn emitters_are_read_and_bad_entries_name_their_key() {
+        let path = Path::new("scene/transforms.json");
+        let top = json!({"emitters": [
+            {"name": "bulb", "emission": [1.0, 2.0, 3.0], "bounds_min": [0, 0, 0], "bounds_max": [1, 1, 1]},
+        ]});
+        let got = parse_emitters(path, top.as_object().unwrap()).unwrap();
+        assert_eq!(got.len(), 1);
+        assert_eq!((got[0].name.as_str(), got[0].emission), ("bulb", [1.0, 2.0, 3.0]));
+        let none = json!({});
+        assert!(parse_emitters(path, none.as_object().unwrap()).unwrap().is_empty());
+        let bad = json!({"emitters": [{"emission": [1.0, 2.0], "bounds_min": [0, 0, 0], "bounds_max": [1, 1, 1]}]});
+        let e = parse_emitters(path, bad.as_object().unwrap()).unwrap_err();
+        assert!(
+            e.is_bad_input() && e.to_string().contains("emitters[0].emission"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -257,6 +257,8 @@ pub fn load(root: &Path) -> Result<Dataset> {
         format: Format::Paper,
         frames,
         ldr_transfer: "srgb".into(),
+        ldr_exposure: None,
+        emitters: Vec::new(),
         mesh_path: None,
         relight: Vec::new(),
         objects: Vec::new(),
