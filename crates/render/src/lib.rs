@@ -27,7 +27,7 @@ pub mod textured_material;
 pub mod volume;
 
 pub use area_light::AreaLight;
-pub use brdf::{BrdfLobe, BrdfSample, GgxBrdf};
+pub use brdf::{BrdfLobe, BrdfSample, GgxBrdf, GgxGrad};
 pub use bvh::Bvh;
 pub use color::luminance;
 pub use constant_material::ConstantMaterial;
