@@ -7,6 +7,7 @@
 
 pub mod config;
 pub mod images;
+pub mod material_field;
 pub mod query;
 pub mod raycast;
 pub mod renderer;
@@ -14,6 +15,9 @@ pub mod run_dir;
 pub mod scene;
 
 pub use config::{Backbone, ModelConfig};
+pub use material_field::{
+    MaterialBackbone, MaterialConfig, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
+};
 pub use query::SceneQuery;
 pub use run_dir::{RunDir, RunInfo, StageProgress};
 pub use scene::{Beta, GroupSpec, LrClass, NeuralScene, ParamBlock, SceneGrads, SceneModule, Update};
