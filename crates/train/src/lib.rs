@@ -4,6 +4,7 @@
 
 pub mod config;
 pub mod driver;
+pub mod kmeans;
 pub mod losses;
 pub mod pdf_map;
 pub mod rays;

@@ -1,0 +1,341 @@
+//! K-means clustering of emitter points into the K emitters of stage 2 (paper Sec. "Emitter
+//! Semantic Field": the surface points that F_e marks are clustered by K-means, one learnable
+//! emission L[k] per cluster).
+//!
+//! Seeding is k-means++ (Arthur & Vassilvitskii 2007: each next centre drawn with probability
+//! proportional to D², the squared distance to the nearest centre so far), then Lloyd iterations;
+//! the best of a few restarts (lowest within-cluster sum of squares) is kept.
+//!
+//! K is chosen automatically unless configured: the smallest K whose clusters are all spatially
+//! compact, i.e. each cluster's points form one connected piece when points closer than a link
+//! distance are joined. Two lamps at opposite ends of a room are one cluster at K = 1 but not a
+//! connected one, so K grows until each lamp has its own; a single large ceiling panel is
+//! connected at K = 1 and stays one emitter (a criterion on the cluster's size alone would split
+//! it). Connected pieces holding fewer than a fraction of the points are dropped first, as stray
+//! positives of the emitter field.
+
+use rand::Rng;
+use std::collections::HashMap;
+
+/// One cluster of a clustering.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Cluster {
+    pub centre: [f64; 3],
+    /// Axis-aligned extent of its points (max − min per axis).
+    pub extent: [f64; 3],
+    /// Largest distance of one of its points from the centre.
+    pub radius: f64,
+    /// Indices of its points in the input.
+    pub members: Vec<usize>,
+}
+
+/// How emitter points are clustered.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ClusterSettings {
+    /// Fixed K, or `None` for the smallest K whose clusters are connected.
+    pub k: Option<usize>,
+    /// Largest K tried by the automatic choice.
+    pub max_k: usize,
+    /// Points closer than this are neighbours (same units as the points).
+    pub link: f64,
+    /// Clusters with fewer than this fraction of the points are dropped.
+    pub min_fraction: f64,
+    pub restarts: usize,
+    pub iterations: usize,
+}
+
+fn dist2(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
+}
+
+/// k-means++ seeding then Lloyd iterations; returns the centres and each point's label. `k` is
+/// clamped to the number of points.
+pub fn kmeans(points: &[[f64; 3]], k: usize, iterations: usize, rng: &mut impl Rng) -> (Vec<[f64; 3]>, Vec<usize>) {
+    let n = points.len();
+    let k = k.min(n);
+    if k == 0 {
+        return (Vec::new(), vec![0; n]);
+    }
+    // k-means++: D² weighting.
+    let mut centres = vec![points[rng.gen_range(0..n)]];
+    let mut d2: Vec<f64> = points.iter().map(|p| dist2(p, &centres[0])).collect();
+    while centres.len() < k {
+        let total: f64 = d2.iter().sum();
+        let next = if total > 0.0 {
+            let mut u = rng.gen::<f64>() * total;
+            let mut pick = n - 1;
+            for (i, &w) in d2.iter().enumerate() {
+                if u < w {
+                    pick = i;
+                    break;
+                }
+                u -= w;
+            }
+            pick
+        } else {
+            rng.gen_range(0..n)
+        };
+        let c = points[next];
+        for (p, d) in points.iter().zip(d2.iter_mut()) {
+            *d = d.min(dist2(p, &c));
+        }
+        centres.push(c);
+    }
+    let mut labels = vec![0usize; n];
+    for _ in 0..iterations.max(1) {
+        let mut changed = false;
+        for (p, l) in points.iter().zip(labels.iter_mut()) {
+            let best = (0..k)
+                .min_by(|&a, &b| dist2(p, &centres[a]).total_cmp(&dist2(p, &centres[b])))
+                .expect("k > 0");
+            changed |= best != *l;
+            *l = best;
+        }
+        let mut sum = vec![[0.0f64; 3]; k];
+        let mut count = vec![0usize; k];
+        for (p, &l) in points.iter().zip(&labels) {
+            for a in 0..3 {
+                sum[l][a] += p[a];
+            }
+            count[l] += 1;
+        }
+        for c in 0..k {
+            if count[c] > 0 {
+                centres[c] = sum[c].map(|s| s / count[c] as f64);
+            }
+        }
+        if !changed {
+            break;
+        }
+    }
+    (centres, labels)
+}
+
+/// Within-cluster sum of squared distances.
+pub fn inertia(points: &[[f64; 3]], centres: &[[f64; 3]], labels: &[usize]) -> f64 {
+    points.iter().zip(labels).map(|(p, &l)| dist2(p, &centres[l])).sum()
+}
+
+/// Connected components of the points when points closer than `link` are joined: a label per
+/// point and the number of components. A uniform grid of cell `link` finds each point's
+/// neighbours among 27 cells (linear in the points).
+pub fn components(points: &[[f64; 3]], link: f64) -> (Vec<usize>, usize) {
+    let cell = |p: &[f64; 3]| p.map(|v| (v / link).floor() as i64);
+    let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
+    for (i, p) in points.iter().enumerate() {
+        grid.entry(cell(p)).or_default().push(i);
+    }
+    let mut label = vec![usize::MAX; points.len()];
+    let l2 = link * link;
+    let mut count = 0;
+    let mut stack = Vec::new();
+    for start in 0..points.len() {
+        if label[start] != usize::MAX {
+            continue;
+        }
+        label[start] = count;
+        stack.push(start);
+        while let Some(i) = stack.pop() {
+            let c = cell(&points[i]);
+            for dx in -1..=1 {
+                for dy in -1..=1 {
+                    for dz in -1..=1 {
+                        let Some(list) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
+                            continue;
+                        };
+                        for &j in list {
+                            if label[j] == usize::MAX && dist2(&points[i], &points[j]) <= l2 {
+                                label[j] = count;
+                                stack.push(j);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        count += 1;
+    }
+    (label, count)
+}
+
+/// Are the points one connected piece at link distance `link`?
+pub fn is_connected(points: &[[f64; 3]], link: f64) -> bool {
+    points.len() <= 1 || components(points, link).1 == 1
+}
+
+fn best_of_restarts(
+    points: &[[f64; 3]],
+    k: usize,
+    settings: &ClusterSettings,
+    rng: &mut impl Rng,
+) -> (Vec<[f64; 3]>, Vec<usize>) {
+    let mut best: Option<(f64, Vec<[f64; 3]>, Vec<usize>)> = None;
+    for _ in 0..settings.restarts.max(1) {
+        let (c, l) = kmeans(points, k, settings.iterations, rng);
+        let e = inertia(points, &c, &l);
+        if best.as_ref().is_none_or(|b| e < b.0) {
+            best = Some((e, c, l));
+        }
+    }
+    let (_, c, l) = best.expect("one restart");
+    (c, l)
+}
+
+fn clusters_of(points: &[[f64; 3]], centres: &[[f64; 3]], labels: &[usize]) -> Vec<Cluster> {
+    (0..centres.len())
+        .map(|c| {
+            let members: Vec<usize> = (0..points.len()).filter(|&i| labels[i] == c).collect();
+            let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+            let mut radius = 0.0f64;
+            for &i in &members {
+                for a in 0..3 {
+                    lo[a] = lo[a].min(points[i][a]);
+                    hi[a] = hi[a].max(points[i][a]);
+                }
+                radius = radius.max(dist2(&points[i], &centres[c]).sqrt());
+            }
+            let extent = if members.is_empty() {
+                [0.0; 3]
+            } else {
+                [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]]
+            };
+            Cluster {
+                centre: centres[c],
+                extent,
+                radius,
+                members,
+            }
+        })
+        .collect()
+}
+
+/// Clusters emitter points into emitters (see the module comment). Returns the clusters kept,
+/// largest first, and the K that was chosen before small clusters were dropped.
+pub fn cluster_emitters(
+    all_points: &[[f64; 3]],
+    settings: &ClusterSettings,
+    rng: &mut impl Rng,
+) -> (Vec<Cluster>, usize) {
+    // Stray positives first: connected pieces with fewer than min_fraction of the points go.
+    let (piece, pieces) = components(all_points, settings.link);
+    let mut size = vec![0usize; pieces];
+    for &p in &piece {
+        size[p] += 1;
+    }
+    let min = (settings.min_fraction * all_points.len() as f64).ceil() as usize;
+    let kept: Vec<usize> = (0..all_points.len()).filter(|&i| size[piece[i]] >= min).collect();
+    let points: Vec<[f64; 3]> = kept.iter().map(|&i| all_points[i]).collect();
+    let points = &points[..];
+    if points.is_empty() {
+        return (Vec::new(), 0);
+    }
+    let (centres, labels, k) = match settings.k {
+        Some(k) => {
+            let (c, l) = best_of_restarts(points, k, settings, rng);
+            (c, l, k)
+        }
+        None => {
+            let mut chosen = None;
+            for k in 1..=settings.max_k.max(1) {
+                let (c, l) = best_of_restarts(points, k, settings, rng);
+                let compact = (0..c.len()).all(|ci| {
+                    let pts: Vec<[f64; 3]> = (0..points.len()).filter(|&i| l[i] == ci).map(|i| points[i]).collect();
+                    // A cluster too small to keep does not need to be connected.
+                    (pts.len() as f64) < settings.min_fraction * points.len() as f64
+                        || is_connected(&pts, settings.link)
+                });
+                let last = k == settings.max_k.max(1);
+                if compact || last {
+                    chosen = Some((c, l, k));
+                    break;
+                }
+            }
+            chosen.expect("at least K = 1 is tried")
+        }
+    };
+    let mut clusters: Vec<Cluster> = clusters_of(points, &centres, &labels)
+        .into_iter()
+        .filter(|c| !c.members.is_empty() && c.members.len() >= min)
+        .map(|mut c| {
+            c.members.iter_mut().for_each(|m| *m = kept[*m]);
+            c
+        })
+        .collect();
+    clusters.sort_by(|a, b| b.members.len().cmp(&a.members.len()));
+    (clusters, k)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_pcg::Pcg64;
+
+    fn blob(rng: &mut Pcg64, c: [f64; 3], half: [f64; 3], n: usize) -> Vec<[f64; 3]> {
+        (0..n)
+            .map(|_| std::array::from_fn(|a| c[a] + rng.gen_range(-half[a]..=half[a])))
+            .collect()
+    }
+
+    fn settings() -> ClusterSettings {
+        ClusterSettings {
+            k: None,
+            max_k: 8,
+            link: 0.15,
+            min_fraction: 0.01,
+            restarts: 4,
+            iterations: 50,
+        }
+    }
+
+    /// A ceiling panel (1.25 × 0.8 m) and a bulb 2 m away, like the default room: K = 2 is found,
+    /// the centres are the shapes' centres, and the panel is not split although it is large.
+    #[test]
+    fn finds_a_panel_and_a_bulb() {
+        let mut rng = Pcg64::seed_from_u64(3);
+        let mut pts = blob(&mut rng, [-0.6, 2.65, 0.0], [0.62, 0.0, 0.41], 3000);
+        pts.extend(blob(&mut rng, [-1.8, 1.8, -1.5], [0.1, 0.1, 0.1], 400));
+        // Stray positives far from both.
+        pts.extend(blob(&mut rng, [1.5, 0.3, 1.5], [0.01; 3], 5));
+        let (clusters, k) = cluster_emitters(&pts, &settings(), &mut rng);
+        assert_eq!(k, 2, "the stray points are dropped before clustering");
+        assert_eq!(clusters.len(), 2, "{clusters:?}");
+        let near = |c: &Cluster, p: [f64; 3]| dist2(&c.centre, &p).sqrt() < 0.05;
+        assert!(near(&clusters[0], [-0.6, 2.65, 0.0]) && clusters[0].members.len() == 3000);
+        assert!(near(&clusters[1], [-1.8, 1.8, -1.5]) && clusters[1].members.len() == 400);
+        assert!((clusters[0].extent[0] - 1.24).abs() < 0.02 && clusters[0].extent[1] == 0.0);
+        assert!(clusters[1].radius < 0.18);
+    }
+
+    #[test]
+    fn a_fixed_k_is_kept_and_d2_seeding_separates_blobs() {
+        let mut rng = Pcg64::seed_from_u64(5);
+        let mut pts = Vec::new();
+        for c in [[0.0, 0.0, 0.0], [5.0, 0.0, 0.0], [0.0, 5.0, 0.0], [0.0, 0.0, 5.0]] {
+            pts.extend(blob(&mut rng, c, [0.2; 3], 200));
+        }
+        let s = ClusterSettings {
+            k: Some(4),
+            ..settings()
+        };
+        let (clusters, k) = cluster_emitters(&pts, &s, &mut rng);
+        assert_eq!((k, clusters.len()), (4, 4));
+        assert!(clusters.iter().all(|c| c.members.len() == 200 && c.radius < 0.4));
+    }
+
+    #[test]
+    fn connectivity_follows_the_link_distance() {
+        let line: Vec<[f64; 3]> = (0..50).map(|i| [i as f64 * 0.1, 0.0, 0.0]).collect();
+        assert!(is_connected(&line, 0.11));
+        let mut gap = line.clone();
+        gap.push([10.0, 0.0, 0.0]);
+        assert!(!is_connected(&gap, 0.11));
+        assert!(is_connected(&[], 0.1) && is_connected(&[[1.0, 2.0, 3.0]], 0.1));
+    }
+
+    #[test]
+    fn no_points_no_emitters() {
+        let mut rng = Pcg64::seed_from_u64(0);
+        assert_eq!(cluster_emitters(&[], &settings(), &mut rng).0.len(), 0);
+    }
+}
