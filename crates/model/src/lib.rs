@@ -6,6 +6,7 @@
 //! ([`raycast`]).
 
 pub mod config;
+pub mod emitters;
 pub mod images;
 pub mod material_field;
 pub mod query;
@@ -15,6 +16,7 @@ pub mod run_dir;
 pub mod scene;
 
 pub use config::{Backbone, ModelConfig};
+pub use emitters::{Emitter, EmitterTable};
 pub use material_field::{
     MaterialBackbone, MaterialConfig, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
 };

@@ -435,7 +435,7 @@ mod tests {
                         &grad.mlp
                     };
                     let analytic: f64 = g.iter().zip(&v).map(|(a, b)| *a as f64 * *b as f64).sum();
-                    let mut at = |s: f32| {
+                    let at = |s: f32| {
                         let mut f2 = field.clone();
                         let p = if block == 0 {
                             &mut f2.grid.as_mut().unwrap().params
