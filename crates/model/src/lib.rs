@@ -8,6 +8,8 @@
 pub mod config;
 pub mod emitters;
 pub mod images;
+pub mod intrinsic;
+pub mod intrinsic_io;
 pub mod material_field;
 pub mod query;
 pub mod raycast;
@@ -17,6 +19,7 @@ pub mod scene;
 
 pub use config::{Backbone, ModelConfig};
 pub use emitters::{Emitter, EmitterTable};
+pub use intrinsic::{emitter_lights, rerender_view, FrozenScene, LabelledHit, NeuralMaterial, Radiometry, Transfer};
 pub use material_field::{
     MaterialBackbone, MaterialConfig, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
 };

@@ -122,8 +122,26 @@ impl RunDir {
     pub fn info_path(&self) -> PathBuf {
         self.root.join("run.json")
     }
+    /// Stage 1's checkpoint: the geometry, radiance and emitter fields (frozen afterwards).
     pub fn checkpoint_path(&self) -> PathBuf {
         self.root.join("checkpoint.safetensors")
+    }
+    /// Stage 2's checkpoint: material fields, emission table and its optimizer state. A file of
+    /// its own, so that stage 2 never rewrites the frozen stage-1 fields it stands on (and can be
+    /// run again from them).
+    pub fn stage2_checkpoint_path(&self) -> PathBuf {
+        self.root.join("stage2.safetensors")
+    }
+    /// The checkpoint of the stage with this key (`stage1`, `stage2`).
+    pub fn stage_checkpoint_path(&self, key: &str) -> PathBuf {
+        match key {
+            "stage2" => self.stage2_checkpoint_path(),
+            _ => self.checkpoint_path(),
+        }
+    }
+    /// `RUN/emitters.json`: stage 2's emitters in world units.
+    pub fn emitters_path(&self) -> PathBuf {
+        self.root.join("emitters.json")
     }
     pub fn log_path(&self) -> PathBuf {
         self.root.join("log.jsonl")

@@ -494,6 +494,12 @@ impl Parameters for AsParamsMut<'_> {
 }
 
 /// The metadata of a safetensors file without loading its tensors.
+/// The metadata of a checkpoint file (without reading its tensors into modules).
+pub fn checkpoint_metadata(path: &Path) -> Result<HashMap<String, String>, DataError> {
+    let bytes = std::fs::read(path).map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
+    safetensors_header(&bytes).map_err(|m| DataError::file(path, m))
+}
+
 fn safetensors_header(bytes: &[u8]) -> Result<HashMap<String, String>, String> {
     let (_, meta) =
         safetensors::SafeTensors::read_metadata(bytes).map_err(|e| format!("not a safetensors file: {e}"))?;

@@ -220,6 +220,23 @@ impl ParamGroup {
     }
 }
 
+/// The moments as checkpoint tensors `{prefix}.{group}.m` / `.v` (a resumed run continues bit for
+/// bit). Loading fills the moments of the groups already registered.
+impl crate::params::Parameters for Adam {
+    fn visit(&self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &[f32])) {
+        for g in &self.groups {
+            f(format!("{prefix}.{}.m", g.name), vec![g.m.len()], &g.m);
+            f(format!("{prefix}.{}.v", g.name), vec![g.v.len()], &g.v);
+        }
+    }
+    fn visit_mut(&mut self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &mut [f32])) {
+        for g in &mut self.groups {
+            f(format!("{prefix}.{}.m", g.name), vec![g.m.len()], &mut g.m);
+            f(format!("{prefix}.{}.v", g.name), vec![g.v.len()], &mut g.v);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -5,6 +5,7 @@
 
 use crate::schedule::{LossWeights, Schedule};
 use i2sdf_data::DataError;
+pub use i2sdf_model::material_field::{MaterialBackbone, MaterialConfig};
 pub use i2sdf_model::{Backbone, ModelConfig};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -18,6 +19,10 @@ pub struct TrainConfig {
     pub loss: LossWeights,
     pub schedule: Schedule,
     pub adaptive: AdaptiveConfig,
+    /// Stage 2: materials and emitters.
+    pub stage2: Stage2Config,
+    /// Stage 2's material fields.
+    pub material: MaterialConfig,
 }
 
 impl Default for TrainConfig {
@@ -29,6 +34,90 @@ impl Default for TrainConfig {
             loss: LossWeights::default(),
             schedule: Schedule::default(),
             adaptive: AdaptiveConfig::default(),
+            stage2: Stage2Config::default(),
+            material: MaterialConfig::default(),
+        }
+    }
+}
+
+/// Which Monte Carlo estimator of eq:render stage 2 fits the materials with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stage2Estimator {
+    /// Incident radiance traced once per cached pixel (frozen geometry, radiance and emitter
+    /// fields), the materials fitted against it: the default.
+    Cached,
+    /// The paper's: N fresh directions per pixel and iteration, importance-sampled from the
+    /// current materials, traced in the SDF every step (slow; the reference).
+    Live,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Stage2Config {
+    /// Stage-2 iterations.
+    pub iterations: u64,
+    /// Pixels per iteration.
+    pub pixels: usize,
+    pub estimator: Stage2Estimator,
+    /// Training pixels whose surface point, normal and incident radiance are cached (drawn
+    /// uniformly over the training views; 0 = every pixel).
+    pub cache_pixels: usize,
+    /// Incident-radiance samples per cached pixel.
+    pub cache_samples: usize,
+    /// N of the live estimator (the paper's 16).
+    pub samples: usize,
+    /// Sample the emitters too (one-sample MIS with the BRDF), for both estimators.
+    pub emitter_sampling: bool,
+    pub lr_grid: f32,
+    pub lr_mlp: f32,
+    /// Learning rate of log L[k].
+    pub lr_emission: f32,
+    /// Final learning rate as a fraction of the initial one (cosine decay).
+    pub lr_final_fraction: f32,
+    /// Weight of the smoothness term of eq:material (‖M(x) − M(x+ε)‖₂ per parameter).
+    pub smooth: f32,
+    /// Weight of the energy term of eq:material ((Kd + Ks − 1)₊).
+    pub energy: f32,
+    /// ε of the smoothness term, in normalized units.
+    pub smooth_epsilon: f32,
+    /// Number of emitters K (0 = automatic: the smallest K whose clusters are connected).
+    pub emitters: usize,
+    /// Largest K of the automatic choice.
+    pub max_emitters: usize,
+    /// Link distance of the connectedness test, in normalized units.
+    pub emitter_link: f32,
+    /// Connected pieces of emitter points with less than this fraction of them are dropped.
+    pub emitter_min_fraction: f32,
+    /// F_e above this marks an emitter.
+    pub emitter_threshold: f32,
+    /// Fit to the dataset's HDR images (× its exposure) where it has them, instead of the LDR ones.
+    pub use_hdr: bool,
+}
+
+impl Default for Stage2Config {
+    fn default() -> Self {
+        Stage2Config {
+            iterations: 1500,
+            pixels: 4096,
+            estimator: Stage2Estimator::Cached,
+            cache_pixels: 131_072,
+            cache_samples: 64,
+            samples: 16,
+            emitter_sampling: true,
+            lr_grid: 1e-2,
+            lr_mlp: 5e-3,
+            lr_emission: 5e-2,
+            lr_final_fraction: 0.1,
+            smooth: 0.05,
+            energy: 1.0,
+            smooth_epsilon: 0.01,
+            emitters: 0,
+            max_emitters: 16,
+            emitter_link: 0.05,
+            emitter_min_fraction: 0.01,
+            emitter_threshold: 0.5,
+            use_hdr: true,
         }
     }
 }
@@ -215,6 +304,31 @@ impl TrainConfig {
                 a.p_max, a.p_min
             ));
         }
+        let s2 = &self.stage2;
+        int("stage2.iterations", s2.iterations, 1, 100_000_000)?;
+        int("stage2.pixels", s2.pixels, 1, MAX_POINTS)?;
+        int("stage2.cache_pixels", s2.cache_pixels, 0, 1 << 26)?;
+        int("stage2.cache_samples", s2.cache_samples, 1, 4096)?;
+        int("stage2.samples", s2.samples, 1, 4096)?;
+        positive("stage2.lr_grid", s2.lr_grid, 1.0)?;
+        positive("stage2.lr_mlp", s2.lr_mlp, 1.0)?;
+        positive("stage2.lr_emission", s2.lr_emission, 1.0)?;
+        positive("stage2.lr_final_fraction", s2.lr_final_fraction, 1.0)?;
+        real("stage2.smooth", s2.smooth, 0.0, 1e4)?;
+        real("stage2.energy", s2.energy, 0.0, 1e4)?;
+        positive("stage2.smooth_epsilon", s2.smooth_epsilon, 1.0)?;
+        int("stage2.emitters", s2.emitters, 0, 64)?;
+        int("stage2.max_emitters", s2.max_emitters, 1, 64)?;
+        positive("stage2.emitter_link", s2.emitter_link, 2.0)?;
+        real("stage2.emitter_min_fraction", s2.emitter_min_fraction, 0.0, 0.5)?;
+        real("stage2.emitter_threshold", s2.emitter_threshold, 0.0, 1.0)?;
+        if s2.cache_pixels as u64 * s2.cache_samples as u64 > 1 << 27 {
+            return Err(format!(
+                "stage2.cache_pixels × stage2.cache_samples = {} × {}: at most 2^27 cached samples (4 GiB)",
+                s2.cache_pixels, s2.cache_samples
+            ));
+        }
+        self.material.check()?;
         self.model.validate()
     }
 
@@ -303,6 +417,10 @@ mod tests {
             ("sampling.samples=1", "sampling.samples"),
             ("adaptive.p_min=nan", "adaptive.p_min"),
             ("schedule.warmup_fraction=nan", "warmup_fraction"),
+            ("stage2.pixels=0", "stage2.pixels"),
+            ("stage2.smooth=-1", "stage2.smooth"),
+            ("stage2.emitter_threshold=2", "stage2.emitter_threshold"),
+            ("stage2.cache_samples=0", "stage2.cache_samples"),
         ] {
             let overrides = vec![set.to_string(), "train.iterations=5".to_string()];
             let e = TrainConfig::load(None, &overrides).expect_err(set).to_string();

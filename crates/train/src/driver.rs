@@ -181,7 +181,7 @@ pub fn drive<S: TrainStage>(
         });
         let now = trainer.stage.iteration();
         if now % every == 0 || trainer.done() {
-            trainer.save(&run.checkpoint_path())?;
+            trainer.save(&run.stage_checkpoint_path(key))?;
             let progress = info.stage_mut(key)?;
             progress.iterations = now;
             progress.seconds = base_seconds + session_start.elapsed().as_secs_f64();
@@ -393,7 +393,7 @@ mod tests {
         let mut b = Trainer::new(toy(20));
         drive(&part, &mut info, &mut b, OPTIONS, |_| {}).unwrap();
         assert!(!a.stage.x.iter().zip(&b.stage.x).all(|(p, q)| p == q));
-        let mut b = Trainer::new(resume(&part.checkpoint_path(), 30));
+        let mut b = Trainer::new(resume(&part.stage2_checkpoint_path(), 30));
         let mut info = part.read_info().unwrap();
         drive(&part, &mut info, &mut b, OPTIONS, |_| {}).unwrap();
         assert_eq!(a.stage.x, b.stage.x);
@@ -415,13 +415,13 @@ mod tests {
         assert_eq!(t.stage.iteration, 12 + MAX_NONFINITE_STREAK as u64);
         // Skipped steps count as iterations but leave the parameters alone: the checkpoints after
         // iteration 12 hold its parameters (the last at 30; the streak ended the run at 32).
-        let saved = resume(&run.checkpoint_path(), 100);
+        let saved = resume(&run.stage2_checkpoint_path(), 100);
         assert_eq!((saved.iteration, &saved.x), (30, &t.stage.x));
         let skipped = std::fs::read_to_string(run.log_path()).unwrap();
         assert!(skipped.lines().filter(|l| l.contains("\"loss\":null")).count() >= MAX_NONFINITE_STREAK as usize - 1);
         t.stage.x[0] = f32::NAN;
-        let e = t.save(&run.checkpoint_path()).unwrap_err();
+        let e = t.save(&run.stage2_checkpoint_path()).unwrap_err();
         assert!(e.to_string().contains("non-finite"));
-        assert_eq!(resume(&run.checkpoint_path(), 100).x, saved.x);
+        assert_eq!(resume(&run.stage2_checkpoint_path(), 100).x, saved.x);
     }
 }
