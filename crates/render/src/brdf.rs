@@ -407,10 +407,8 @@ mod tests {
             let d = if k % 4 < 2 {
                 let frame = Frame::from_normal(n);
                 let alpha = rho * rho;
-                let h = loop {
-                    let hl = Vec3::new(rng.gen_range(-2.0..2.0) * alpha, rng.gen_range(-2.0..2.0) * alpha, 1.0);
-                    break frame.to_world(hl.normalize());
-                };
+                let hl = Vec3::new(rng.gen_range(-2.0..2.0) * alpha, rng.gen_range(-2.0..2.0) * alpha, 1.0);
+                let h = frame.to_world(hl.normalize());
                 let d = reflect(v, h);
                 if n.dot(d) < 0.05 {
                     continue;
@@ -468,9 +466,8 @@ mod tests {
                 fd_ks[i] = (obj(kd64, ks64 + e, rho64) - obj(kd64, ks64 - e, rho64)) / 2e-4;
             }
             let ks_scale = fd_ks.iter().fold(1e-6f64, |a, x| a.max(x.abs()));
-            for i in 0..3 {
-                worst_ks =
-                    worst_ks.max((grad.ks[i] as f64 - fd_ks[i]).abs() / (ks_scale * (1.0 + 3.0 * f32_err / 1e-4)));
+            for (i, fd) in fd_ks.iter().enumerate() {
+                worst_ks = worst_ks.max((grad.ks[i] as f64 - fd).abs() / (ks_scale * (1.0 + 3.0 * f32_err / 1e-4)));
             }
             let step = 1e-6 * rho64;
             let fd_rho = (obj(kd64, ks64, rho64 + step) - obj(kd64, ks64, rho64 - step)) / (2.0 * step);

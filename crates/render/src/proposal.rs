@@ -119,7 +119,8 @@ impl DirectionMixture {
                 total += self.weights[i];
             }
         }
-        if !(total > 0.0) {
+        // Weights are finite and positive, so total is a number.
+        if total <= 0.0 {
             return None;
         }
         // Pick the lobe by inverting the cumulative active weights; the last active lobe takes
