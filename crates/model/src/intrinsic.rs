@@ -1,0 +1,690 @@
+//! The frozen stage-1 scene as stage 2 and the renderer see it (paper Sec. "Differentiable Monte
+//! Carlo Raytracing"), and the adapters that let the one Monte Carlo integrator of
+//! `i2sdf_render` re-render it.
+//!
+//! Stage 2 freezes F_d, F_c and F_e (paper Sec. "Training"). A traced ray's radiance is, by
+//! eq:radiance, L[index(trace(r))] when it hits an emitter — F_e(z(x)) above a threshold *and*
+//! index(x) some cluster ([`EmitterTable::index`]) — and the radiance field's Ĉ(r) otherwise.
+//! Here Ĉ is F_c evaluated at the cast hit (surface rendering of the frozen SDF) rather than
+//! volume-rendered along the ray: with a converged, small β the volume weights concentrate at the
+//! zero crossing, and one F_c query per ray instead of a hundred is what makes the millions of
+//! secondary rays of stage 2 affordable on the CPU.
+//!
+//! The adapters map the pieces onto the integrator's interfaces: [`FrozenScene`] is the
+//! [`Geometry`] (hits labelled 0 for ordinary surfaces, k + 1 for emitter k) and the
+//! [`RadianceField`]; [`NeuralMaterial`] is the [`Material`] (the material fields of
+//! eq:material's Kd, Ks, ρ); [`emitter_lights`] gives one [`ConeLight`] per emitter with L[k].
+//! [`rerender_view`] is eq:render: one scattering event at the camera's surface point with
+//! next-event estimation to every emitter and BRDF sampling, combined by MIS, the next hit taking
+//! L[k] or F_c.
+//!
+//! Radiometry: the integrator works in linear radiance in the units of the input images
+//! (DESIGN.md "Emitters and stage 2"); F_c is display-referred (trained on LDR pixels), so its
+//! values are linearized by the dataset's transfer ([`Radiometry`]).
+
+use crate::emitters::EmitterTable;
+use crate::material_field::{MaterialBackbone, MaterialField, MaterialInferWorkspace, MATERIAL_CHANNELS};
+use crate::query::SceneQuery;
+use crate::raycast::{CastSettings, Hit as CastHit, SdfCaster};
+use crate::scene::NeuralScene;
+use glam::{DVec3, Vec3};
+use i2sdf_data::imageio::{linear_to_srgb, srgb_to_linear};
+use i2sdf_data::Camera;
+use i2sdf_render::{
+    render_view, ConeLight, Estimator, Geometry, GgxBrdf, Hit as RenderHit, Integrator, Light, LightSet, Material,
+    RadianceField, Ray, Scene, SurfacePoint, ViewRender, ViewSettings,
+};
+use rayon::prelude::*;
+
+/// How display-referred values map to linear radiance in the units of the input images.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Transfer {
+    /// LDR = sRGB OETF(linear) (the default of LDR datasets).
+    Srgb,
+    /// The values are linear already.
+    Linear,
+}
+
+/// The dataset's radiometry: its transfer, and the exposure its LDR images were made with
+/// (LDR = transfer(exposure · HDR), so linear image units = exposure × physical radiance).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Radiometry {
+    pub transfer: Transfer,
+    pub exposure: Option<f64>,
+}
+
+impl Default for Radiometry {
+    fn default() -> Self {
+        Radiometry {
+            transfer: Transfer::Srgb,
+            exposure: None,
+        }
+    }
+}
+
+impl Radiometry {
+    /// Display-referred value (an LDR pixel, F_c's output) → linear radiance in image units.
+    #[inline]
+    pub fn linearize(&self, v: f32) -> f32 {
+        match self.transfer {
+            Transfer::Srgb => srgb_to_linear(v),
+            Transfer::Linear => v,
+        }
+    }
+
+    /// Linear radiance → display value for PNG outputs: the dataset's own tone mapping (clamp to
+    /// [0, 1], then the transfer's OETF), so a re-rendered image compares directly with the
+    /// dataset's photographs.
+    #[inline]
+    pub fn encode(&self, linear: f32) -> f32 {
+        match self.transfer {
+            Transfer::Srgb => linear_to_srgb(linear),
+            Transfer::Linear => linear.clamp(0.0, 1.0),
+        }
+    }
+
+    /// `"srgb"` or `"linear"` (case-insensitive); exposure, when given, must be positive.
+    pub fn from_name(transfer: &str, exposure: Option<f64>) -> Result<Self, String> {
+        let transfer = match transfer.to_ascii_lowercase().as_str() {
+            "srgb" => Transfer::Srgb,
+            "linear" => Transfer::Linear,
+            other => return Err(format!("transfer = {other:?}: must be \"srgb\" or \"linear\"")),
+        };
+        if let Some(x) = exposure {
+            if !(x.is_finite() && x > 0.0) {
+                return Err(format!("exposure = {x}: must be a finite positive number"));
+            }
+        }
+        Ok(Radiometry { transfer, exposure })
+    }
+}
+
+/// A ray's first surface hit in the frozen scene, labelled.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LabelledHit {
+    /// Distance along the unit direction, world units.
+    pub t: f32,
+    /// World position.
+    pub position: Vec3,
+    /// Outward unit normal (∇d/‖∇d‖, towards free space).
+    pub normal: Vec3,
+    /// The emitter the hit lies on: F_e(z(x)) > threshold and [`EmitterTable::index`] is some
+    /// cluster; `None` for ordinary surfaces.
+    pub emitter: Option<u32>,
+}
+
+/// The frozen stage-1 scene (F_d, F_c, F_e) with its emitter clusters, in world units.
+pub struct FrozenScene<'a> {
+    pub scene: &'a NeuralScene,
+    pub caster: SdfCaster<'a>,
+    pub emitters: &'a EmitterTable,
+    pub radiometry: Radiometry,
+    /// A hit is emitting where F_e(z(x)) exceeds this (F_e is a probability: 0.5).
+    pub emitter_threshold: f32,
+    /// World units by which each emitter's sphere is enlarged for index(x): traced hits on an
+    /// emitter lie a little off the clustered training points (other views, the cast's
+    /// tolerance). Default: 2 % of the scene's normalization scale.
+    pub index_margin: f64,
+}
+
+/// Points per block of the labelling and field queries (parallel tasks over blocks).
+const FROZEN_BLOCK: usize = 4096;
+
+impl<'a> FrozenScene<'a> {
+    pub fn new(scene: &'a NeuralScene, emitters: &'a EmitterTable, radiometry: Radiometry) -> Self {
+        FrozenScene {
+            scene,
+            caster: SdfCaster::new(scene, CastSettings::default()),
+            emitters,
+            radiometry,
+            emitter_threshold: 0.5,
+            index_margin: 0.02 * scene.normalization.scale,
+        }
+    }
+
+    fn centre(&self) -> Vec3 {
+        Vec3::from_array(self.scene.normalization.center.map(|v| v as f32))
+    }
+
+    fn scale(&self) -> f32 {
+        self.scene.normalization.scale as f32
+    }
+
+    /// World points → normalized frame (`[n×3]` flat).
+    fn to_normalized(&self, points_world: &[Vec3], out: &mut Vec<f32>) {
+        let (c, inv) = (self.centre(), 1.0 / self.scale());
+        out.clear();
+        out.extend(points_world.iter().flat_map(|p| ((*p - c) * inv).to_array()));
+    }
+
+    /// The caster's hits (normalized frame) of world rays.
+    fn cast_normalized(&self, rays: &[Ray]) -> Vec<CastHit> {
+        let (c, s) = (self.centre(), self.scale());
+        let origins: Vec<[f32; 3]> = rays.iter().map(|r| ((r.origin - c) / s).to_array()).collect();
+        let dirs: Vec<[f32; 3]> = rays.iter().map(|r| r.dir.to_array()).collect();
+        let t_min: Vec<f32> = rays.iter().map(|r| r.t_min / s).collect();
+        let t_max: Vec<f32> = rays.iter().map(|r| r.t_max / s).collect();
+        let mut hits = vec![CastHit::default(); rays.len()];
+        self.caster
+            .cast_segments(&origins, &dirs, Some(&t_min), &t_max, &mut hits);
+        hits
+    }
+
+    /// Casts world rays (origin, unit direction, t_min, t_max per ray) into the frozen SDF and
+    /// labels the hits with their emitter. Batched and rayon-parallel inside (the caster's
+    /// chunks; the labelling in blocks). F_e is queried only when the table has emitters.
+    pub fn cast(&self, rays: &[Ray], out: &mut [Option<LabelledHit>]) {
+        assert_eq!(rays.len(), out.len());
+        let s = self.scale();
+        let hits = self.cast_normalized(rays);
+        for ((o, h), r) in out.iter_mut().zip(&hits).zip(rays) {
+            *o = h.hit.then(|| LabelledHit {
+                t: h.t * s,
+                position: r.origin + h.t * s * r.dir,
+                normal: Vec3::from_array(h.normal),
+                emitter: None,
+            });
+        }
+        if self.emitters.is_empty() {
+            return;
+        }
+        let idx: Vec<usize> = (0..out.len()).filter(|&i| out[i].is_some()).collect();
+        let points: Vec<Vec3> = idx.iter().map(|&i| out[i].unwrap().position).collect();
+        let mut prob = vec![0.0; points.len()];
+        self.emitter_prob(&points, &mut prob);
+        for ((&i, p), x) in idx.iter().zip(&prob).zip(&points) {
+            if *p > self.emitter_threshold {
+                let h = out[i].as_mut().unwrap();
+                h.emitter = self.emitters.index(x.as_dvec3(), self.index_margin).map(|k| k as u32);
+            }
+        }
+    }
+
+    /// Runs `f(query, normalized points of the block, block index range)` over blocks of world
+    /// points in parallel, one [`SceneQuery`] per block.
+    fn blocks<T: Send>(
+        &self,
+        points_world: &[Vec3],
+        out: &mut [T],
+        per_point: usize,
+        f: impl Fn(&mut SceneQuery, &[f32], usize, &mut [T]) + Sync,
+    ) {
+        out[..points_world.len() * per_point]
+            .par_chunks_mut(FROZEN_BLOCK * per_point)
+            .zip(points_world.par_chunks(FROZEN_BLOCK))
+            .enumerate()
+            .for_each(|(b, (o, pts))| {
+                let mut q = SceneQuery::new(self.scene);
+                let mut norm = Vec::new();
+                self.to_normalized(pts, &mut norm);
+                f(&mut q, &norm, b * FROZEN_BLOCK, o);
+            });
+    }
+
+    /// Linear radiance (F_c linearized by `radiometry`) leaving world points back along −dir:
+    /// F_c with the ray direction as its view direction, as stage 1 trained it (camera ray
+    /// directions). `dirs` are unit.
+    pub fn surface_radiance(&self, points_world: &[Vec3], dirs: &[Vec3], out: &mut [Vec3]) {
+        assert!(dirs.len() == points_world.len() && out.len() >= points_world.len());
+        let rm = self.radiometry;
+        self.blocks(points_world, out, 1, |q, norm, start, o| {
+            let m = o.len();
+            let d: Vec<f32> = dirs[start..start + m].iter().flat_map(|d| d.to_array()).collect();
+            let mut rgb = vec![0.0; m * 3];
+            q.radiance_at(norm, &d, &mut rgb);
+            for (o, c) in o.iter_mut().zip(rgb.chunks_exact(3)) {
+                *o = Vec3::new(rm.linearize(c[0]), rm.linearize(c[1]), rm.linearize(c[2]));
+            }
+        });
+    }
+
+    /// F_e(z(x)) (probability) at world points.
+    pub fn emitter_prob(&self, points_world: &[Vec3], out: &mut [f32]) {
+        let fd = self.scene.feature_dim();
+        self.blocks(points_world, out, 1, |q, norm, _, o| {
+            let m = o.len();
+            let (mut d, mut z, mut g) = (vec![0.0; m], vec![0.0; m * fd], vec![0.0; m * 3]);
+            q.sdf_full(norm, &mut d, &mut z, &mut g);
+            q.emitter(&z, o);
+        });
+    }
+
+    /// The SDF feature z(x) at world points (`out`: `[n × feature_dim]`), for the FeatureMlp
+    /// material backbone.
+    pub fn features(&self, points_world: &[Vec3], out: &mut [f32]) {
+        let fd = self.scene.feature_dim();
+        self.blocks(points_world, out, fd, |q, norm, _, o| {
+            let m = o.len() / fd;
+            let (mut d, mut g) = (vec![0.0; m], vec![0.0; m * 3]);
+            q.sdf_full(norm, &mut d, o, &mut g);
+        });
+    }
+}
+
+/// The frozen SDF as the integrator's geometry: surface label 0 for ordinary surfaces, k + 1 for
+/// emitter k (what [`emitter_lights`]' light set maps back to L[k]); normals outward.
+impl Geometry for FrozenScene<'_> {
+    fn intersect(&self, rays: &[Ray], hits: &mut [Option<RenderHit>]) {
+        let mut labelled = vec![None; rays.len()];
+        self.cast(rays, &mut labelled);
+        for (o, h) in hits.iter_mut().zip(labelled) {
+            *o = h.map(|h| RenderHit {
+                t: h.t,
+                normal: h.normal,
+                surface: h.emitter.map_or(0, |k| k + 1),
+                prim: 0,
+            });
+        }
+    }
+
+    /// Shadow rays need no labels: any hit occludes (emitter hits of cone samples go through
+    /// `intersect`, as [`i2sdf_render::Visibility::FirstHit`] asks).
+    fn occluded(&self, rays: &[Ray], occluded: &mut [bool]) {
+        for (o, h) in occluded.iter_mut().zip(self.cast_normalized(rays)) {
+            *o = h.hit;
+        }
+    }
+}
+
+/// Ĉ of eq:radiance for rays that reach an ordinary surface: F_c at the hit, linearized.
+impl RadianceField for FrozenScene<'_> {
+    fn radiance_batch(&self, rays: &[Ray], hits: &[RenderHit], out: &mut [Vec3]) {
+        let points: Vec<Vec3> = rays.iter().zip(hits).map(|(r, h)| r.at(h.t)).collect();
+        let dirs: Vec<Vec3> = rays.iter().map(|r| r.dir).collect();
+        self.surface_radiance(&points, &dirs, out);
+    }
+}
+
+/// The material fields as the integrator's material: world positions → the normalized frame
+/// (and z(x) from the frozen SDF for the FeatureMlp backbone) → Kd, Ks, ρ → [`GgxBrdf`].
+pub struct NeuralMaterial<'a> {
+    pub field: &'a MaterialField,
+    pub frozen: &'a FrozenScene<'a>,
+}
+
+impl<'a> NeuralMaterial<'a> {
+    pub fn new(field: &'a MaterialField, frozen: &'a FrozenScene<'a>) -> Self {
+        NeuralMaterial { field, frozen }
+    }
+}
+
+impl Material for NeuralMaterial<'_> {
+    fn eval_batch(&self, points: &[SurfacePoint], out: &mut [GgxBrdf]) {
+        assert_eq!(points.len(), out.len());
+        let world: Vec<Vec3> = points.iter().map(|p| p.position).collect();
+        let mut norm = Vec::new();
+        self.frozen.to_normalized(&world, &mut norm);
+        let features = match self.field.config.backbone {
+            MaterialBackbone::FeatureMlp => {
+                let mut z = vec![0.0; world.len() * self.frozen.scene.feature_dim()];
+                self.frozen.features(&world, &mut z);
+                z
+            }
+            MaterialBackbone::HashGrid => Vec::new(),
+        };
+        let mut m = vec![0.0; world.len() * MATERIAL_CHANNELS];
+        self.field
+            .infer_with(&norm, &features, &mut MaterialInferWorkspace::default(), &mut m);
+        for (o, c) in out.iter_mut().zip(m.chunks_exact(MATERIAL_CHANNELS)) {
+            *o = GgxBrdf::new(Vec3::new(c[0], c[1], c[2]), Vec3::new(c[3], c[4], c[5]), c[6]);
+        }
+    }
+}
+
+/// One [`ConeLight`] per emitter (its bounding sphere about the centre, world units, and L[k]),
+/// with surface label k + 1 mapped to emitter k (label 0, ordinary surfaces, emits nothing).
+/// Hits labelled k lie within the sphere enlarged by the index margin; those outside the cone are
+/// still found by BRDF sampling, whose MIS weight is then 1 (the light pdf there is 0), so the
+/// estimate stays unbiased.
+pub fn emitter_lights(table: &EmitterTable) -> LightSet {
+    let lights: Vec<Box<dyn Light>> = table
+        .emitters
+        .iter()
+        .enumerate()
+        .map(|(k, e)| {
+            Box::new(ConeLight::new(
+                DVec3::from_array(e.centre).as_vec3(),
+                e.radius as f32,
+                table.emission(k),
+            )) as Box<dyn Light>
+        })
+        .collect();
+    let mut labels = vec![None];
+    labels.extend((0..table.len() as u32).map(Some));
+    LightSet::new(lights, labels)
+}
+
+/// Re-renders a view of the intrinsic scene (eq:render with eq:radiance): the camera ray's
+/// surface point is shaded with the material fields, one scattering event (max_depth 1), next-
+/// event estimation to every emitter and a GGX BRDF sample combined by MIS; the next hit takes
+/// L[k] on emitter k, else F_c (the last radiance slot of the result). Unbiased estimator. The
+/// camera's rays are world-space (`Camera::ray_generator`), as the frozen scene expects.
+pub fn rerender_view(
+    frozen: &FrozenScene,
+    material: &MaterialField,
+    cam: &Camera,
+    spp: u32,
+    seed: u64,
+    view: u32,
+    on_row: &(dyn Fn() + Sync),
+) -> ViewRender {
+    let lights = emitter_lights(frozen.emitters);
+    let nm = NeuralMaterial::new(material, frozen);
+    let scene = Scene {
+        geometry: frozen,
+        material: &nm,
+        lights: &lights,
+        radiance_field: Some(frozen),
+    };
+    let settings = ViewSettings {
+        spp,
+        seed,
+        view,
+        integrator: Integrator {
+            estimator: Estimator::UNBIASED,
+            max_depth: 1,
+        },
+    };
+    render_view(&scene, cam, &settings, on_row)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::emitters::Emitter;
+    use crate::material_field::MaterialConfig;
+    use glam::DMat4;
+    use i2sdf_data::Normalization;
+
+    /// The tiny inverted sphere, moved and scaled in the world (to exercise the transforms).
+    fn scene() -> NeuralScene {
+        let mut s = crate::scene::tiny_test_scene();
+        s.normalization = Normalization {
+            center: [1.0, -0.5, 2.0],
+            scale: 2.0,
+        };
+        s
+    }
+
+    /// The tiny scene's field crosses zero beyond the unit sphere in some directions (≈1.05 along
+    /// +z): trace a little further so that the room is closed.
+    fn settings() -> CastSettings {
+        CastSettings {
+            bound_radius: 1.5,
+            ..Default::default()
+        }
+    }
+
+    fn frozen_scene<'a>(s: &'a NeuralScene, t: &'a EmitterTable) -> FrozenScene<'a> {
+        let mut f = FrozenScene::new(s, t, Radiometry::default());
+        f.caster = SdfCaster::new(s, settings());
+        f
+    }
+
+    fn centre() -> Vec3 {
+        Vec3::new(1.0, -0.5, 2.0)
+    }
+
+    fn dirs(n: usize) -> Vec<Vec3> {
+        (0..n)
+            .map(|i| {
+                let (a, b) = (i as f32 * 2.399, (i as f32 + 0.5) / n as f32 * 2.0 - 1.0);
+                let r = (1.0 - b * b).sqrt();
+                Vec3::new(r * a.cos(), r * a.sin(), b)
+            })
+            .collect()
+    }
+
+    /// One emitter around where the +y ray from the centre meets the sphere.
+    fn table(s: &NeuralScene) -> EmitterTable {
+        let caster = SdfCaster::new(s, settings());
+        let mut h = [CastHit::default()];
+        caster.cast(&[[0.0; 3]], &[[0.0, 1.0, 0.0]], &[f32::INFINITY], &mut h);
+        assert!(h[0].hit);
+        let top = centre() + 2.0 * Vec3::from_array(h[0].point);
+        EmitterTable::new(
+            vec![Emitter {
+                centre: top.as_dvec3().to_array(),
+                extent: [0.6, 0.05, 0.6],
+                radius: 0.5,
+                points: 10,
+            }],
+            &[[4.0, 3.0, 2.0]],
+        )
+    }
+
+    fn rays(n: usize) -> Vec<Ray> {
+        dirs(n)
+            .into_iter()
+            .map(|d| Ray::new(centre() + Vec3::new(0.05, 0.0, -0.03), d, 0.0, f32::INFINITY))
+            .collect()
+    }
+
+    /// The labelled cast is the caster's hit in world units; with every point F_e-positive
+    /// (threshold below 0) the labels are exactly index(x) of the table, with the threshold
+    /// above 1 none; the Geometry adapter's surface labels are label + 1.
+    #[test]
+    fn labelled_cast_agrees_with_the_caster_and_the_table() {
+        let s = scene();
+        let t = table(&s);
+        let mut frozen = frozen_scene(&s, &t);
+        let rays = rays(500);
+        let caster = SdfCaster::new(&s, settings());
+        let o: Vec<[f32; 3]> = rays.iter().map(|r| ((r.origin - centre()) / 2.0).to_array()).collect();
+        let d: Vec<[f32; 3]> = rays.iter().map(|r| r.dir.to_array()).collect();
+        let mut reference = vec![CastHit::default(); rays.len()];
+        caster.cast(&o, &d, &vec![f32::INFINITY; rays.len()], &mut reference);
+        frozen.emitter_threshold = -1.0;
+        let mut hits = vec![None; rays.len()];
+        frozen.cast(&rays, &mut hits);
+        let mut geo = vec![None; rays.len()];
+        frozen.intersect(&rays, &mut geo);
+        let mut on_emitter = 0;
+        for (i, (h, r)) in hits.iter().zip(&reference).enumerate() {
+            let Some(h) = h else {
+                assert!(!r.hit);
+                continue;
+            };
+            assert!(r.hit && (h.t - 2.0 * r.t).abs() < 1e-4, "{h:?} vs {r:?}");
+            assert!((h.normal - Vec3::from_array(r.normal)).length() < 1e-5);
+            assert!((h.position - (centre() + 2.0 * Vec3::from_array(r.point))).length() < 1e-4);
+            let want = t.index(h.position.as_dvec3(), frozen.index_margin).map(|k| k as u32);
+            assert_eq!(h.emitter, want);
+            on_emitter += want.is_some() as usize;
+            let g = geo[i].unwrap();
+            assert_eq!(g.surface, h.emitter.map_or(0, |k| k + 1));
+            assert_eq!((g.t, g.normal), (h.t, h.normal));
+        }
+        assert!(on_emitter > 0 && on_emitter < 100, "{on_emitter} hits on the emitter");
+        frozen.emitter_threshold = 1.0;
+        frozen.cast(&rays, &mut hits);
+        assert!(hits.iter().flatten().all(|h| h.emitter.is_none()));
+        // Shadow rays: every ray from inside the closed sphere is blocked, short ones are not.
+        let mut occ = vec![false; rays.len()];
+        frozen.occluded(&rays, &mut occ);
+        assert_eq!(occ, reference.iter().map(|r| r.hit).collect::<Vec<_>>());
+        let short: Vec<Ray> = rays.iter().map(|r| Ray { t_max: 0.1, ..*r }).collect();
+        frozen.occluded(&short, &mut occ);
+        assert!(occ.iter().all(|o| !o));
+        // The light set follows the table.
+        let lights = emitter_lights(&t);
+        assert_eq!(lights.len(), 1);
+        let hit = |surface| RenderHit {
+            t: 1.0,
+            normal: Vec3::Y,
+            surface,
+            prim: 0,
+        };
+        assert_eq!(lights.emitter_of(&hit(0)), None);
+        assert_eq!(lights.emitter_of(&hit(1)), Some(0));
+    }
+
+    /// The field queries are the scene's queries at the normalized points, linearized; the
+    /// material adapter is the field's inference at the normalized points (both backbones).
+    #[test]
+    fn queries_and_material_match_the_fields() {
+        let s = scene();
+        let t = table(&s);
+        let frozen = FrozenScene::new(&s, &t, Radiometry::default());
+        let n = FROZEN_BLOCK + 11;
+        let pts: Vec<Vec3> = dirs(n).iter().map(|d| centre() + 1.2 * *d).collect();
+        let vd = dirs(n);
+        let mut lin = vec![Vec3::ZERO; n];
+        frozen.surface_radiance(&pts, &vd, &mut lin);
+        let norm: Vec<f32> = pts.iter().flat_map(|p| ((*p - centre()) / 2.0).to_array()).collect();
+        let flat_d: Vec<f32> = vd.iter().flat_map(|d| d.to_array()).collect();
+        let mut q = SceneQuery::new(&s);
+        let mut rgb = vec![0.0; n * 3];
+        q.radiance_at(&norm, &flat_d, &mut rgb);
+        for (l, c) in lin.iter().zip(rgb.chunks_exact(3)) {
+            assert!((l.x - srgb_to_linear(c[0])).abs() < 1e-5 && (l.z - srgb_to_linear(c[2])).abs() < 1e-5);
+        }
+        let fd = s.feature_dim();
+        let mut z = vec![0.0; n * fd];
+        frozen.features(&pts, &mut z);
+        let (mut d0, mut z0, mut g0) = (vec![0.0; n], vec![0.0; n * fd], vec![0.0; n * 3]);
+        q.sdf_full(&norm, &mut d0, &mut z0, &mut g0);
+        assert_eq!(z, z0);
+        let mut p = vec![0.0; n];
+        frozen.emitter_prob(&pts, &mut p);
+        let mut p0 = vec![0.0; n];
+        q.emitter(&z0, &mut p0);
+        assert_eq!(p, p0);
+        for backbone in [MaterialBackbone::HashGrid, MaterialBackbone::FeatureMlp] {
+            let cfg = MaterialConfig {
+                backbone,
+                hash_levels: 4,
+                hash_log2_table: 10,
+                hash_finest_resolution: 64,
+                hidden_dim: 16,
+                ..Default::default()
+            };
+            let mut field = MaterialField::new(&cfg, fd, 2);
+            field
+                .mlp
+                .params
+                .iter_mut()
+                .enumerate()
+                .for_each(|(i, v)| *v += 0.05 * (i as f32).sin());
+            let nm = NeuralMaterial::new(&field, &frozen);
+            let sp: Vec<SurfacePoint> = pts[..300]
+                .iter()
+                .map(|p| SurfacePoint {
+                    position: *p,
+                    normal: Vec3::Y,
+                    surface: 0,
+                    prim: 0,
+                })
+                .collect();
+            let mut brdf = vec![GgxBrdf::new(Vec3::ZERO, Vec3::ZERO, 1.0); 300];
+            nm.eval_batch(&sp, &mut brdf);
+            let mut m = vec![0.0; 300 * MATERIAL_CHANNELS];
+            field.infer(&norm[..900], &z[..300 * fd], &mut m);
+            for (b, c) in brdf.iter().zip(m.chunks_exact(MATERIAL_CHANNELS)) {
+                assert_eq!(b.kd, Vec3::new(c[0], c[1], c[2]));
+                assert_eq!((b.ks.y, b.rho), (c[4], c[6]));
+            }
+        }
+    }
+
+    fn camera() -> Camera {
+        let mut c2w = DMat4::IDENTITY;
+        c2w.w_axis = centre().as_dvec3().extend(1.0);
+        Camera {
+            width: 8,
+            height: 6,
+            fx: 6.0,
+            fy: 6.0,
+            cx: 4.0,
+            cy: 3.0,
+            c2w,
+        }
+    }
+
+    /// A radiance field that is 1 everywhere.
+    struct White;
+    impl RadianceField for White {
+        fn radiance_batch(&self, _: &[Ray], _: &[RenderHit], out: &mut [Vec3]) {
+            out.fill(Vec3::ONE);
+        }
+    }
+
+    /// A white furnace through the frozen geometry: inside the closed sphere, no emitters, every
+    /// secondary ray sees radiance 1, so a diffuse Kd = 0.5 surface reflects exactly 0.5 (cosine
+    /// sampling: each sample weighs Kd). Then the full re-render with the neural material, F_c
+    /// and one emitter gives finite, non-negative radiance with the emitter's part where the
+    /// camera sees it lit.
+    #[test]
+    fn rerender_is_a_furnace_and_finite() {
+        let s = scene();
+        let empty = EmitterTable::new(vec![], &[]);
+        let frozen = frozen_scene(&s, &empty);
+        let lights = emitter_lights(&empty);
+        let grey = i2sdf_render::ConstantMaterial::new(vec![GgxBrdf::new(Vec3::splat(0.5), Vec3::ZERO, 0.8)]);
+        let furnace = Scene {
+            geometry: &frozen,
+            material: &grey,
+            lights: &lights,
+            radiance_field: Some(&White),
+        };
+        let settings = ViewSettings {
+            spp: 4,
+            seed: 1,
+            view: 0,
+            integrator: Integrator {
+                estimator: Estimator::UNBIASED,
+                max_depth: 1,
+            },
+        };
+        let r = render_view(&furnace, &camera(), &settings, &|| {});
+        assert_eq!(r.emitters, 1);
+        assert!(r.depth.iter().all(|d| d.is_finite()), "the room is closed");
+        for l in &r.radiance {
+            assert!((*l - Vec3::splat(0.5)).abs().max_element() < 1e-3, "{l:?}");
+        }
+        let t = table(&s);
+        let mut frozen = frozen_scene(&s, &t);
+        // Every hit F_e-positive: the labels are the table's, so the emitter lights.
+        frozen.emitter_threshold = -1.0;
+        let field = MaterialField::new(
+            &MaterialConfig {
+                hash_levels: 4,
+                hash_log2_table: 10,
+                hash_finest_resolution: 64,
+                hidden_dim: 16,
+                ..Default::default()
+            },
+            s.feature_dim(),
+            3,
+        );
+        let rows = std::sync::atomic::AtomicUsize::new(0);
+        let on_row = || {
+            rows.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        };
+        let r = rerender_view(&frozen, &field, &camera(), 4, 7, 0, &on_row);
+        assert_eq!(rows.into_inner(), 6);
+        assert_eq!((r.width, r.height, r.emitters), (8, 6, 2));
+        assert!(r.radiance.iter().all(|l| l.is_finite() && l.min_element() >= 0.0));
+        assert!(r.radiance.iter().skip(1).step_by(2).any(|l| l.max_element() > 0.0));
+        assert!(
+            r.radiance.iter().step_by(2).any(|l| l.max_element() > 0.0),
+            "no light from L[0]"
+        );
+        assert!(
+            r.kd.iter().all(|k| (k.x - 0.5).abs() < 0.1),
+            "material maps from the field"
+        );
+    }
+
+    #[test]
+    fn radiometry() {
+        let r = Radiometry::from_name("sRGB", Some(2.0)).unwrap();
+        assert_eq!(r.transfer, Transfer::Srgb);
+        assert!((r.linearize(r.encode(0.2)) - 0.2).abs() < 1e-5);
+        let l = Radiometry::from_name("linear", None).unwrap();
+        assert_eq!((l.linearize(0.3), l.encode(1.7)), (0.3, 1.0));
+        assert!(Radiometry::default().encode(3.0) > 0.9999);
+        assert!(Radiometry::from_name("gamma", None).unwrap_err().contains("srgb"));
+        assert!(Radiometry::from_name("srgb", Some(-1.0)).is_err());
+    }
+}
