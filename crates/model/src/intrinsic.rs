@@ -674,6 +674,17 @@ mod tests {
             r.kd.iter().all(|k| (k.x - 0.5).abs() < 0.1),
             "material maps from the field"
         );
+        // The emitter's part is linear in L[0] (same seed, same paths); the field's part is not
+        // touched by it.
+        let mut t2 = t.clone();
+        t2.log_emission.iter_mut().for_each(|v| *v += 2f32.ln());
+        let mut frozen2 = frozen_scene(&s, &t2);
+        frozen2.emitter_threshold = -1.0;
+        let r2 = rerender_view(&frozen2, &field, &camera(), 4, 7, 0, &|| {});
+        for (px, px2) in r.radiance.chunks(2).zip(r2.radiance.chunks(2)) {
+            assert!((px2[0] - 2.0 * px[0]).abs().max_element() <= 1e-4 * (1.0 + px[0].max_element()));
+            assert_eq!(px2[1], px[1]);
+        }
     }
 
     #[test]
