@@ -3,6 +3,7 @@
 //! I/O are the data layer's (`i2sdf_data::{mesh, ply}`), re-exported here for convenience.
 
 pub mod image_metrics;
+pub mod intrinsic;
 pub mod kdtree;
 pub mod marching_cubes;
 pub mod mc_tables;
@@ -13,7 +14,8 @@ pub mod report;
 
 pub use i2sdf_data::ply::{read_ply, write_ply};
 pub use image_metrics::{depth_l1, normal_angular_l1, psnr, ssim, ImageRef};
+pub use intrinsic::{intrinsic_metrics, IntrinsicOptions};
 pub use marching_cubes::{marching_cubes, McGrid, McOptions};
 pub use mesh::TriangleMesh;
 pub use mesh_metrics::{mesh_metrics, visible_from_views, CullingView, MeshMetrics, MeshMetricsOptions, ObjectRecall};
-pub use report::{EvalReport, GeometryMetrics, MeshReport};
+pub use report::{EmitterMetrics, EvalReport, GeometryMetrics, MaterialMetrics, MeshReport, RerenderMetrics};

@@ -1,6 +1,7 @@
 //! The `eval` command's JSON (DESIGN.md "The command line"): every figure that cannot be computed
 //! is `null`, never absent. Extra keys beyond the contract: `geometry.mesh.per_object_recall`
-//! (with the dataset's object names and tags) and `geometry.thin_objects`.
+//! (with the dataset's object names and tags), `geometry.thin_objects`, `material.pixels` and
+//! `material.albedo_scale`, `emitters.emission` and `emitters.matches`.
 
 use crate::mesh_metrics::{GroupRecall, MeshMetrics};
 use i2sdf_data::dataset::ObjectInfo;
@@ -10,7 +11,9 @@ use serde::{Deserialize, Serialize};
 pub struct EvalReport {
     pub novel_view: NovelViewMetrics,
     pub geometry: GeometryMetrics,
+    pub rerender: RerenderMetrics,
     pub material: MaterialMetrics,
+    pub emitters: EmitterMetrics,
     pub relight: RelightMetrics,
     pub time_s: StageTimes,
 }
@@ -123,10 +126,58 @@ impl From<&MeshMetrics> for MeshReport {
     }
 }
 
+/// Stage 2's re-render of the test views (eq:render by the Monte Carlo integrator), tone-mapped
+/// with the dataset's own transfer, against the test LDR images: means over views.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RerenderMetrics {
+    pub psnr: Option<f64>,
+    pub ssim: Option<f64>,
+}
+
+/// Stage 2's material maps (from the pixel-centre rays of the test views) against the GT maps,
+/// over the pixels with GT that are not emitters and that the re-render hit, all test views
+/// pooled.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct MaterialMetrics {
+    /// PSNR (peak 1) of Kd against the GT albedo (both linear).
     pub albedo_psnr: Option<f64>,
+    /// The same after the per-channel least-squares scale `albedo_scale` (the albedo–lighting
+    /// scale ambiguity removed).
+    pub albedo_psnr_scaled: Option<f64>,
+    /// Mean |ρ − ρ_gt|.
     pub roughness_l1: Option<f64>,
+    /// s_c = Σ pred·gt / Σ pred², per channel, over all test views together.
+    pub albedo_scale: Option<[f64; 3]>,
+    /// Pixels compared (albedo).
+    pub pixels: Option<usize>,
+}
+
+/// The emitters stage 2 found (world units) and, where the dataset lists its GT emitters, how
+/// they match.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct EmitterMetrics {
+    pub count: Option<usize>,
+    /// Cluster centres, world units.
+    pub centres: Option<Vec<[f64; 3]>>,
+    /// L[k], RGB, linear image units (exposure × physical radiance).
+    pub emission: Option<Vec<[f64; 3]>>,
+    /// One per GT emitter; `null` when the dataset lists none.
+    pub matches: Option<Vec<EmitterMatch>>,
+}
+
+/// A GT emitter and the predicted emitter nearest to it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EmitterMatch {
+    pub name: String,
+    /// Index of the nearest predicted emitter (by the distance of its centre to the GT box, ties
+    /// by the distance to the box's centre); `null` when none was predicted.
+    pub predicted: Option<usize>,
+    /// Distance (world units) from that emitter's centre to the GT box, 0 inside.
+    pub distance: Option<f64>,
+    /// L[k] / (GT emission × exposure), per channel (exposure 1 when the dataset states none).
+    pub emission_ratio: Option<[f64; 3]>,
+    /// Σ_c L[k]_c / Σ_c (GT emission × exposure)_c.
+    pub emission_ratio_mean: Option<f64>,
 }
 
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -155,10 +206,12 @@ mod tests {
     use crate::mesh_metrics::ObjectRecall;
     use serde_json::Value;
 
-    const CONTRACT: [(&str, &[&str]); 5] = [
+    const CONTRACT: [(&str, &[&str]); 7] = [
         ("novel_view", &["psnr", "ssim", "lpips"]),
         ("geometry", &["depth_l1", "normal_angular_l1", "mesh"]),
-        ("material", &["albedo_psnr", "roughness_l1"]),
+        ("rerender", &["psnr", "ssim"]),
+        ("material", &["albedo_psnr", "albedo_psnr_scaled", "roughness_l1"]),
+        ("emitters", &["count", "centres"]),
         ("relight", &["psnr", "ssim"]),
         ("time_s", &["stage1", "stage2"]),
     ];
@@ -183,6 +236,37 @@ mod tests {
         }
         assert!(v["geometry"]["thin_objects"].is_null());
         assert!(v["geometry"].as_object().unwrap().contains_key("thin_objects"));
+        for key in ["emission", "matches"] {
+            assert!(v["emitters"].as_object().unwrap().contains_key(key), "emitters.{key}");
+            assert!(v["emitters"][key].is_null());
+        }
+    }
+
+    #[test]
+    fn stage2_sections_serialize() {
+        let mut report = EvalReport::default();
+        report.rerender.psnr = Some(21.5);
+        report.material.albedo_psnr_scaled = Some(18.0);
+        report.emitters = EmitterMetrics {
+            count: Some(1),
+            centres: Some(vec![[1.0, 2.0, 3.0]]),
+            emission: Some(vec![[4.0, 5.0, 6.0]]),
+            matches: Some(vec![EmitterMatch {
+                name: "lamp".into(),
+                predicted: Some(0),
+                distance: Some(0.0),
+                emission_ratio: Some([1.0, 1.0, 1.0]),
+                emission_ratio_mean: Some(1.0),
+            }]),
+        };
+        let json = report.to_json();
+        let v: Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(v["rerender"]["psnr"], 21.5);
+        assert!(v["rerender"]["ssim"].is_null());
+        assert_eq!(v["emitters"]["centres"][0][2], 3.0);
+        assert_eq!(v["emitters"]["matches"][0]["name"], "lamp");
+        let back: EvalReport = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, report);
     }
 
     #[test]
