@@ -180,6 +180,41 @@ fn render_bad_input_exits_2() {
 }
 
 #[test]
+fn render_stage2_maps_of_a_stage1_run_exit_2() {
+    let (_, _, run) = trained();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("renders");
+    for what in ["albedo", "rgb,rerender", "emission"] {
+        expect(
+            i2sdf(&["render", "--run", s(run), "--out", s(&out), "--what", what]),
+            2,
+            &["stage2.safetensors", "no stage 2"],
+        );
+    }
+    expect(
+        i2sdf(&["render", "--run", s(run), "--out", s(&out), "--what", "albedo,glitter"]),
+        2,
+        &["--what", "glitter"],
+    );
+    expect(
+        i2sdf(&[
+            "render",
+            "--run",
+            s(run),
+            "--out",
+            s(&out),
+            "--what",
+            "rgb",
+            "--spp",
+            "0",
+        ]),
+        2,
+        &["--spp"],
+    );
+    assert!(!out.exists(), "a refused render created {}", out.display());
+}
+
+#[test]
 fn eval_bad_input_exits_2() {
     let (_, data, run) = trained();
     let dir = tempfile::tempdir().unwrap();

@@ -84,6 +84,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         split: "test".into(),
         what: "rgb,depth,normal,emitter".into(),
         data: Some(scene.clone()),
+        spp: 64,
     })?;
     eprintln!("== 5/5 evaluate");
     eval::run(eval::Args {
@@ -92,6 +93,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         out: args.out.join("metrics.json"),
         mesh_resolution: resolution,
         threshold: 0.05,
+        spp: 64,
     })?;
     Ok(())
 }

@@ -1,9 +1,13 @@
 //! `i2sdf eval --run RUN --data SCENE --out METRICS.json`: the DESIGN.md metrics JSON (every
-//! figure that cannot be computed is null). Also writes the extracted mesh beside the JSON.
+//! figure that cannot be computed is null). Also writes the extracted mesh beside the JSON. With
+//! stage 2 (`RUN/stage2.safetensors`) it fills `rerender`, `material` and `emitters` from a Monte
+//! Carlo re-render of the test views (`--spp` paths per pixel); without, they stay null.
 
 use clap::Args as ClapArgs;
-use i2sdf_data::imageio;
+use i2sdf_data::{imageio, Split};
+use i2sdf_eval::intrinsic::{intrinsic_metrics_with_progress, IntrinsicOptions};
 use i2sdf_eval::neural::{evaluate, EvalOptions};
+use indicatif::ProgressBar;
 use std::path::PathBuf;
 
 #[derive(ClapArgs)]
@@ -21,6 +25,9 @@ pub struct Args {
     /// F-score threshold in scene (world) units.
     #[arg(long, default_value_t = 0.05)]
     pub threshold: f64,
+    /// Paths per pixel of stage 2's re-render of the test views.
+    #[arg(long, default_value_t = 64)]
+    pub spp: u32,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -31,7 +38,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ))
         .into());
     }
-    let (scene, info) = super::load_run(&args.run)?;
+    if args.spp == 0 {
+        return Err(i2sdf_data::DataError::invalid("--spp 0: must be at least 1").into());
+    }
+    let (scene, fields, info) = super::load_run_intrinsic(&args.run)?;
     let dataset = i2sdf_data::load(&args.data)?;
     let mut options = EvalOptions {
         mesh_resolution: args.mesh_resolution,
@@ -40,6 +50,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     options.mesh.threshold = args.threshold;
     let (mut report, mesh) = evaluate(&scene, &dataset, &dataset.bounds, &options)?;
+    if let Some(fields) = &fields {
+        let intrinsic = IntrinsicOptions {
+            spp: args.spp,
+            emitter_threshold: super::run_emitter_threshold(&args.run)?,
+            ..Default::default()
+        };
+        let rows: usize = dataset.split(Split::Test).map(|f| f.camera.height).sum();
+        let bar = ProgressBar::new(rows as u64).with_message("stage 2 re-render");
+        let (rerender, material, emitters) =
+            intrinsic_metrics_with_progress(&scene, fields, &dataset, &intrinsic, &|| bar.inc(1))?;
+        bar.finish_and_clear();
+        report.rerender = rerender;
+        report.material = material;
+        report.emitters = emitters;
+    }
     report.time_s.stage1 = (info.stage1.iterations > 0).then_some(info.stage1.seconds);
     report.time_s.stage2 = info.stage2.filter(|s| s.iterations > 0).map(|s| s.seconds);
     let json = report.to_json();

@@ -31,6 +31,38 @@ pub fn load_run(
     Ok((scene, info))
 }
 
+/// A trained run's stage-1 scene, its stage-2 fields where `RUN/stage2.safetensors` exists, and
+/// its run info.
+pub fn load_run_intrinsic(
+    run: &std::path::Path,
+) -> Result<
+    (
+        i2sdf_model::NeuralScene,
+        Option<i2sdf_model::intrinsic_io::IntrinsicFields>,
+        i2sdf_model::RunInfo,
+    ),
+    i2sdf_data::DataError,
+> {
+    let dir = i2sdf_model::RunDir::new(run);
+    let info = dir.read_info()?;
+    let (scene, fields) = i2sdf_model::intrinsic_io::load_run(&dir)?;
+    Ok((scene, fields, info))
+}
+
+/// The bad-input error for a stage-2 output asked of a run without stage 2.
+pub fn no_stage2(run: &std::path::Path) -> i2sdf_data::DataError {
+    i2sdf_data::DataError::file(
+        i2sdf_model::RunDir::new(run).stage2_checkpoint_path(),
+        "no stage 2: train --stage material first",
+    )
+}
+
+/// The F_e threshold stage 2 labelled its emitters with (the run's `stage2.emitter_threshold`).
+pub fn run_emitter_threshold(run: &std::path::Path) -> Result<f32, i2sdf_data::DataError> {
+    let config = i2sdf_train::driver::read_run_config(&i2sdf_model::RunDir::new(run))?;
+    Ok(config.stage2.emitter_threshold)
+}
+
 /// The volume renderer's settings the run was trained with (its `[sampling]` section), so
 /// `render` and `eval` see what training saw.
 pub fn run_render_settings(

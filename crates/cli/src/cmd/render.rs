@@ -1,11 +1,19 @@
 //! `i2sdf render --run RUN --out DIR`: renders the dataset's views with the trained fields:
 //! `rgb/NAME.png` (LDR as the dataset stores it), `depth/NAME.exr` (z-depth, world units) with a
 //! `depth/NAME.png` preview, `normal/NAME.exr` (world-space) with a `normal/NAME.png` preview
-//! ((n + 1)/2), `emitter/NAME.png` (probability).
+//! ((n + 1)/2), `emitter/NAME.png` (probability). With stage 2 (`RUN/stage2.safetensors`), from
+//! one Monte Carlo re-render per view (`--spp` paths per pixel): `albedo/NAME.exr` (Kd, linear)
+//! with an sRGB-encoded `albedo/NAME.png`, `specular/` (Ks) likewise, `roughness/NAME.exr` and
+//! `.png` (ρ as is), `emission/NAME.exr` (L[k] where the pixel sees emitter k, else 0; linear
+//! image units) with a `.png` tone-mapped as the dataset's images, `rerender/NAME.exr` (linear
+//! HDR, image units) with `rerender/NAME.png` in the dataset's tone mapping (compares with its
+//! PNGs).
 
 use clap::Args as ClapArgs;
 use i2sdf_data::{imageio, DataError, ImageF32, Split};
+use i2sdf_eval::intrinsic::{emission_map, encode_image, frozen_scene, rerender_hdr, rgb_map};
 use i2sdf_model::images::render_volume_view;
+use i2sdf_model::rerender_view;
 use indicatif::ProgressBar;
 use std::path::PathBuf;
 
@@ -18,60 +26,121 @@ pub struct Args {
     /// Which views: test or train.
     #[arg(long, default_value = "test")]
     pub split: String,
-    /// Comma-separated maps: rgb, depth, normal, emitter.
+    /// Comma-separated maps: rgb, depth, normal, emitter (stage 1); albedo, specular, roughness,
+    /// emission, rerender (stage 2).
     #[arg(long, default_value = "rgb,depth,normal,emitter")]
     pub what: String,
+    /// Paths per pixel of the stage-2 re-render (albedo, specular, roughness, emission, rerender).
+    #[arg(long, default_value_t = 64)]
+    pub spp: u32,
     /// Dataset (defaults to the one the run was trained on).
     #[arg(long)]
     pub data: Option<PathBuf>,
 }
 
+/// Maps of stage 1 (the volume renderer) and of stage 2 (one re-render per view).
 const MAPS: [&str; 4] = ["rgb", "depth", "normal", "emitter"];
+const STAGE2_MAPS: [&str; 5] = ["albedo", "specular", "roughness", "emission", "rerender"];
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let split = Split::parse(&args.split)
         .ok_or_else(|| DataError::invalid(format!("--split {}: expected train or test", args.split)))?;
     let what: Vec<&str> = args.what.split(',').map(str::trim).filter(|s| !s.is_empty()).collect();
     for w in &what {
-        if !MAPS.contains(w) {
+        if !MAPS.contains(w) && !STAGE2_MAPS.contains(w) {
             return Err(DataError::invalid(format!(
-                "--what {w}: not available (available: {}; albedo and roughness come with stage 2)",
-                MAPS.join(", ")
+                "--what {w}: not available (available: {}, {})",
+                MAPS.join(", "),
+                STAGE2_MAPS.join(", ")
             ))
             .into());
         }
     }
-    let (scene, info) = super::load_run(&args.run)?;
+    if args.spp == 0 {
+        return Err(DataError::invalid("--spp 0: must be at least 1").into());
+    }
+    let stage1 = what.iter().any(|w| MAPS.contains(w));
+    let stage2 = what.iter().any(|w| STAGE2_MAPS.contains(w));
+    let (scene, fields, info) = super::load_run_intrinsic(&args.run)?;
+    let fields = match (stage2, fields) {
+        (true, None) => return Err(super::no_stage2(&args.run).into()),
+        (true, f) => f,
+        (false, _) => None,
+    };
     let data = args.data.clone().unwrap_or_else(|| PathBuf::from(&info.data));
     let dataset = i2sdf_data::load(&data)?;
     let frames: Vec<_> = dataset.split(split).collect();
     let settings = super::run_render_settings(&args.run)?;
-    let bar = ProgressBar::new(frames.len() as u64);
-    for f in frames {
-        let v = render_volume_view(&scene, &settings, &f.camera);
-        let dir = |m: &str| args.out.join(m);
-        if what.contains(&"rgb") {
-            imageio::write_png(&dir("rgb").join(format!("{}.png", f.name)), &v.rgb)?;
+    let threshold = if stage2 {
+        super::run_emitter_threshold(&args.run)?
+    } else {
+        0.5
+    };
+    let frozen = fields.as_ref().map(|f| frozen_scene(&scene, f, threshold));
+    let rows: usize = frames.iter().map(|f| f.camera.height).sum();
+    let passes = stage1 as usize + stage2 as usize;
+    let bar = ProgressBar::new((rows * passes) as u64);
+    let wants = |m: &str| what.contains(&m);
+    let file = |m: &str, name: &str, ext: &str| args.out.join(m).join(format!("{name}.{ext}"));
+    for (view, f) in frames.iter().enumerate() {
+        if stage1 {
+            let v = render_volume_view(&scene, &settings, &f.camera);
+            if wants("rgb") {
+                imageio::write_png(&file("rgb", &f.name, "png"), &v.rgb)?;
+            }
+            if wants("depth") {
+                imageio::write_exr(&file("depth", &f.name, "exr"), &v.depth)?;
+                imageio::write_png(&file("depth", &f.name, "png"), &depth_preview(&v.depth))?;
+            }
+            if wants("normal") {
+                imageio::write_exr(&file("normal", &f.name, "exr"), &v.normal)?;
+                let mut vis = v.normal.clone();
+                vis.data.iter_mut().for_each(|x| *x = 0.5 * (*x + 1.0));
+                imageio::write_png(&file("normal", &f.name, "png"), &vis)?;
+            }
+            if wants("emitter") {
+                imageio::write_png(&file("emitter", &f.name, "png"), &v.emitter)?;
+            }
+            bar.inc(f.camera.height as u64);
         }
-        if what.contains(&"depth") {
-            imageio::write_exr(&dir("depth").join(format!("{}.exr", f.name)), &v.depth)?;
-            imageio::write_png(&dir("depth").join(format!("{}.png", f.name)), &depth_preview(&v.depth))?;
+        if let (Some(frozen), Some(fields)) = (&frozen, &fields) {
+            let v = rerender_view(frozen, &fields.material, &f.camera, args.spp, 0, view as u32, &|| {
+                bar.inc(1)
+            });
+            let radiometry = &fields.radiometry;
+            let srgb = |img: &ImageF32| {
+                let mut out = img.clone();
+                out.data.iter_mut().for_each(|x| *x = imageio::linear_to_srgb(*x));
+                out
+            };
+            for (m, values) in [("albedo", &v.kd), ("specular", &v.ks)] {
+                if wants(m) {
+                    let img = rgb_map(v.width, v.height, values);
+                    imageio::write_exr(&file(m, &f.name, "exr"), &img)?;
+                    imageio::write_png(&file(m, &f.name, "png"), &srgb(&img))?;
+                }
+            }
+            if wants("roughness") {
+                let img = ImageF32::from_data(v.width, v.height, 1, v.roughness.clone());
+                imageio::write_exr(&file("roughness", &f.name, "exr"), &img)?;
+                imageio::write_png(&file("roughness", &f.name, "png"), &img)?;
+            }
+            if wants("emission") {
+                let img = emission_map(&v, &f.camera, &fields.emitters, frozen.index_margin);
+                imageio::write_exr(&file("emission", &f.name, "exr"), &img)?;
+                imageio::write_png(&file("emission", &f.name, "png"), &encode_image(&img, radiometry))?;
+            }
+            if wants("rerender") {
+                let img = rerender_hdr(&v);
+                imageio::write_exr(&file("rerender", &f.name, "exr"), &img)?;
+                imageio::write_png(&file("rerender", &f.name, "png"), &encode_image(&img, radiometry))?;
+            }
         }
-        if what.contains(&"normal") {
-            imageio::write_exr(&dir("normal").join(format!("{}.exr", f.name)), &v.normal)?;
-            let mut vis = v.normal.clone();
-            vis.data.iter_mut().for_each(|x| *x = 0.5 * (*x + 1.0));
-            imageio::write_png(&dir("normal").join(format!("{}.png", f.name)), &vis)?;
-        }
-        if what.contains(&"emitter") {
-            imageio::write_png(&dir("emitter").join(format!("{}.png", f.name)), &v.emitter)?;
-        }
-        bar.inc(1);
     }
     bar.finish();
     println!(
         "rendered {} {} views into {}",
-        bar.position(),
+        frames.len(),
         split.name(),
         args.out.display()
     );
