@@ -109,6 +109,14 @@ pub struct Normalization {
 }
 
 impl Normalization {
+    /// The same transform up to JSON round-off (serde_json's float parsing may move the last
+    /// bit): what a run directory's stored normalization is checked against.
+    pub fn same_as(&self, other: &Normalization) -> bool {
+        let tol = 1e-9 * self.scale.abs().max(other.scale.abs()).max(1e-300);
+        (self.scale - other.scale).abs() <= tol
+            && self.center.iter().zip(&other.center).all(|(a, b)| (a - b).abs() <= tol)
+    }
+
     pub fn to_normalized(&self, p: DVec3) -> DVec3 {
         (p - DVec3::from(self.center)) / self.scale
     }

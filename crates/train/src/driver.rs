@@ -7,6 +7,7 @@
 
 use crate::config::TrainConfig;
 use crate::stage1::{Stage1, StepStats};
+use crate::stage2::{radiometry, target_views, Stage2, Stage2Stats};
 use i2sdf_data::{DataError, Dataset};
 use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::run_dir::{RunDir, RunInfo};
@@ -226,7 +227,7 @@ pub fn open_run(
         };
         let info = run.read_info()?;
         if let Some(n) = info.normalization {
-            if n != dataset.normalization {
+            if !n.same_as(&dataset.normalization) {
                 return Err(DataError::invalid(format!(
                     "{}: the dataset's normalization differs from the run's: is this the same dataset?",
                     run.info_path().display()
@@ -277,6 +278,78 @@ pub fn train_geometry(
     };
     let mut trainer = Trainer::new(stage);
     drive(run, &mut info, &mut trainer, options, on_event)?;
+    Ok(trainer.stage)
+}
+
+/// Runs (or resumes) stage 2 on a run whose stage 1 has finished: the frozen fields come from
+/// its checkpoint, the configuration is the run's own unless `config` is given (the CLI applies
+/// `--set` overrides on top of it). Refused, as bad input, when stage 1 has not finished, or
+/// when stage 2 has a checkpoint already and `resume` is not set. Writes `RUN/emitters.json`
+/// once the emitters are clustered and again at the end. `progress` hears the slow setup steps.
+pub fn train_materials(
+    run: &RunDir,
+    dataset: &Dataset,
+    config: Option<TrainConfig>,
+    resume: bool,
+    progress: &dyn Fn(&str),
+    on_event: impl FnMut(Event<Stage2Stats>),
+) -> Result<Stage2, DataError> {
+    if !run.exists() || !run.checkpoint_path().is_file() {
+        return Err(DataError::file(
+            &run.root,
+            "holds no stage-1 run: train --stage geometry (or --stage all) first",
+        ));
+    }
+    let mut info = run.read_info()?;
+    if !info.stage("stage1").is_some_and(|s| s.done) {
+        return Err(DataError::file(
+            run.info_path(),
+            "stage 1 has not finished: resume it with train --stage geometry --resume first",
+        ));
+    }
+    if let Some(n) = info.normalization {
+        if !n.same_as(&dataset.normalization) {
+            return Err(DataError::invalid(format!(
+                "{}: the dataset's normalization differs from the run's: is this the same dataset?",
+                run.info_path().display()
+            )));
+        }
+    }
+    let ckpt = run.stage2_checkpoint_path();
+    if ckpt.is_file() && !resume {
+        return Err(DataError::file(
+            &ckpt,
+            "stage 2 has a checkpoint already: use --resume to continue it (or delete the file to start over)",
+        ));
+    }
+    if resume && !ckpt.is_file() && info.stage("stage2").is_some_and(|s| s.iterations > 0) {
+        return Err(DataError::file(&ckpt, "missing: no stage-2 checkpoint to resume from"));
+    }
+    let config = match config {
+        Some(c) => c,
+        None => read_run_config(run)?,
+    };
+    run.write_config_toml(&config.to_toml())?;
+    let (scene, _) = i2sdf_model::NeuralScene::load(&run.checkpoint_path())?;
+    let views = target_views(dataset, config.stage2.use_hdr);
+    let rm = radiometry(dataset);
+    let options = DriveOptions {
+        checkpoint_every: config.train.checkpoint_every,
+        log_every: config.train.log_every,
+    };
+    let stage = if resume && ckpt.is_file() {
+        Stage2::resume(config, scene, &views, rm, &ckpt, progress)?
+    } else {
+        Stage2::new(config, scene, &views, rm, None, progress)?
+    };
+    stage.fields.emitters.write_json(&run.emitters_path(), rm.exposure)?;
+    let mut trainer = Trainer::new(stage);
+    drive(run, &mut info, &mut trainer, options, on_event)?;
+    trainer
+        .stage
+        .fields
+        .emitters
+        .write_json(&run.emitters_path(), rm.exposure)?;
     Ok(trainer.stage)
 }
 

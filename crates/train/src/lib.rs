@@ -9,4 +9,6 @@ pub mod losses;
 pub mod pdf_map;
 pub mod rays;
 pub mod schedule;
+pub mod shading;
 pub mod stage1;
+pub mod stage2;

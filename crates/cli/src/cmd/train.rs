@@ -1,10 +1,10 @@
-//! `i2sdf train`: stage 1 (geometry, radiance, emitter fields) with a progress bar; the loop,
-//! checkpoints and logs live in `i2sdf_train::driver`.
+//! `i2sdf train`: stage 1 (geometry, radiance, emitter fields), stage 2 (materials, emitters) or
+//! both, with a progress bar; the loops, checkpoints and logs live in `i2sdf_train::driver`.
 
 use clap::{Args as ClapArgs, ValueEnum};
 use i2sdf_model::RunDir;
 use i2sdf_train::config::TrainConfig;
-use i2sdf_train::driver::{train_geometry, Event};
+use i2sdf_train::driver::{train_geometry, train_materials, Event, TrainStage};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -13,6 +13,11 @@ use std::time::Instant;
 pub enum Stage {
     /// Stage 1: SDF, radiance and emitter fields (paper Sec. 3–4.2).
     Geometry,
+    /// Stage 2 on a finished stage-1 run: K-means emitters and their emission, GGX material
+    /// fields (paper Sec. 4.2–5).
+    Material,
+    /// Stage 1, then stage 2.
+    All,
 }
 
 #[derive(ClapArgs)]
@@ -29,7 +34,7 @@ pub struct Args {
     /// Override a configuration value, e.g. --set train.iterations=2000 (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
-    /// Which stage to train (stage 2, materials, is not available yet).
+    /// Which stage to train.
     #[arg(long, value_enum, default_value = "geometry")]
     pub stage: Stage,
     /// Continue the run in --out from its last checkpoint.
@@ -53,6 +58,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         } else {
             Some(TrainConfig::load(Some(&run.config_path()), &args.set)?)
         }
+    } else if args.stage == Stage::Material && args.config.is_none() {
+        // Stage 2 continues a run: its own configuration, with --set on top.
+        if !run.config_path().is_file() {
+            anyhow::bail!(i2sdf_data::DataError::file(
+                &run.root,
+                "holds no stage-1 run: train --stage geometry (or --stage all) first"
+            ));
+        }
+        Some(TrainConfig::load(Some(&run.config_path()), &args.set)?)
     } else {
         Some(TrainConfig::load(args.config.as_deref(), &args.set)?)
     };
@@ -65,60 +79,148 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     eprintln!("loading {}", args.data.display());
     let dataset = i2sdf_data::load(&args.data)?;
-    let bar = ProgressBar::new(0);
-    bar.set_style(
-        ProgressStyle::with_template("{spinner} stage 1 [{bar:30}] {pos}/{len} {msg} ({elapsed} < {eta})")
+    let bar = |label: &str| {
+        let bar = ProgressBar::new(0);
+        bar.set_style(
+            ProgressStyle::with_template(&format!(
+                "{{spinner}} {label} [{{bar:30}}] {{pos}}/{{len}} {{msg}} ({{elapsed}} < {{eta}})"
+            ))
             .expect("valid template")
             .progress_chars("=> "),
-    );
-    if args.quiet {
-        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
-    }
-    let start = Instant::now();
-    let mut first = 0;
-    let stage = train_geometry(
-        &run,
-        &dataset,
-        &args.data.display().to_string(),
-        config,
-        args.resume,
-        |e| match e {
-            Event::Started { iteration, total, .. } => {
-                first = iteration;
-                bar.set_length(total);
-                bar.set_position(iteration);
-            }
-            Event::Pause(what) => bar.set_message(format!("{what}…")),
-            Event::Step {
-                iteration, stats: s, ..
-            } => {
-                bar.set_position(iteration + 1);
-                if iteration % 10 == 0 {
-                    let its = (iteration + 1 - first) as f64 / start.elapsed().as_secs_f64().max(1e-9);
-                    let msg = format!(
-                        "{:?} loss {:.4} psnr {:.2} depth {:.4} β {:.4} {:.1} it/s",
-                        s.phase.unwrap(),
-                        s.loss,
-                        s.psnr,
-                        s.depth,
-                        s.beta,
-                        its
-                    );
-                    if args.quiet {
-                        eprintln!("{iteration} {msg}");
+        );
+        if args.quiet {
+            bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+        }
+        bar
+    };
+    let geometry = matches!(args.stage, Stage::Geometry | Stage::All);
+    let material = matches!(args.stage, Stage::Material | Stage::All);
+    let mut config = config;
+    if geometry {
+        // With --stage all --resume, a finished stage 1 is not trained again.
+        let done = args.resume
+            && run
+                .read_info()
+                .ok()
+                .and_then(|i| i.stage("stage1").map(|s| s.done))
+                .unwrap_or(false);
+        if !done {
+            let bar = bar("stage 1");
+            let start = Instant::now();
+            let mut first = 0;
+            let stage = train_geometry(
+                &run,
+                &dataset,
+                &args.data.display().to_string(),
+                config.clone(),
+                args.resume,
+                |e| match e {
+                    Event::Started { iteration, total, .. } => {
+                        first = iteration;
+                        bar.set_length(total);
+                        bar.set_position(iteration);
                     }
-                    bar.set_message(msg);
-                }
+                    Event::Pause(what) => bar.set_message(format!("{what}…")),
+                    Event::Step {
+                        iteration, stats: s, ..
+                    } => {
+                        bar.set_position(iteration + 1);
+                        if iteration % 10 == 0 {
+                            let its = (iteration + 1 - first) as f64 / start.elapsed().as_secs_f64().max(1e-9);
+                            let msg = format!(
+                                "{:?} loss {:.4} psnr {:.2} depth {:.4} β {:.4} {:.1} it/s",
+                                s.phase.unwrap(),
+                                s.loss,
+                                s.psnr,
+                                s.depth,
+                                s.beta,
+                                its
+                            );
+                            if args.quiet {
+                                eprintln!("{iteration} {msg}");
+                            }
+                            bar.set_message(msg);
+                        }
+                    }
+                    Event::Checkpoint { .. } => {}
+                },
+            )?;
+            bar.finish();
+            println!(
+                "stage 1 done: {} iterations in {:.1} s this session; run in {}",
+                stage.iteration,
+                start.elapsed().as_secs_f64(),
+                args.out.display()
+            );
+            // Stage 2 of the same command continues from the run as written.
+            config = None;
+        }
+    }
+    if material {
+        let start = Instant::now();
+        let stage2_resume = args.resume || args.stage == Stage::All;
+        let bar = bar("stage 2");
+        let mut first = 0;
+        let quiet = args.quiet;
+        let progress = |what: &str| {
+            if quiet {
+                eprintln!("stage 2: {what}");
             }
-            Event::Checkpoint { .. } => {}
-        },
-    )?;
-    bar.finish();
-    println!(
-        "stage 1 done: {} iterations in {:.1} s this session; run in {}",
-        stage.iteration,
-        start.elapsed().as_secs_f64(),
-        args.out.display()
-    );
+            bar.set_message(what.to_string());
+            bar.tick();
+        };
+        let stage = train_materials(
+            &run,
+            &dataset,
+            config,
+            stage2_resume && run.stage2_checkpoint_path().is_file(),
+            &progress,
+            |e| match e {
+                Event::Started { iteration, total, .. } => {
+                    first = iteration;
+                    bar.set_length(total);
+                    bar.set_position(iteration);
+                }
+                Event::Pause(what) => bar.set_message(format!("{what}…")),
+                Event::Step {
+                    iteration, stats: s, ..
+                } => {
+                    bar.set_position(iteration + 1);
+                    if iteration % 10 == 0 {
+                        let its = (iteration + 1 - first) as f64 / start.elapsed().as_secs_f64().max(1e-9);
+                        let em: Vec<String> = s
+                            .emission
+                            .iter()
+                            .map(|e| format!("{:.2}", (e[0] + e[1] + e[2]) / 3.0))
+                            .collect();
+                        let msg = format!(
+                            "loss {:.4} render {:.4} emitter {:.4} L [{}] {:.1} it/s",
+                            s.loss,
+                            s.render,
+                            s.emitter,
+                            em.join(" "),
+                            its
+                        );
+                        if quiet {
+                            eprintln!("{iteration} {msg}");
+                        }
+                        bar.set_message(msg);
+                    }
+                }
+                Event::Checkpoint { .. } => {}
+            },
+        )?;
+        bar.finish();
+        let (surface, emitter) = stage.counts();
+        println!(
+            "stage 2 done: {} iterations in {:.1} s this session ({} emitters, {} surface and {} emitter pixels cached); run in {}",
+            stage.iteration(),
+            start.elapsed().as_secs_f64(),
+            stage.fields.emitters.len(),
+            surface,
+            emitter,
+            args.out.display()
+        );
+    }
     Ok(())
 }

@@ -1,0 +1,183 @@
+//! Stage-2 ablations on one cache: builds the cache of a finished stage-1 run once, then fits
+//! each variant (a list of `--set` overrides) from scratch on it and measures the materials on
+//! the test views at the pixel centres (Kd PSNR raw and per-channel scaled on non-emitter pixels,
+//! roughness L1, Ks L1) and the emissions against the dataset's GT emitters × exposure.
+//!
+//! `cargo run --release -p i2sdf-train --example stage2_ablation -- RUN DATA "k=v k=v" "k=v" ...`
+//! (an empty string is the run's own configuration).
+
+use glam::Vec3;
+use i2sdf_data::Split;
+use i2sdf_model::intrinsic::{FrozenScene, LabelledHit};
+use i2sdf_model::material_field::{MaterialBackbone, MATERIAL_CHANNELS};
+use i2sdf_model::{NeuralScene, RunDir};
+use i2sdf_render::Ray;
+use i2sdf_train::config::TrainConfig;
+use i2sdf_train::driver::{read_run_config, TrainStage, Trainer};
+use i2sdf_train::stage2::{radiometry, target_views, Stage2};
+use std::time::Instant;
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().collect();
+    if args.len() < 4 {
+        eprintln!("usage: stage2_ablation RUN DATA \"k=v ...\" ...");
+        std::process::exit(2);
+    }
+    let run = RunDir::new(std::path::Path::new(&args[1]));
+    let dataset = i2sdf_data::load(std::path::Path::new(&args[2]))?;
+    let base = read_run_config(&run)?;
+    let variants: Vec<Vec<String>> = args[3..]
+        .iter()
+        .map(|v| v.split_whitespace().map(str::to_string).collect())
+        .collect();
+    let config_of = |sets: &[String]| -> Result<TrainConfig, Box<dyn std::error::Error>> {
+        let dir = tempfile_dir()?;
+        let p = dir.join("base.toml");
+        std::fs::write(&p, base.to_toml())?;
+        Ok(TrainConfig::load(Some(&p), sets)?)
+    };
+    let first = config_of(&variants[0])?;
+    let (scene, _) = NeuralScene::load(&run.checkpoint_path())?;
+    let t0 = Instant::now();
+    let views = target_views(&dataset, first.stage2.use_hdr);
+    let mut stage = Stage2::new(first.clone(), scene, &views, radiometry(&dataset), None, &|_| {})?;
+    let (surface, emitter) = stage.counts();
+    println!(
+        "cache: {surface} surface + {emitter} emitter pixels, {} samples, built in {:.1} s",
+        stage.cache.len(),
+        t0.elapsed().as_secs_f64()
+    );
+    // Test pixels: cast once.
+    let test: Vec<_> = dataset.split(Split::Test).collect();
+    let mut rays = Vec::new();
+    let mut gt = Vec::new();
+    for f in &test {
+        let g = f.camera.ray_generator();
+        let (Some(kd), Some(ks), Some(r)) = (&f.albedo, &f.specular, &f.roughness) else {
+            continue;
+        };
+        for p in 0..f.pixel_count() {
+            if f.emitter_mask.as_ref().is_some_and(|m| m.data[p] > 0.5) {
+                continue;
+            }
+            let (x, y) = (p % f.camera.width, p / f.camera.width);
+            rays.push(Ray::new(
+                g.origin,
+                g.dir(x as f32 + 0.5, y as f32 + 0.5),
+                0.0,
+                f32::INFINITY,
+            ));
+            gt.push((
+                Vec3::from_slice(&kd.data[p * 3..p * 3 + 3]),
+                Vec3::from_slice(&ks.data[p * 3..p * 3 + 3]),
+                r.data[p],
+            ));
+        }
+    }
+    let mut hits: Vec<Option<LabelledHit>> = vec![None; rays.len()];
+    {
+        let frozen = FrozenScene::new(&stage.scene, &stage.fields.emitters, stage.fields.radiometry);
+        frozen.cast(&rays, &mut hits);
+    }
+    let idx: Vec<usize> = (0..hits.len()).filter(|&i| hits[i].is_some()).collect();
+    let world: Vec<Vec3> = idx.iter().map(|&i| hits[i].unwrap().position).collect();
+    let exposure = dataset.ldr_exposure.unwrap_or(1.0) as f32;
+    for (vi, sets) in variants.iter().enumerate() {
+        let config = config_of(sets)?;
+        if vi > 0 {
+            stage.restart(config.clone());
+        }
+        let t = Instant::now();
+        let mut trainer = Trainer::new(stage);
+        while !trainer.done() {
+            trainer.step()?;
+        }
+        stage = trainer.stage;
+        let secs = t.elapsed().as_secs_f64();
+        // Materials at the test pixels.
+        let n = stage.scene.normalization;
+        let pos: Vec<f32> = world
+            .iter()
+            .flat_map(|p| ((*p - Vec3::from_array(n.center.map(|v| v as f32))) / n.scale as f32).to_array())
+            .collect();
+        let features = match stage.fields.material.config.backbone {
+            MaterialBackbone::FeatureMlp => {
+                let frozen = FrozenScene::new(&stage.scene, &stage.fields.emitters, stage.fields.radiometry);
+                let mut z = vec![0.0; world.len() * stage.scene.feature_dim()];
+                frozen.features(&world, &mut z);
+                z
+            }
+            MaterialBackbone::HashGrid => Vec::new(),
+        };
+        let mut m = vec![0.0; world.len() * MATERIAL_CHANNELS];
+        stage.fields.material.infer(&pos, &features, &mut m);
+        let (mut se, mut cnt, mut rl1, mut ksl1) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        let (mut pg, mut pp) = ([0.0f64; 3], [0.0f64; 3]);
+        for (j, &i) in idx.iter().enumerate() {
+            let (kd, ks, r) = gt[i];
+            let o = &m[j * MATERIAL_CHANNELS..(j + 1) * MATERIAL_CHANNELS];
+            for c in 0..3 {
+                se += ((o[c] - kd[c]) as f64).powi(2);
+                pg[c] += (o[c] * kd[c]) as f64;
+                pp[c] += (o[c] * o[c]) as f64;
+                ksl1 += (o[3 + c] - ks[c]).abs() as f64 / 3.0;
+            }
+            cnt += 3.0;
+            rl1 += (o[6] - r).abs() as f64;
+        }
+        let s: Vec<f64> = (0..3).map(|c| pg[c] / pp[c].max(1e-12)).collect();
+        let mut se2 = 0.0;
+        for (j, &i) in idx.iter().enumerate() {
+            for c in 0..3 {
+                se2 += (m[j * MATERIAL_CHANNELS + c] as f64 * s[c] - gt[i].0[c] as f64).powi(2);
+            }
+        }
+        let px = idx.len() as f64;
+        let em: Vec<String> = (0..stage.fields.emitters.len())
+            .map(|k| {
+                let l = stage.fields.emitters.emission(k);
+                let c = stage.fields.emitters.emitters[k].centre;
+                let gt = dataset.emitters.iter().min_by(|a, b| {
+                    let d = |e: &i2sdf_data::GtEmitter| {
+                        (0..3)
+                            .map(|i| ((e.bounds_min[i] + e.bounds_max[i]) / 2.0 - c[i]).powi(2))
+                            .sum::<f64>()
+                    };
+                    d(a).total_cmp(&d(b))
+                });
+                match gt {
+                    Some(g) => format!(
+                        "L{k} {:.2}/{:.2}/{:.2} ({} ×{:.3})",
+                        l.x,
+                        l.y,
+                        l.z,
+                        g.name,
+                        (l.x + l.y + l.z) / (exposure * (g.emission[0] + g.emission[1] + g.emission[2]) as f32)
+                    ),
+                    None => format!("L{k} {:.2}/{:.2}/{:.2}", l.x, l.y, l.z),
+                }
+            })
+            .collect();
+        println!(
+            "[{}] {} its {:.1} s: Kd PSNR {:.2} (scaled {:.2}, s = {:.2}/{:.2}/{:.2}), rough L1 {:.3}, Ks L1 {:.3}; {}",
+            sets.join(" "),
+            stage.iteration(),
+            secs,
+            -10.0 * (se / cnt).log10(),
+            -10.0 * (se2 / cnt).log10(),
+            s[0],
+            s[1],
+            s[2],
+            rl1 / px,
+            ksl1 / px,
+            em.join(", ")
+        );
+    }
+    Ok(())
+}
+
+fn tempfile_dir() -> std::io::Result<std::path::PathBuf> {
+    let d = std::env::temp_dir().join(format!("stage2_ablation_{}", std::process::id()));
+    std::fs::create_dir_all(&d)?;
+    Ok(d)
+}

@@ -1,0 +1,779 @@
+//! Stage 2 (paper Sec. "Training", "Training of material and emission fields"): with F_d, F_c
+//! and F_e frozen, fit the material fields (Kd, Ks, ρ) and the emissions L[k] of the K-means
+//! emitters so that the Monte Carlo re-render of eq:render reproduces the training pixels:
+//! L₂ = L_render + λ_mat L_mat (eq:material).
+//!
+//! Frozen geometry means that almost everything the estimator needs is fixed: each training
+//! pixel's surface point and normal, and — for directions drawn from a fixed proposal — the
+//! secondary hits and what arrives from them (an emitter, or F_c's radiance). They are traced
+//! once into a cache ([`Stage2::new`]); an iteration then costs a material-field forward and
+//! backward and the analytic BRDF on the cached samples (`shading::shade_backward`). The cached
+//! estimator is unbiased for any material: its proposal (cosine + GGX lobes of three roughnesses
+//! about the frozen normal + a cone towards each emitter) covers every direction f_r·cos can
+//! weigh. The paper's own estimator — N = 16 directions importance-sampled from the current
+//! materials' GGX mixture, traced every iteration — is [`Stage2Estimator::Live`], the reference
+//! the cached fit is checked against.
+//!
+//! Radiometry (DESIGN.md "Emitters and stage 2"): targets are linear radiance in the units of the
+//! input images — LDR pixels linearized by the dataset's transfer, or HDR pixels × the dataset's
+//! exposure when `stage2.use_hdr` and the dataset has them. Saturated LDR channels bound the
+//! prediction from below only. Pixels that see an emitter are not shaded: their prediction is
+//! L[k] itself.
+
+use crate::config::{Stage2Estimator, TrainConfig};
+use crate::driver::{StepOutcome, TrainStage};
+use crate::kmeans::{cluster_emitters, ClusterSettings};
+use crate::shading::{shade, shade_backward, trace_incident, IncidentSample, ShadingPoint};
+use glam::{DVec3, Vec3};
+use i2sdf_data::{DataError, Dataset, Split};
+use i2sdf_model::emitters::{Emitter, EmitterTable};
+use i2sdf_model::intrinsic::{FrozenScene, LabelledHit, Radiometry, Transfer};
+use i2sdf_model::intrinsic_io::IntrinsicFields;
+use i2sdf_model::material_field::{
+    MaterialBackbone, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
+};
+use i2sdf_model::NeuralScene;
+use i2sdf_nn::params::ModuleSlot;
+use i2sdf_nn::{Adam, AdamConfig, LrSchedule, Parameters};
+use i2sdf_render::{DirectionMixture, GgxBrdf, Lobe, Ray};
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+use rand_pcg::{Pcg32, Pcg64};
+use rayon::prelude::*;
+use serde::Serialize;
+use std::path::Path;
+
+/// LDR values at or above this are saturated (8-bit 255 with some slack for 16-bit PNGs).
+pub const SATURATED: f32 = 254.5 / 255.0;
+
+/// One training view as stage 2 fits it: linear targets, which channels are saturated, and
+/// (where the dataset has them) the emitter mask.
+#[derive(Clone, Debug)]
+pub struct TargetView {
+    pub camera: i2sdf_data::Camera,
+    /// Linear RGB per pixel, row-major.
+    pub rgb: Vec<[f32; 3]>,
+    /// Per pixel, bit c set when channel c only bounds the prediction from below.
+    pub saturated: Vec<u8>,
+    pub emitter_mask: Option<Vec<bool>>,
+}
+
+/// The dataset's transfer and exposure.
+pub fn radiometry(dataset: &Dataset) -> Radiometry {
+    Radiometry {
+        transfer: if dataset.ldr_transfer == "linear" {
+            Transfer::Linear
+        } else {
+            Transfer::Srgb
+        },
+        exposure: dataset.ldr_exposure,
+    }
+}
+
+/// The training views' targets (see the module comment for the radiometry).
+pub fn target_views(dataset: &Dataset, use_hdr: bool) -> Vec<TargetView> {
+    let rm = radiometry(dataset);
+    dataset
+        .split(Split::Train)
+        .map(|f| {
+            let n = f.pixel_count();
+            let (mut rgb, mut saturated) = (Vec::with_capacity(n), Vec::with_capacity(n));
+            match (&f.hdr, use_hdr) {
+                (Some(hdr), true) => {
+                    let scale = rm.exposure.unwrap_or(1.0) as f32;
+                    for p in hdr.data.chunks_exact(3) {
+                        rgb.push([p[0] * scale, p[1] * scale, p[2] * scale]);
+                        saturated.push(0);
+                    }
+                }
+                _ => {
+                    for p in f.rgb.data.chunks_exact(3) {
+                        rgb.push([rm.linearize(p[0]), rm.linearize(p[1]), rm.linearize(p[2])]);
+                        saturated.push((0..3).fold(0u8, |m, c| m | (((p[c] >= SATURATED) as u8) << c)));
+                    }
+                }
+            }
+            TargetView {
+                camera: f.camera.clone(),
+                rgb,
+                saturated,
+                emitter_mask: f
+                    .emitter_mask
+                    .as_ref()
+                    .map(|m| m.data.iter().map(|&v| v > 0.5).collect()),
+            }
+        })
+        .collect()
+}
+
+/// What a cached pixel sees.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PixelKind {
+    /// An ordinary surface, shaded from samples `first .. first + cache_samples` of the cache.
+    Surface { first: u32 },
+    /// Emitter k, seen directly: its prediction is L[k].
+    Emitter(u32),
+}
+
+#[derive(Clone, Copy, Debug)]
+pub struct CachedPixel {
+    pub point: ShadingPoint,
+    pub target: Vec3,
+    pub saturated: u8,
+    pub kind: PixelKind,
+}
+
+/// Per-iteration statistics (one JSON object of the log).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Stage2Stats {
+    pub iteration: u64,
+    /// Mean L1 of the re-render (per channel) over the batch's surface pixels.
+    pub render: f32,
+    /// Mean L1 of the emitter pixels.
+    pub emitter: f32,
+    pub smooth: f32,
+    pub energy: f32,
+    pub loss: f32,
+    /// L[k] (linear RGB, image units).
+    pub emission: Vec<[f32; 3]>,
+}
+
+/// The stage-2 trainer.
+pub struct Stage2 {
+    pub config: TrainConfig,
+    pub scene: NeuralScene,
+    pub fields: IntrinsicFields,
+    pub pixels: Vec<CachedPixel>,
+    pub cache: Vec<IncidentSample>,
+    adam: Adam,
+    grad: MaterialGrad,
+    d_emission: Vec<Vec3>,
+    ws: MaterialWorkspace,
+    iteration: u64,
+    /// K chosen by the clustering (before small clusters were dropped), for the log.
+    pub chosen_k: usize,
+    /// log L[k] as initialised from the images (for [`Stage2::restart`]).
+    initial_emission: Vec<f32>,
+}
+
+fn new_adam(config: &TrainConfig, material: &MaterialField, emitters: &EmitterTable) -> Adam {
+    let c2 = &config.stage2;
+    let mut adam = Adam::new(AdamConfig::default());
+    let schedule = LrSchedule::WarmupCosine {
+        warmup: 50.min(c2.iterations / 10),
+        total: c2.iterations,
+        min_factor: c2.lr_final_fraction,
+    };
+    if let Some(g) = &material.grid {
+        adam.add_group(GROUP_GRID, g.params.len(), c2.lr_grid, schedule);
+    }
+    adam.add_group(GROUP_MLP, material.mlp.params.len(), c2.lr_mlp, schedule);
+    adam.add_group(GROUP_EMISSION, emitters.log_emission.len(), c2.lr_emission, schedule);
+    adam
+}
+
+const GROUP_GRID: &str = "material_grid";
+const GROUP_MLP: &str = "material_mlp";
+const GROUP_EMISSION: &str = "emission";
+
+/// World → normalized frame.
+fn normalized(scene: &NeuralScene, p: Vec3) -> [f32; 3] {
+    let n = &scene.normalization;
+    let c = Vec3::from_array(n.center.map(|v| v as f32));
+    ((p - c) / n.scale as f32).to_array()
+}
+
+/// The fixed proposal of the cache: cosine, three GGX lobes about the frozen normal (ρ ≈ 0.2,
+/// 0.4, 0.65) and a cone towards each emitter. Defensive: every direction of the upper hemisphere
+/// has density ≥ 0.4·cos/π, so no material's f_r·cos is left without samples.
+pub fn cache_mixture(emitters: &EmitterTable, emitter_sampling: bool) -> DirectionMixture {
+    let mut m = DirectionMixture::new();
+    m.push(0.4, Lobe::Cosine);
+    for alpha in [0.04, 0.16, 0.42] {
+        m.push(0.1, Lobe::Specular { alpha });
+    }
+    add_cones(&mut m, emitters, emitter_sampling, 0.3);
+    m
+}
+
+/// Cones towards the emitters sharing `weight` (as many as the mixture holds).
+fn add_cones(m: &mut DirectionMixture, emitters: &EmitterTable, emitter_sampling: bool, weight: f32) {
+    if !emitter_sampling || emitters.is_empty() {
+        return;
+    }
+    let room = i2sdf_render::proposal::MAX_LOBES - m.len();
+    let k = emitters.len().min(room);
+    for e in emitters.emitters.iter().take(k) {
+        m.push(
+            weight / k as f32,
+            Lobe::Cone {
+                centre: DVec3::from_array(e.centre).as_vec3(),
+                radius: e.radius as f32,
+            },
+        );
+    }
+}
+
+/// The live estimator's proposal (the paper's GGX mixture of the current material, with the
+/// emitter cones of one-sample MIS when enabled).
+pub fn live_mixture(brdf: &GgxBrdf, emitters: &EmitterTable, emitter_sampling: bool) -> DirectionMixture {
+    let mut m = DirectionMixture::new();
+    m.push(
+        if emitter_sampling && !emitters.is_empty() {
+            0.7
+        } else {
+            1.0
+        },
+        Lobe::Brdf(*brdf),
+    );
+    add_cones(&mut m, emitters, emitter_sampling, 0.3);
+    m
+}
+
+/// A pixel's own sampler (deterministic whatever the batch or thread).
+fn pixel_rng(seed: u64, index: u64, salt: u64) -> Pcg32 {
+    Pcg32::seed_from_u64(seed ^ index.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ salt.wrapping_mul(0xD1B5_4A32_D192_ED03))
+}
+
+impl Stage2 {
+    /// Builds the cache from the frozen `scene` and the training `views`: casts the pixels, clusters
+    /// the emitter points into K emitters (or takes `emitters` as given: a resumed run), traces the
+    /// incident radiance of every surface pixel. `progress` hears what is being done.
+    pub fn new(
+        config: TrainConfig,
+        scene: NeuralScene,
+        views: &[TargetView],
+        radiometry: Radiometry,
+        given: Option<(MaterialField, EmitterTable)>,
+        progress: &dyn Fn(&str),
+    ) -> Result<Stage2, DataError> {
+        let c2 = config.stage2.clone();
+        let seed = config.train.seed;
+        let scale = scene.normalization.scale as f32;
+        // 1. The pixels: a uniform subset of all training pixels.
+        let total: usize = views.iter().map(|v| v.rgb.len()).sum();
+        if total == 0 {
+            return Err(DataError::invalid("stage 2: the dataset has no training pixels"));
+        }
+        let mut order: Vec<(u32, u32)> = views
+            .iter()
+            .enumerate()
+            .flat_map(|(v, view)| (0..view.rgb.len() as u32).map(move |p| (v as u32, p)))
+            .collect();
+        let mut rng = Pcg64::seed_from_u64(seed ^ 0x5747_4532);
+        if c2.cache_pixels > 0 && c2.cache_pixels < total {
+            order.shuffle(&mut rng);
+            order.truncate(c2.cache_pixels);
+            order.sort_unstable();
+        }
+        progress(&format!("casting {} training pixels into the frozen SDF", order.len()));
+        let rays: Vec<Ray> = order
+            .iter()
+            .map(|&(v, p)| {
+                let cam = &views[v as usize].camera;
+                let g = cam.ray_generator();
+                let (x, y) = (p as usize % cam.width, p as usize / cam.width);
+                Ray::new(g.origin, g.dir(x as f32 + 0.5, y as f32 + 0.5), 0.0, f32::INFINITY)
+            })
+            .collect();
+        let no_emitters = EmitterTable::new(Vec::new(), &[]);
+        let mut hits: Vec<Option<LabelledHit>> = vec![None; rays.len()];
+        {
+            let frozen = FrozenScene::new(&scene, &no_emitters, radiometry);
+            frozen.cast(&rays, &mut hits);
+        }
+        // 2. Emitters: K-means on the surface points F_e marks (normalized frame).
+        let hit_idx: Vec<usize> = (0..hits.len()).filter(|&i| hits[i].is_some()).collect();
+        let hit_points: Vec<Vec3> = hit_idx.iter().map(|&i| hits[i].unwrap().position).collect();
+        let mut prob = vec![0.0f32; hit_points.len()];
+        FrozenScene::new(&scene, &no_emitters, radiometry).emitter_prob(&hit_points, &mut prob);
+        let has_masks = views.iter().all(|v| v.emitter_mask.is_some());
+        let (material, emitters, chosen_k) = match given {
+            Some((m, e)) => {
+                let k = e.len();
+                (m, e, k)
+            }
+            None => {
+                let marked: Vec<usize> = (0..hit_idx.len()).filter(|&j| prob[j] > c2.emitter_threshold).collect();
+                // Without emitter masks F_e was never trained: no emitters (every traced ray
+                // takes F_c's radiance).
+                let points: Vec<[f64; 3]> = if has_masks {
+                    marked
+                        .iter()
+                        .map(|&j| normalized(&scene, hit_points[j]).map(|v| v as f64))
+                        .collect()
+                } else {
+                    Vec::new()
+                };
+                progress(&format!("clustering {} emitter points", points.len()));
+                let settings = ClusterSettings {
+                    k: (c2.emitters > 0).then_some(c2.emitters),
+                    max_k: c2.max_emitters,
+                    link: c2.emitter_link as f64,
+                    min_fraction: c2.emitter_min_fraction as f64,
+                    restarts: 4,
+                    iterations: 100,
+                };
+                let (clusters, k) = cluster_emitters(&points, &settings, &mut rng);
+                let norm = &scene.normalization;
+                let to_world = |c: [f64; 3]| norm.to_world(DVec3::from_array(c)).to_array();
+                let s = norm.scale;
+                let list: Vec<Emitter> = clusters
+                    .iter()
+                    .map(|c| Emitter {
+                        centre: to_world(c.centre),
+                        extent: c.extent.map(|e| e * s),
+                        radius: c.radius * s,
+                        points: c.members.len(),
+                    })
+                    .collect();
+                // L[k] starts at what the images show of it: the mean target of its pixels (a
+                // lower bound where they are saturated; the fit raises it).
+                let mut sum = vec![[0.0f64; 3]; clusters.len()];
+                for (ci, c) in clusters.iter().enumerate() {
+                    for &m in &c.members {
+                        let (v, p) = order[hit_idx[marked[m]]];
+                        let t = views[v as usize].rgb[p as usize];
+                        for a in 0..3 {
+                            sum[ci][a] += t[a] as f64 / c.members.len() as f64;
+                        }
+                    }
+                }
+                let init: Vec<[f32; 3]> = sum.iter().map(|s| s.map(|v| (v as f32).max(1e-3))).collect();
+                let material = MaterialField::new(&config.material, scene.feature_dim(), seed.wrapping_add(17));
+                (material, EmitterTable::new(list, &init), k)
+            }
+        };
+        // 3. Pixel kinds: emitters by the mask where the dataset has one, else by F_e.
+        let mut frozen = FrozenScene::new(&scene, &emitters, radiometry);
+        frozen.emitter_threshold = c2.emitter_threshold;
+        let mut pixels = Vec::with_capacity(hit_idx.len());
+        let mut surface = 0u32;
+        for (j, &i) in hit_idx.iter().enumerate() {
+            let h = hits[i].unwrap();
+            let (v, p) = order[i];
+            let view = &views[v as usize];
+            let is_emitter = match &view.emitter_mask {
+                Some(m) => m[p as usize],
+                None => prob[j] > c2.emitter_threshold,
+            };
+            let to_cam = -rays[i].dir;
+            let normal = if h.normal.dot(to_cam) < 0.0 {
+                -h.normal
+            } else {
+                h.normal
+            };
+            let kind = if is_emitter {
+                match emitters.index(h.position.as_dvec3(), frozen.index_margin) {
+                    Some(k) => PixelKind::Emitter(k as u32),
+                    None => continue,
+                }
+            } else {
+                let first = surface * c2.cache_samples as u32;
+                surface += 1;
+                PixelKind::Surface { first }
+            };
+            pixels.push(CachedPixel {
+                point: ShadingPoint {
+                    position: h.position,
+                    normal,
+                    view: to_cam,
+                },
+                target: Vec3::from_array(view.rgb[p as usize]),
+                saturated: view.saturated[p as usize],
+                kind,
+            });
+        }
+        // 4. Incident radiance of every surface pixel, traced once (in blocks: bounded memory).
+        let surf: Vec<(usize, ShadingPoint)> = pixels
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| matches!(p.kind, PixelKind::Surface { .. }))
+            .map(|(i, p)| (i, p.point))
+            .collect();
+        let m = c2.cache_samples;
+        let mut cache = Vec::with_capacity(surf.len() * m);
+        let mixture = cache_mixture(&emitters, c2.emitter_sampling);
+        const BLOCK: usize = 8192;
+        for (b, block) in surf.chunks(BLOCK).enumerate() {
+            progress(&format!(
+                "tracing incident radiance: {} / {} pixels × {m} samples",
+                b * BLOCK,
+                surf.len()
+            ));
+            let pts: Vec<ShadingPoint> = block.iter().map(|(_, p)| *p).collect();
+            let mut rngs: Vec<Pcg32> = block.iter().map(|(i, _)| pixel_rng(seed, *i as u64, 1)).collect();
+            cache.extend(trace_incident(&frozen, &pts, m, scale, &|_| mixture, &mut rngs));
+        }
+        drop(frozen);
+        let adam = new_adam(&config, &material, &emitters);
+        let grad = material.new_grad();
+        let k = emitters.len();
+        let initial_emission = emitters.log_emission.clone();
+        Ok(Stage2 {
+            config,
+            scene,
+            fields: IntrinsicFields {
+                material,
+                emitters,
+                radiometry,
+            },
+            pixels,
+            cache,
+            adam,
+            grad,
+            d_emission: vec![Vec3::ZERO; k],
+            ws: MaterialWorkspace::default(),
+            iteration: 0,
+            chosen_k,
+            initial_emission,
+        })
+    }
+
+    /// Starts the fit over on the same cache with another configuration (its `[stage2]` loop
+    /// and loss settings and its `[material]` section): fresh material fields, the initial
+    /// emissions, a fresh optimizer. For ablations and tests: the cache is the expensive part.
+    pub fn restart(&mut self, config: TrainConfig) {
+        self.fields.material = MaterialField::new(
+            &config.material,
+            self.scene.feature_dim(),
+            config.train.seed.wrapping_add(17),
+        );
+        self.fields.emitters.log_emission = self.initial_emission.clone();
+        self.adam = new_adam(&config, &self.fields.material, &self.fields.emitters);
+        self.grad = self.fields.material.new_grad();
+        self.iteration = 0;
+        self.config = config;
+    }
+
+    /// Resumes from a stage-2 checkpoint: fields, emitters, optimizer state and iteration; the
+    /// cache is rebuilt (it is deterministic given the seed).
+    pub fn resume(
+        config: TrainConfig,
+        scene: NeuralScene,
+        views: &[TargetView],
+        radiometry: Radiometry,
+        checkpoint: &Path,
+        progress: &dyn Fn(&str),
+    ) -> Result<Stage2, DataError> {
+        let (fields, _) = IntrinsicFields::load(checkpoint, scene.feature_dim(), &mut [])?;
+        if fields.material.config != config.material {
+            return Err(DataError::invalid(format!(
+                "{}: the checkpoint's [material] configuration differs from the run's",
+                checkpoint.display()
+            )));
+        }
+        let mut s = Self::new(
+            config,
+            scene,
+            views,
+            radiometry,
+            Some((fields.material, fields.emitters)),
+            progress,
+        )?;
+        let (mut loaded, meta) = {
+            let Stage2 { adam, scene, .. } = &mut s;
+            let mut slots = [ModuleSlot {
+                prefix: "adam",
+                module: adam as &mut dyn Parameters,
+                required: true,
+            }];
+            IntrinsicFields::load(checkpoint, scene.feature_dim(), &mut slots)?
+        };
+        // The checkpoint's fields again (the load above filled the optimizer from the same file).
+        std::mem::swap(&mut s.fields.material, &mut loaded.material);
+        std::mem::swap(&mut s.fields.emitters, &mut loaded.emitters);
+        let get = |k: &str| -> Result<u64, DataError> {
+            meta.get(k)
+                .and_then(|v| v.parse().ok())
+                .ok_or_else(|| DataError::field(checkpoint, k, "missing or not an integer"))
+        };
+        s.iteration = get("iteration")?;
+        s.adam.step = get("adam_step")?;
+        Ok(s)
+    }
+
+    /// Surface and emitter pixels of the cache.
+    pub fn counts(&self) -> (usize, usize) {
+        let s = self
+            .pixels
+            .iter()
+            .filter(|p| matches!(p.kind, PixelKind::Surface { .. }))
+            .count();
+        (s, self.pixels.len() - s)
+    }
+
+    fn emissions(&self) -> Vec<Vec3> {
+        (0..self.fields.emitters.len())
+            .map(|k| self.fields.emitters.emission(k))
+            .collect()
+    }
+
+    /// Material of `n` world points (and, for the FeatureMlp backbone, their z) in one forward.
+    fn material_forward(&mut self, world: &[Vec3], out: &mut [f32]) {
+        let positions: Vec<f32> = world.iter().flat_map(|p| normalized(&self.scene, *p)).collect();
+        let features = match self.fields.material.config.backbone {
+            MaterialBackbone::FeatureMlp => {
+                let mut z = vec![0.0; world.len() * self.scene.feature_dim()];
+                FrozenScene::new(&self.scene, &self.fields.emitters, self.fields.radiometry).features(world, &mut z);
+                z
+            }
+            MaterialBackbone::HashGrid => Vec::new(),
+        };
+        self.fields.material.forward(&positions, &features, &mut self.ws, out);
+    }
+
+    /// The samples of surface pixel `i` for this step: the cache's, or freshly traced (live).
+    fn live_samples(&self, batch: &[usize], brdfs: &[GgxBrdf], rng: &mut Pcg64) -> Vec<IncidentSample> {
+        let c2 = &self.config.stage2;
+        let frozen = {
+            let mut f = FrozenScene::new(&self.scene, &self.fields.emitters, self.fields.radiometry);
+            f.emitter_threshold = c2.emitter_threshold;
+            f
+        };
+        let pts: Vec<ShadingPoint> = batch.iter().map(|&i| self.pixels[i].point).collect();
+        let mut rngs: Vec<Pcg32> = batch.iter().map(|_| Pcg32::seed_from_u64(rng.gen())).collect();
+        let emitters = &self.fields.emitters;
+        trace_incident(
+            &frozen,
+            &pts,
+            c2.samples,
+            self.scene.normalization.scale as f32,
+            &|j| live_mixture(&brdfs[j], emitters, c2.emitter_sampling),
+            &mut rngs,
+        )
+    }
+}
+
+/// L1 of one channel with the saturation rule: a saturated target only bounds from below.
+#[inline]
+fn l1(pred: f32, target: f32, saturated: bool) -> (f32, f32) {
+    let d = pred - target;
+    if saturated && d >= 0.0 {
+        (0.0, 0.0)
+    } else {
+        (d.abs(), d.signum())
+    }
+}
+
+fn brdf_of(m: &[f32]) -> GgxBrdf {
+    GgxBrdf::new(Vec3::new(m[0], m[1], m[2]), Vec3::new(m[3], m[4], m[5]), m[6])
+}
+
+impl TrainStage for Stage2 {
+    type Stats = Stage2Stats;
+    fn key(&self) -> &'static str {
+        "stage2"
+    }
+    fn iteration(&self) -> u64 {
+        self.iteration
+    }
+    fn total(&self) -> u64 {
+        self.config.stage2.iterations
+    }
+    fn seed(&self) -> u64 {
+        self.config.train.seed ^ 0x5354_4147_4532
+    }
+
+    fn step(&mut self, rng: &mut Pcg64) -> Result<StepOutcome<Stage2Stats>, DataError> {
+        let c2 = self.config.stage2.clone();
+        let it = self.iteration;
+        self.iteration += 1;
+        let b = c2.pixels.min(self.pixels.len().max(1));
+        if self.pixels.is_empty() {
+            return Err(DataError::failed("stage 2: no training pixel hits the frozen surface"));
+        }
+        let batch: Vec<usize> = (0..b).map(|_| rng.gen_range(0..self.pixels.len())).collect();
+        // Points x and x + ε (the smoothness term of eq:material), in one forward.
+        let eps = c2.smooth_epsilon * self.scene.normalization.scale as f32;
+        let mut world: Vec<Vec3> = batch.iter().map(|&i| self.pixels[i].point.position).collect();
+        for j in 0..b {
+            let d = Vec3::new(rng.gen::<f32>() - 0.5, rng.gen::<f32>() - 0.5, rng.gen::<f32>() - 0.5);
+            world.push(world[j] + d.normalize_or_zero() * eps);
+        }
+        let mut out = vec![0.0f32; 2 * b * MATERIAL_CHANNELS];
+        self.material_forward(&world, &mut out);
+        let brdfs: Vec<GgxBrdf> = out[..b * MATERIAL_CHANNELS]
+            .chunks_exact(MATERIAL_CHANNELS)
+            .map(brdf_of)
+            .collect();
+        let live = match c2.estimator {
+            Stage2Estimator::Live => Some(self.live_samples(&batch, &brdfs, rng)),
+            Stage2Estimator::Cached => None,
+        };
+        let emission = self.emissions();
+        let k = emission.len();
+        let (m_cache, m_live) = (c2.cache_samples, c2.samples);
+        let n_surface = batch
+            .iter()
+            .filter(|&&i| matches!(self.pixels[i].kind, PixelKind::Surface { .. }))
+            .count()
+            .max(1) as f32;
+        let n_emitter = (b as f32 - n_surface).max(1.0);
+        let mut d_out = vec![0.0f32; 2 * b * MATERIAL_CHANNELS];
+        // Re-render and emitter terms, pixel-parallel; per-chunk emission gradients reduced after.
+        let pixels = &self.pixels;
+        let cache = &self.cache;
+        let parts: Vec<(f32, f32, Vec<Vec3>)> = d_out[..b * MATERIAL_CHANNELS]
+            .par_chunks_mut(MATERIAL_CHANNELS * 256)
+            .enumerate()
+            .map(|(chunk, d)| {
+                let (mut render, mut emit) = (0.0f32, 0.0f32);
+                let mut d_em = vec![Vec3::ZERO; k];
+                for (jj, dj) in d.chunks_exact_mut(MATERIAL_CHANNELS).enumerate() {
+                    let j = chunk * 256 + jj;
+                    let px = &pixels[batch[j]];
+                    match px.kind {
+                        PixelKind::Surface { first } => {
+                            let samples = match &live {
+                                Some(l) => &l[j * m_live..(j + 1) * m_live],
+                                None => &cache[first as usize..first as usize + m_cache],
+                            };
+                            let n_dot_v = px.point.normal.dot(px.point.view);
+                            let pred = shade(&brdfs[j], n_dot_v, samples, &emission);
+                            let mut g = Vec3::ZERO;
+                            for c in 0..3 {
+                                let (l, s) = l1(pred[c], px.target[c], px.saturated >> c & 1 == 1);
+                                render += l;
+                                g[c] = s / (3.0 * n_surface);
+                            }
+                            let (_, gr) = shade_backward(&brdfs[j], n_dot_v, samples, &emission, g, &mut d_em);
+                            dj[..3].copy_from_slice(&gr.kd.to_array());
+                            dj[3..6].copy_from_slice(&gr.ks.to_array());
+                            dj[6] = gr.rho;
+                        }
+                        PixelKind::Emitter(e) => {
+                            let pred = emission[e as usize];
+                            for c in 0..3 {
+                                let (l, s) = l1(pred[c], px.target[c], px.saturated >> c & 1 == 1);
+                                emit += l;
+                                d_em[e as usize][c] += s / (3.0 * n_emitter);
+                            }
+                        }
+                    }
+                }
+                (render, emit, d_em)
+            })
+            .collect();
+        let (mut render, mut emit) = (0.0, 0.0);
+        self.d_emission.iter_mut().for_each(|d| *d = Vec3::ZERO);
+        for (r, e, d) in parts {
+            render += r;
+            emit += e;
+            for (a, b) in self.d_emission.iter_mut().zip(d) {
+                *a += b;
+            }
+        }
+        render /= 3.0 * n_surface;
+        emit /= 3.0 * n_emitter;
+        // eq:material: ‖M(x) − M(x+ε)‖₂ for M ∈ {Kd, Ks, ρ}, and (Kd + Ks − 1)₊.
+        let (mut smooth, mut energy) = (0.0f32, 0.0f32);
+        let (ls, le) = (c2.smooth / b as f32, c2.energy / b as f32);
+        for j in 0..b {
+            let (a, e) = (j * MATERIAL_CHANNELS, (b + j) * MATERIAL_CHANNELS);
+            for (lo, hi) in [(0, 3), (3, 6), (6, 7)] {
+                let diff: Vec<f32> = (lo..hi).map(|c| out[a + c] - out[e + c]).collect();
+                let norm = diff.iter().map(|v| v * v).sum::<f32>().sqrt();
+                smooth += norm;
+                if norm > 1e-8 {
+                    for (c, dv) in (lo..hi).zip(&diff) {
+                        d_out[a + c] += ls * dv / norm;
+                        d_out[e + c] -= ls * dv / norm;
+                    }
+                }
+            }
+            for c in 0..3 {
+                let excess = out[a + c] + out[a + 3 + c] - 1.0;
+                if excess > 0.0 {
+                    energy += excess;
+                    d_out[a + c] += le;
+                    d_out[a + 3 + c] += le;
+                }
+            }
+        }
+        smooth /= b as f32;
+        energy /= b as f32;
+        let loss = render + emit + c2.smooth * smooth + c2.energy * energy;
+        let stats = |s: &Self| Stage2Stats {
+            iteration: it,
+            render,
+            emitter: emit,
+            smooth,
+            energy,
+            loss,
+            emission: s.emissions().iter().map(|e| e.to_array()).collect(),
+        };
+        let finite =
+            loss.is_finite() && d_out.iter().all(|v| v.is_finite()) && self.d_emission.iter().all(|v| v.is_finite());
+        if !finite {
+            return Ok(StepOutcome {
+                stats: stats(self),
+                finite: false,
+            });
+        }
+        self.fields.material.backward(&mut self.ws, &d_out, &mut self.grad);
+        // L = exp(raw): dL/draw = dL/dL · L.
+        let mut d_raw: Vec<f32> = self
+            .d_emission
+            .iter()
+            .zip(&emission)
+            .flat_map(|(d, l)| (*d * *l).to_array())
+            .collect();
+        let ok = self.grad.mlp.iter().all(|v| v.is_finite())
+            && self
+                .grad
+                .grid
+                .as_ref()
+                .is_none_or(|g| g.values.iter().all(|v| v.is_finite()));
+        if !ok {
+            // Leave every parameter and moment as it was; drop the gradients.
+            self.grad = self.fields.material.new_grad();
+            return Ok(StepOutcome {
+                stats: stats(self),
+                finite: false,
+            });
+        }
+        self.adam.begin_step();
+        let ids = |name: &str| self.adam.group_id(name);
+        let (g_grid, g_mlp, g_em) = (ids(GROUP_GRID), ids(GROUP_MLP), ids(GROUP_EMISSION));
+        if let (Some(id), Some(grid), Some(gg)) = (g_grid, self.fields.material.grid.as_mut(), self.grad.grid.as_mut())
+        {
+            let row = grid.config.features_per_level;
+            self.adam.update_sparse(id, &mut grid.params, gg, row);
+        }
+        if let Some(id) = g_mlp {
+            self.adam
+                .update(id, &mut self.fields.material.mlp.params, &mut self.grad.mlp);
+        }
+        if let Some(id) = g_em {
+            self.adam.update(id, &mut self.fields.emitters.log_emission, &mut d_raw);
+        }
+        Ok(StepOutcome {
+            stats: stats(self),
+            finite: true,
+        })
+    }
+
+    fn is_finite(&self) -> bool {
+        self.fields.material.mlp.params.iter().all(|v| v.is_finite())
+            && self
+                .fields
+                .material
+                .grid
+                .as_ref()
+                .is_none_or(|g| g.params.iter().all(|v| v.is_finite()))
+            && self.fields.emitters.log_emission.iter().all(|v| v.is_finite())
+    }
+
+    fn write_checkpoint(&self, path: &Path) -> Result<(), DataError> {
+        self.fields.save(
+            path,
+            &[
+                ("iteration", self.iteration.to_string()),
+                ("adam_step", self.adam.step.to_string()),
+                ("chosen_k", self.chosen_k.to_string()),
+            ],
+            &[("adam", &self.adam as &dyn Parameters)],
+        )
+    }
+}
