@@ -5,17 +5,18 @@
 pub mod image_metrics;
 pub mod intrinsic;
 pub mod kdtree;
-pub mod marching_cubes;
-pub mod mc_tables;
 pub mod mesh;
 pub mod mesh_metrics;
 pub mod neural;
 pub mod report;
 
 pub use i2sdf_data::ply::{read_ply, write_ply};
+/// Marching cubes lives in the model crate (training bakes the frozen SDF with it); the old paths
+/// `i2sdf_eval::{marching_cubes, mc_tables}` keep naming it.
+pub use i2sdf_model::marching_cubes::{self, marching_cubes, McGrid, McOptions};
+pub use i2sdf_model::mc_tables;
 pub use image_metrics::{depth_l1, normal_angular_l1, psnr, ssim, ImageRef};
 pub use intrinsic::{intrinsic_metrics, IntrinsicOptions};
-pub use marching_cubes::{marching_cubes, McGrid, McOptions};
 pub use mesh::TriangleMesh;
 pub use mesh_metrics::{mesh_metrics, visible_from_views, CullingView, MeshMetrics, MeshMetricsOptions, ObjectRecall};
 pub use report::{EmitterMetrics, EvalReport, GeometryMetrics, MaterialMetrics, MeshReport, RerenderMetrics};

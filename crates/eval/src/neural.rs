@@ -4,7 +4,6 @@
 //! objects where the dataset names its objects.
 
 use crate::image_metrics::{depth_l1, normal_angular_l1, psnr, ssim, ImageRef};
-use crate::marching_cubes::{marching_cubes, McGrid, McOptions};
 use crate::mesh::TriangleMesh;
 use crate::mesh_metrics::{mesh_metrics, CullingView, MeshMetricsOptions, ObjectGroup};
 use crate::report::{EvalReport, MeshReport, ThinObjectsReport};
@@ -13,33 +12,13 @@ use i2sdf_data::ply::read_ply;
 use i2sdf_data::{Bounds, DataError, Dataset, Frame, Split};
 use i2sdf_model::images::render_volume_view;
 use i2sdf_model::renderer::RenderSettings;
-use i2sdf_model::{NeuralScene, SceneQuery};
+use i2sdf_model::NeuralScene;
 
-/// Marching cubes over the scene's SDF inside `bounds` (world units, enlarged by 2 %), with
-/// `resolution` samples along the longest side; vertices in world units.
+/// Marching cubes over the scene's SDF inside `bounds` (world units, each side enlarged by 1 %
+/// at both ends), with `resolution` samples along the longest side; vertices in world units
+/// ([`i2sdf_model::marching_cubes::extract_mesh`] with `pad_fraction` 0.01).
 pub fn extract_mesh(scene: &NeuralScene, bounds: &Bounds, resolution: usize) -> Result<TriangleMesh, DataError> {
-    let norm = &scene.normalization;
-    let lo = norm.to_normalized(bounds.min.into());
-    let hi = norm.to_normalized(bounds.max.into());
-    let pad = (hi - lo) * 0.01;
-    let (lo, hi) = (lo - pad, hi + pad);
-    let grid = McGrid::cubic(
-        [lo.x as f32, lo.y as f32, lo.z as f32],
-        [hi.x as f32, hi.y as f32, hi.z as f32],
-        resolution,
-    )?;
-    let mut query = SceneQuery::new(scene);
-    let mut flat = Vec::new();
-    let mut mesh = marching_cubes(&grid, &McOptions::default(), |pts, out| {
-        flat.clear();
-        flat.extend(pts.iter().flatten());
-        query.sdf(&flat, out);
-    })?;
-    for p in &mut mesh.positions {
-        let w = norm.to_world(glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
-        *p = [w.x as f32, w.y as f32, w.z as f32];
-    }
-    Ok(mesh)
+    i2sdf_model::marching_cubes::extract_mesh(scene, bounds, resolution, 0.01)
 }
 
 /// The training views with GT depth, as the mesh metrics' visibility test wants them.

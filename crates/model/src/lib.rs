@@ -2,15 +2,17 @@
 //! radiance field F_c (z, view direction, normal → LDR colour), the emitter field F_e (z →
 //! probability) and the VolSDF density's β, held together with the normalization as a
 //! [`NeuralScene`]; saved and loaded as safetensors with the configuration in the metadata; the
-//! run directory; inference queries ([`SceneQuery`]) and the ray caster of the trained SDF
-//! ([`raycast`]).
+//! run directory; inference queries ([`SceneQuery`]), the ray caster of the trained SDF
+//! ([`raycast`]) and marching cubes of its zero level set ([`marching_cubes`]).
 
 pub mod config;
 pub mod emitters;
 pub mod images;
 pub mod intrinsic;
 pub mod intrinsic_io;
+pub mod marching_cubes;
 pub mod material_field;
+pub mod mc_tables;
 pub mod query;
 pub mod raycast;
 pub mod renderer;
@@ -20,6 +22,7 @@ pub mod scene;
 pub use config::{Backbone, ModelConfig};
 pub use emitters::{Emitter, EmitterTable};
 pub use intrinsic::{emitter_lights, rerender_view, FrozenScene, LabelledHit, NeuralMaterial, Radiometry, Transfer};
+pub use marching_cubes::{extract_mesh, marching_cubes, McGrid, McOptions};
 pub use material_field::{
     MaterialBackbone, MaterialConfig, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
 };

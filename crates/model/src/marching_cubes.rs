@@ -5,8 +5,10 @@
 //! every cell that uses it, so a closed surface comes out watertight without welding.
 
 use crate::mc_tables::case_table;
-use crate::mesh::TriangleMesh;
-use i2sdf_data::DataError;
+use crate::query::SceneQuery;
+use crate::scene::NeuralScene;
+use i2sdf_data::mesh::TriangleMesh;
+use i2sdf_data::{Bounds, DataError};
 
 /// A regular grid of samples over an axis-aligned box (`samples` points per axis, corners included).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -269,6 +271,52 @@ where
     Ok(mesh)
 }
 
+/// The marching-cubes grid of [`extract_mesh`] in the scene's normalized frame: `bounds` (world
+/// units) mapped into the normalized frame, each side enlarged by `pad_fraction` of its length at
+/// both ends, with `resolution` samples along the longest side (cubic cells).
+pub fn sdf_grid(
+    scene: &NeuralScene,
+    bounds: &Bounds,
+    resolution: usize,
+    pad_fraction: f64,
+) -> Result<McGrid, DataError> {
+    let norm = &scene.normalization;
+    let lo = norm.to_normalized(bounds.min.into());
+    let hi = norm.to_normalized(bounds.max.into());
+    let pad = (hi - lo) * pad_fraction;
+    let (lo, hi) = (lo - pad, hi + pad);
+    McGrid::cubic(
+        [lo.x as f32, lo.y as f32, lo.z as f32],
+        [hi.x as f32, hi.y as f32, hi.z as f32],
+        resolution,
+    )
+}
+
+/// Marching cubes over the scene's SDF (its zero level set) on [`sdf_grid`]`(scene, bounds,
+/// resolution, pad_fraction)`; vertices in world units, faces toward free space. The SDF batches
+/// are evaluated by the (parallel) inference path.
+pub fn extract_mesh(
+    scene: &NeuralScene,
+    bounds: &Bounds,
+    resolution: usize,
+    pad_fraction: f64,
+) -> Result<TriangleMesh, DataError> {
+    let grid = sdf_grid(scene, bounds, resolution, pad_fraction)?;
+    let norm = &scene.normalization;
+    let mut query = SceneQuery::new(scene);
+    let mut flat = Vec::new();
+    let mut mesh = marching_cubes(&grid, &McOptions::default(), |pts, out| {
+        flat.clear();
+        flat.extend(pts.iter().flatten());
+        query.sdf(&flat, out);
+    })?;
+    for p in &mut mesh.positions {
+        let w = norm.to_world(glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
+        *p = [w.x as f32, w.y as f32, w.z as f32];
+    }
+    Ok(mesh)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -327,7 +375,7 @@ mod tests {
             let n = mesh.face_area_vector(f);
             let c = mesh.triangle(f);
             let centroid: [f64; 3] = std::array::from_fn(|a| (c[0][a] + c[1][a] + c[2][a]) as f64 / 3.0);
-            assert!(crate::mesh::dot(n, centroid) > 0.0);
+            assert!(i2sdf_data::mesh::dot(n, centroid) > 0.0);
         }
     }
 
