@@ -20,6 +20,9 @@ pub struct IntrinsicOptions {
     pub seed: u64,
     /// F_e threshold of the emitter labels (the run's `stage2.emitter_threshold`).
     pub emitter_threshold: f32,
+    /// Bake the frozen surface over the dataset's bounds at this resolution for the re-render's
+    /// rays (as stage 2 does; 0: sphere-trace every ray).
+    pub bake_resolution: usize,
 }
 
 impl Default for IntrinsicOptions {
@@ -28,6 +31,7 @@ impl Default for IntrinsicOptions {
             spp: 64,
             seed: 0,
             emitter_threshold: 0.5,
+            bake_resolution: 256,
         }
     }
 }
@@ -283,7 +287,10 @@ pub fn intrinsic_metrics_with_progress(
     options: &IntrinsicOptions,
     on_row: &(dyn Fn() + Sync),
 ) -> Result<(RerenderMetrics, MaterialMetrics, EmitterMetrics), DataError> {
-    let frozen = frozen_scene(scene, fields, options.emitter_threshold);
+    let mut frozen = frozen_scene(scene, fields, options.emitter_threshold);
+    if options.bake_resolution > 0 {
+        frozen.bake(&dataset.bounds, options.bake_resolution)?;
+    }
     let (mut p, mut s) = (Vec::new(), Vec::new());
     let mut acc = MaterialAccumulator::default();
     for (view, f) in dataset.split(Split::Test).enumerate() {
@@ -488,6 +495,7 @@ mod tests {
             spp: 2,
             // Every surface point F_e-positive: the emitter's sphere decides.
             emitter_threshold: -1.0,
+            bake_resolution: 0,
             ..Default::default()
         };
         let (rerender, material, emitters) = intrinsic_metrics(&scene, &fields, &dataset, &options).unwrap();

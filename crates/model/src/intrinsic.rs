@@ -37,6 +37,7 @@ use i2sdf_render::{
     RadianceField, Ray, Scene, SurfacePoint, ViewRender, ViewSettings,
 };
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// How display-referred values map to linear radiance in the units of the input images.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -132,12 +133,13 @@ pub struct FrozenScene<'a> {
     /// rather than the gradient at the BVH's hit, which lies a fraction of a voxel away (the
     /// default: stage 2's secondary rays use only the hit's position and label).
     pub baked_exact_normals: bool,
-    /// The baked surface ([`FrozenScene::bake`]), when baked.
-    baked: Option<BakedSurface>,
+    /// The baked surface ([`FrozenScene::bake`]), when baked (shared: a trainer bakes once and
+    /// hands it to every `FrozenScene` it makes).
+    baked: Option<Arc<BakedSurface>>,
 }
 
 /// The marching-cubes mesh of the frozen SDF in a BVH, world units.
-struct BakedSurface {
+pub struct BakedSurface {
     bvh: Bvh,
     /// The grid step (world units): the Newton step's clamp and the largest |d| at a BVH hit
     /// that is accepted as lying on the zero level set.
@@ -193,16 +195,26 @@ impl<'a> FrozenScene<'a> {
         let mesh = extract_mesh(self.scene, bounds, resolution, BAKE_PAD_FRACTION)?;
         let step = grid.step();
         let voxel = (step[0].max(step[1]).max(step[2]) * self.scene.normalization.scale) as f32;
-        self.baked = Some(BakedSurface {
+        self.baked = Some(Arc::new(BakedSurface {
             bvh: Bvh::build(&mesh),
             voxel,
-        });
+        }));
         Ok(())
     }
 
     /// Whether [`FrozenScene::bake`] has been called.
     pub fn is_baked(&self) -> bool {
         self.baked.is_some()
+    }
+
+    /// The baked surface, to share with other `FrozenScene`s of the same scene.
+    pub fn baked_surface(&self) -> Option<Arc<BakedSurface>> {
+        self.baked.clone()
+    }
+
+    /// Uses a surface baked by another `FrozenScene` of the same scene.
+    pub fn set_baked_surface(&mut self, baked: Option<Arc<BakedSurface>>) {
+        self.baked = baked;
     }
 
     fn centre(&self) -> Vec3 {
@@ -434,8 +446,30 @@ impl<'a> FrozenScene<'a> {
 
 /// The frozen SDF as the integrator's geometry: surface label 0 for ordinary surfaces, k + 1 for
 /// emitter k (what [`emitter_lights`]' light set maps back to L[k]); normals outward.
+/// Rays the integrator sends skip this far (× the normalization scale) before they can hit: it
+/// offsets secondary rays by [`i2sdf_render::integrator::RAY_EPS`] (0.1 mm), made for exact
+/// triangles, while the frozen SDF's surface is only known to the tracer's tolerance — without a
+/// gap, light and BRDF rays hit the surface they leave (measured: the re-render of the default
+/// room came out 27 % dark, its emitters' share nearly gone). Stage 2's own secondary rays are
+/// offset by the same distance along the normal.
+pub const SURFACE_GAP: f32 = 2e-3;
+
+impl FrozenScene<'_> {
+    fn gapped(&self, rays: &[Ray]) -> Vec<Ray> {
+        let gap = SURFACE_GAP * self.scale();
+        rays.iter()
+            .map(|r| Ray {
+                t_min: r.t_min.max(gap),
+                ..*r
+            })
+            .collect()
+    }
+}
+
 impl Geometry for FrozenScene<'_> {
     fn intersect(&self, rays: &[Ray], hits: &mut [Option<RenderHit>]) {
+        let rays = self.gapped(rays);
+        let rays = &rays[..];
         let mut labelled = vec![None; rays.len()];
         self.cast(rays, &mut labelled);
         for (o, h) in hits.iter_mut().zip(labelled) {
@@ -451,6 +485,8 @@ impl Geometry for FrozenScene<'_> {
     /// Shadow rays need no labels: any hit occludes (emitter hits of cone samples go through
     /// `intersect`, as [`i2sdf_render::Visibility::FirstHit`] asks).
     fn occluded(&self, rays: &[Ray], occluded: &mut [bool]) {
+        let rays = self.gapped(rays);
+        let rays = &rays[..];
         if self.baked.is_some() {
             let mut hits = vec![None; rays.len()];
             self.cast_unlabelled(rays, &mut hits);
@@ -672,7 +708,11 @@ mod tests {
             on_emitter += want.is_some() as usize;
             let g = geo[i].unwrap();
             assert_eq!(g.surface, h.emitter.map_or(0, |k| k + 1));
-            assert_eq!((g.t, g.normal), (h.t, h.normal));
+            // The adapter starts rays SURFACE_GAP later: the same crossing, bracketed anew.
+            assert!(
+                (g.t - h.t).abs() < 2e-3 && (g.normal - h.normal).length() < 1e-2,
+                "{g:?} vs {h:?}"
+            );
         }
         assert!(on_emitter > 0 && on_emitter < 100, "{on_emitter} hits on the emitter");
         frozen.emitter_threshold = 1.0;

@@ -44,7 +44,7 @@ pub enum MaterialBackbone {
 
 /// Hyper-parameters of the material field (`material.*` keys of the configuration).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct MaterialConfig {
     pub backbone: MaterialBackbone,
     pub hash_levels: usize,
@@ -55,6 +55,10 @@ pub struct MaterialConfig {
     pub hidden_layers: usize,
     /// Smallest roughness the field can output.
     pub rho_min: f32,
+    /// Roughness a fresh field starts at. Where Ks ≈ 0 (most walls) ρ has no effect on any
+    /// pixel, so it keeps this value: starting rough means a surface is called glossy only where
+    /// the images show a highlight.
+    pub rho_init: f32,
 }
 
 impl Default for MaterialConfig {
@@ -68,6 +72,7 @@ impl Default for MaterialConfig {
             hidden_dim: 64,
             hidden_layers: 2,
             rho_min: 0.05,
+            rho_init: 0.9,
         }
     }
 }
@@ -98,6 +103,7 @@ impl MaterialConfig {
         check::int("material.hidden_dim", self.hidden_dim, 8, 256)?;
         check::int("material.hidden_layers", self.hidden_layers, 1, 8)?;
         check::real("material.rho_min", self.rho_min, 0.0, 0.5)?;
+        check::real("material.rho_init", self.rho_init, self.rho_min as f64 + 0.01, 0.99)?;
         Ok(())
     }
 
@@ -183,11 +189,11 @@ fn rows_to_level(rows: &[f32], n: usize, levels: usize, f: usize, enc: &mut [f32
 impl MaterialField {
     /// A fresh field. `feature_dim` is the SDF feature width (read only by the FeatureMlp
     /// backbone). Initialisation, seeded: the last layer's weights are scaled by 0.1 and its
-    /// biases set so that the field starts nearly uniform at Kd ≈ 0.5, Ks ≈ 0.04, ρ ≈ 0.7 — a
+    /// biases set so that the field starts nearly uniform at Kd ≈ 0.5, Ks ≈ 0.04, ρ ≈ `rho_init` — a
     /// mid-grey, mostly diffuse, rough material. The sigmoid's slope is largest at 0.5, so Kd
     /// can move either way quickly; Ks ≈ 0.04 is the dielectric reflectance (F0 of IOR 1.5) that
     /// most indoor surfaces have, and starting it small keeps the first iterations from
-    /// explaining diffuse shading by a broad glossy lobe; a rough start (ρ ≈ 0.7) keeps the
+    /// explaining diffuse shading by a broad glossy lobe; a rough start (0.9 by default) keeps the
     /// lobe wide, so the 16 sampled directions of eq:render see a smooth estimate rather than
     /// fireflies from a sharp highlight while the albedos are still wrong.
     pub fn new(config: &MaterialConfig, feature_dim: usize, seed: u64) -> Self {
@@ -212,7 +218,7 @@ impl MaterialField {
         for w in &mut mlp.params[last.weight_offset..last.bias_offset] {
             *w *= 0.1;
         }
-        let rho_s = ((0.7 - config.rho_min) / (1.0 - config.rho_min)).clamp(0.05, 0.95);
+        let rho_s = ((config.rho_init - config.rho_min) / (1.0 - config.rho_min)).clamp(0.01, 0.99);
         let bias = [0.0, 0.0, 0.0, logit(0.04), logit(0.04), logit(0.04), logit(rho_s)];
         mlp.params[last.bias_offset..last.bias_offset + MATERIAL_CHANNELS].copy_from_slice(&bias);
         MaterialField {
@@ -369,6 +375,7 @@ mod tests {
             hidden_dim: 16,
             hidden_layers: 2,
             rho_min: 0.05,
+            rho_init: 0.9,
         }
     }
 
@@ -457,7 +464,7 @@ mod tests {
     }
 
     /// Inference equals the training forward (across a block boundary), the outputs are in
-    /// range, and a fresh field starts near Kd 0.5, Ks 0.04, ρ 0.7.
+    /// range, and a fresh field starts near Kd 0.5, Ks 0.04, ρ = rho_init (0.9).
     #[test]
     fn infer_equals_forward_and_starts_grey() {
         for backbone in [MaterialBackbone::HashGrid, MaterialBackbone::FeatureMlp] {
@@ -475,7 +482,7 @@ mod tests {
                 assert!(px[..6].iter().all(|v| (0.0..=1.0).contains(v)));
                 assert!((0.05..=1.0).contains(&px[6]));
                 assert!((px[0] - 0.5).abs() < 0.1 && (px[3] - 0.04).abs() < 0.03, "{px:?}");
-                assert!((px[6] - 0.7).abs() < 0.1, "{px:?}");
+                assert!((px[6] - 0.9).abs() < 0.1, "{px:?}");
             }
         }
     }

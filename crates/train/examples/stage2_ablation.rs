@@ -47,6 +47,54 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         stage.cache.len(),
         t0.elapsed().as_secs_f64()
     );
+    // The floor of the fit: the cached estimator with the GROUND-TRUTH materials of the training
+    // pixels against their targets (what frozen geometry, F_c and the emissions allow).
+    {
+        use i2sdf_train::shading::shade;
+        use i2sdf_train::stage2::PixelKind;
+        let train: Vec<_> = dataset.split(Split::Train).collect();
+        let emission: Vec<Vec3> = (0..stage.fields.emitters.len())
+            .map(|k| stage.fields.emitters.emission(k))
+            .collect();
+        let m = first.stage2.cache_samples;
+        let (mut l1, mut l1_rel, mut n) = (0.0f64, 0.0f64, 0.0f64);
+        let mut ratio = Vec::new();
+        for px in &stage.pixels {
+            let PixelKind::Surface { first: f0 } = px.kind else {
+                continue;
+            };
+            let fr = train[px.view as usize];
+            let (Some(kd), Some(ks), Some(r)) = (&fr.albedo, &fr.specular, &fr.roughness) else {
+                continue;
+            };
+            let p = px.pixel as usize;
+            let brdf = i2sdf_render::GgxBrdf::new(
+                Vec3::from_slice(&kd.data[p * 3..p * 3 + 3]),
+                Vec3::from_slice(&ks.data[p * 3..p * 3 + 3]),
+                r.data[p],
+            );
+            let pred = shade(
+                &brdf,
+                px.point.normal.dot(px.point.view),
+                &stage.cache[f0 as usize..f0 as usize + m],
+                &emission,
+            );
+            l1 += (pred - px.target).abs().element_sum() as f64 / 3.0;
+            l1_rel += ((pred - px.target).abs().element_sum() / px.target.element_sum().max(1e-3)) as f64;
+            ratio.push(pred.element_sum() / px.target.element_sum().max(1e-4));
+            n += 1.0;
+        }
+        ratio.sort_by(f32::total_cmp);
+        let q = |f: f64| ratio[((ratio.len() - 1) as f64 * f) as usize];
+        println!(
+            "GT materials on the cache: re-render L1 {:.4} (relative {:.1} %), pred/target ratio p10 {:.2} p50 {:.2} p90 {:.2}",
+            l1 / n,
+            100.0 * l1_rel / n,
+            q(0.1),
+            q(0.5),
+            q(0.9)
+        );
+    }
     // Test pixels: cast once.
     let test: Vec<_> = dataset.split(Split::Test).collect();
     let mut rays = Vec::new();

@@ -65,6 +65,11 @@ pub struct Stage2Config {
     pub cache_pixels: usize,
     /// Incident-radiance samples per cached pixel.
     pub cache_samples: usize,
+    /// Cached pixels whose samples are re-traced each iteration (0: the cache is traced once).
+    pub refresh_pixels: usize,
+    /// Marching-cubes resolution of the frozen surface baked for the secondary rays (a BVH,
+    /// hits refined onto the SDF; 0: sphere-trace every ray).
+    pub bake_resolution: usize,
     /// N of the live estimator (the paper's 16).
     pub samples: usize,
     /// Sample the emitters too (one-sample MIS with the BRDF), for both estimators.
@@ -103,6 +108,8 @@ impl Default for Stage2Config {
             estimator: Stage2Estimator::Cached,
             cache_pixels: 131_072,
             cache_samples: 64,
+            refresh_pixels: 0,
+            bake_resolution: 256,
             samples: 16,
             emitter_sampling: true,
             lr_grid: 1e-2,
@@ -309,6 +316,10 @@ impl TrainConfig {
         int("stage2.pixels", s2.pixels, 1, MAX_POINTS)?;
         int("stage2.cache_pixels", s2.cache_pixels, 0, 1 << 26)?;
         int("stage2.cache_samples", s2.cache_samples, 1, 4096)?;
+        int("stage2.refresh_pixels", s2.refresh_pixels, 0, MAX_POINTS)?;
+        if s2.bake_resolution != 0 {
+            int("stage2.bake_resolution", s2.bake_resolution, 16, 1024)?;
+        }
         int("stage2.samples", s2.samples, 1, 4096)?;
         positive("stage2.lr_grid", s2.lr_grid, 1.0)?;
         positive("stage2.lr_mlp", s2.lr_mlp, 1.0)?;

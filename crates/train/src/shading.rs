@@ -47,8 +47,8 @@ pub struct ShadingPoint {
 }
 
 /// Offset of secondary-ray origins along the normal, in world units relative to the scene scale
-/// (so they leave the surface the caster found).
-pub const SECONDARY_OFFSET: f32 = 2e-3;
+/// (so they leave the surface the caster found): the same gap the integrator's rays get.
+pub const SECONDARY_OFFSET: f32 = i2sdf_model::intrinsic::SURFACE_GAP;
 
 /// Draws `n` directions per point from `mixture_of(i)`, traces them in `frozen` and returns the
 /// `points.len() × n` samples (point-major). `rngs[i]` is point i's sampler. `scale` is the

@@ -27,7 +27,7 @@ use crate::shading::{shade, shade_backward, trace_incident, IncidentSample, Shad
 use glam::{DVec3, Vec3};
 use i2sdf_data::{DataError, Dataset, Split};
 use i2sdf_model::emitters::{Emitter, EmitterTable};
-use i2sdf_model::intrinsic::{FrozenScene, LabelledHit, Radiometry, Transfer};
+use i2sdf_model::intrinsic::{BakedSurface, FrozenScene, LabelledHit, Radiometry, Transfer};
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::material_field::{
     MaterialBackbone, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
@@ -42,6 +42,7 @@ use rand_pcg::{Pcg32, Pcg64};
 use rayon::prelude::*;
 use serde::Serialize;
 use std::path::Path;
+use std::sync::Arc;
 
 /// LDR values at or above this are saturated (8-bit 255 with some slack for 16-bit PNGs).
 pub const SATURATED: f32 = 254.5 / 255.0;
@@ -121,6 +122,9 @@ pub struct CachedPixel {
     pub target: Vec3,
     pub saturated: u8,
     pub kind: PixelKind,
+    /// Training view (index into the views given) and pixel (row-major).
+    pub view: u32,
+    pub pixel: u32,
 }
 
 /// Per-iteration statistics (one JSON object of the log).
@@ -154,6 +158,22 @@ pub struct Stage2 {
     pub chosen_k: usize,
     /// log L[k] as initialised from the images (for [`Stage2::restart`]).
     initial_emission: Vec<f32>,
+    /// Index in `pixels` of each surface pixel, in cache order.
+    surface: Vec<u32>,
+    /// The frozen surface baked for ray casting (`stage2.bake_resolution`).
+    baked: Option<Arc<BakedSurface>>,
+}
+
+/// The surface pixels (cache order) whose samples iteration `it` re-traces: `count` draws of the
+/// iteration's own stream, so a resumed run can tell which samples each pixel had.
+fn refresh_selection(seed: u64, it: u64, surface: usize, count: usize) -> Vec<u32> {
+    if surface == 0 || count == 0 {
+        return Vec::new();
+    }
+    let mut rng = Pcg64::seed_from_u64(seed ^ 0x5245_4652 ^ it.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    (0..count.min(surface))
+        .map(|_| rng.gen_range(0..surface as u32))
+        .collect()
 }
 
 fn new_adam(config: &TrainConfig, material: &MaterialField, emitters: &EmitterTable) -> Adam {
@@ -247,6 +267,20 @@ impl Stage2 {
         given: Option<(MaterialField, EmitterTable)>,
         progress: &dyn Fn(&str),
     ) -> Result<Stage2, DataError> {
+        Self::build(config, scene, views, radiometry, given, 0, progress)
+    }
+
+    /// [`Stage2::new`] for a run at iteration `resume_at`: each cached pixel's samples are the ones
+    /// it had then (its initial ones, or those of its last refresh before `resume_at`).
+    fn build(
+        config: TrainConfig,
+        scene: NeuralScene,
+        views: &[TargetView],
+        radiometry: Radiometry,
+        given: Option<(MaterialField, EmitterTable)>,
+        resume_at: u64,
+        progress: &dyn Fn(&str),
+    ) -> Result<Stage2, DataError> {
         let c2 = config.stage2.clone();
         let seed = config.train.seed;
         let scale = scene.normalization.scale as f32;
@@ -287,6 +321,32 @@ impl Stage2 {
         let hit_points: Vec<Vec3> = hit_idx.iter().map(|&i| hits[i].unwrap().position).collect();
         let mut prob = vec![0.0f32; hit_points.len()];
         FrozenScene::new(&scene, &no_emitters, radiometry).emitter_prob(&hit_points, &mut prob);
+        // Bake the frozen surface for the secondary rays (a BVH over its marching-cubes mesh, hits
+        // refined onto the SDF): over the box of the surface the training pixels see and the
+        // cameras, the dataset's own bounds in effect.
+        let baked = if c2.bake_resolution > 0 && !hit_points.is_empty() {
+            let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+            for p in hit_points
+                .iter()
+                .map(|p| p.as_dvec3())
+                .chain(views.iter().map(|v| v.camera.center()))
+            {
+                lo = lo.min(p);
+                hi = hi.max(p);
+            }
+            progress(&format!("baking the frozen surface at {}³", c2.bake_resolution));
+            let mut f = FrozenScene::new(&scene, &no_emitters, radiometry);
+            f.bake(
+                &i2sdf_data::Bounds {
+                    min: lo.to_array(),
+                    max: hi.to_array(),
+                },
+                c2.bake_resolution,
+            )?;
+            f.baked_surface()
+        } else {
+            None
+        };
         let has_masks = views.iter().all(|v| v.emitter_mask.is_some());
         let (material, emitters, chosen_k) = match given {
             Some((m, e)) => {
@@ -347,6 +407,7 @@ impl Stage2 {
         // 3. Pixel kinds: emitters by the mask where the dataset has one, else by F_e.
         let mut frozen = FrozenScene::new(&scene, &emitters, radiometry);
         frozen.emitter_threshold = c2.emitter_threshold;
+        frozen.set_baked_surface(baked.clone());
         let mut pixels = Vec::with_capacity(hit_idx.len());
         let mut surface = 0u32;
         for (j, &i) in hit_idx.iter().enumerate() {
@@ -382,6 +443,8 @@ impl Stage2 {
                 target: Vec3::from_array(view.rgb[p as usize]),
                 saturated: view.saturated[p as usize],
                 kind,
+                view: v,
+                pixel: p,
             });
         }
         // 4. Incident radiance of every surface pixel, traced once (in blocks: bounded memory).
@@ -394,6 +457,13 @@ impl Stage2 {
         let m = c2.cache_samples;
         let mut cache = Vec::with_capacity(surf.len() * m);
         let mixture = cache_mixture(&emitters, c2.emitter_sampling);
+        // Salt of each surface pixel's samples: 1 initially, it + 2 after a refresh at iteration it.
+        let mut salt = vec![1u64; surf.len()];
+        for it in 0..resume_at {
+            for j in refresh_selection(seed, it, surf.len(), c2.refresh_pixels) {
+                salt[j as usize] = it + 2;
+            }
+        }
         const BLOCK: usize = 8192;
         for (b, block) in surf.chunks(BLOCK).enumerate() {
             progress(&format!(
@@ -402,10 +472,15 @@ impl Stage2 {
                 surf.len()
             ));
             let pts: Vec<ShadingPoint> = block.iter().map(|(_, p)| *p).collect();
-            let mut rngs: Vec<Pcg32> = block.iter().map(|(i, _)| pixel_rng(seed, *i as u64, 1)).collect();
+            let mut rngs: Vec<Pcg32> = block
+                .iter()
+                .enumerate()
+                .map(|(j, (i, _))| pixel_rng(seed, *i as u64, salt[b * BLOCK + j]))
+                .collect();
             cache.extend(trace_incident(&frozen, &pts, m, scale, &|_| mixture, &mut rngs));
         }
         drop(frozen);
+        let surface: Vec<u32> = surf.iter().map(|(i, _)| *i as u32).collect();
         let adam = new_adam(&config, &material, &emitters);
         let grad = material.new_grad();
         let k = emitters.len();
@@ -427,6 +502,8 @@ impl Stage2 {
             iteration: 0,
             chosen_k,
             initial_emission,
+            surface,
+            baked,
         })
     }
 
@@ -456,19 +533,24 @@ impl Stage2 {
         checkpoint: &Path,
         progress: &dyn Fn(&str),
     ) -> Result<Stage2, DataError> {
-        let (fields, _) = IntrinsicFields::load(checkpoint, scene.feature_dim(), &mut [])?;
+        let (fields, meta0) = IntrinsicFields::load(checkpoint, scene.feature_dim(), &mut [])?;
+        let at: u64 = meta0
+            .get("iteration")
+            .and_then(|v| v.parse().ok())
+            .ok_or_else(|| DataError::field(checkpoint, "iteration", "missing or not an integer"))?;
         if fields.material.config != config.material {
             return Err(DataError::invalid(format!(
                 "{}: the checkpoint's [material] configuration differs from the run's",
                 checkpoint.display()
             )));
         }
-        let mut s = Self::new(
+        let mut s = Self::build(
             config,
             scene,
             views,
             radiometry,
             Some((fields.material, fields.emitters)),
+            at,
             progress,
         )?;
         let (mut loaded, meta) = {
@@ -493,6 +575,14 @@ impl Stage2 {
         Ok(s)
     }
 
+    /// The frozen scene with the trainer's emitters, threshold and baked surface.
+    pub fn frozen(&self) -> FrozenScene<'_> {
+        let mut f = FrozenScene::new(&self.scene, &self.fields.emitters, self.fields.radiometry);
+        f.emitter_threshold = self.config.stage2.emitter_threshold;
+        f.set_baked_surface(self.baked.clone());
+        f
+    }
+
     /// Surface and emitter pixels of the cache.
     pub fn counts(&self) -> (usize, usize) {
         let s = self
@@ -515,7 +605,7 @@ impl Stage2 {
         let features = match self.fields.material.config.backbone {
             MaterialBackbone::FeatureMlp => {
                 let mut z = vec![0.0; world.len() * self.scene.feature_dim()];
-                FrozenScene::new(&self.scene, &self.fields.emitters, self.fields.radiometry).features(world, &mut z);
+                self.frozen().features(world, &mut z);
                 z
             }
             MaterialBackbone::HashGrid => Vec::new(),
@@ -526,11 +616,7 @@ impl Stage2 {
     /// The samples of surface pixel `i` for this step: the cache's, or freshly traced (live).
     fn live_samples(&self, batch: &[usize], brdfs: &[GgxBrdf], rng: &mut Pcg64) -> Vec<IncidentSample> {
         let c2 = &self.config.stage2;
-        let frozen = {
-            let mut f = FrozenScene::new(&self.scene, &self.fields.emitters, self.fields.radiometry);
-            f.emitter_threshold = c2.emitter_threshold;
-            f
-        };
+        let frozen = self.frozen();
         let pts: Vec<ShadingPoint> = batch.iter().map(|&i| self.pixels[i].point).collect();
         let mut rngs: Vec<Pcg32> = batch.iter().map(|_| Pcg32::seed_from_u64(rng.gen())).collect();
         let emitters = &self.fields.emitters;
@@ -582,6 +668,36 @@ impl TrainStage for Stage2 {
         let b = c2.pixels.min(self.pixels.len().max(1));
         if self.pixels.is_empty() {
             return Err(DataError::failed("stage 2: no training pixel hits the frozen surface"));
+        }
+        // Re-trace some pixels' samples (FIPT's "now and then", every iteration for a few): over
+        // the run each pixel sees several independent sample sets, so the fit averages the
+        // estimator's noise away instead of baking one draw into the materials.
+        let refresh = refresh_selection(self.config.train.seed, it, self.surface.len(), c2.refresh_pixels);
+        if !refresh.is_empty() {
+            let frozen = self.frozen();
+            let pts: Vec<ShadingPoint> = refresh
+                .iter()
+                .map(|&j| self.pixels[self.surface[j as usize] as usize].point)
+                .collect();
+            let seed = self.config.train.seed;
+            let mut rngs: Vec<Pcg32> = refresh
+                .iter()
+                .map(|&j| pixel_rng(seed, self.surface[j as usize] as u64, it + 2))
+                .collect();
+            let mixture = cache_mixture(&self.fields.emitters, c2.emitter_sampling);
+            let m = c2.cache_samples;
+            let fresh = trace_incident(
+                &frozen,
+                &pts,
+                m,
+                self.scene.normalization.scale as f32,
+                &|_| mixture,
+                &mut rngs,
+            );
+            for (k, &j) in refresh.iter().enumerate() {
+                let first = j as usize * m;
+                self.cache[first..first + m].copy_from_slice(&fresh[k * m..(k + 1) * m]);
+            }
         }
         let batch: Vec<usize> = (0..b).map(|_| rng.gen_range(0..self.pixels.len())).collect();
         // Points x and x + ε (the smoothness term of eq:material), in one forward.

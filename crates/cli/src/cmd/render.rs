@@ -76,7 +76,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         0.5
     };
-    let frozen = fields.as_ref().map(|f| frozen_scene(&scene, f, threshold));
+    let mut frozen = fields.as_ref().map(|f| frozen_scene(&scene, f, threshold));
+    if let Some(fr) = frozen.as_mut() {
+        // Baked as stage 2 and eval bake it: the re-render's rays in a BVH, refined onto the SDF.
+        fr.bake(&dataset.bounds, 256)?;
+    }
     let rows: usize = frames.iter().map(|f| f.camera.height).sum();
     let passes = stage1 as usize + stage2 as usize;
     let bar = ProgressBar::new((rows * passes) as u64);
