@@ -114,6 +114,63 @@ fn train_bad_input_exits_2_naming_the_key_or_file() {
     assert!(!out.exists(), "a refused run left {}", out.display());
 }
 
+/// Stage 2 needs a finished stage-1 run; bad stage-2 keys name themselves; a tiny stage 2 on a
+/// copy of the tiny run works end to end and refuses to start over without --resume.
+#[test]
+fn train_material_stage() {
+    let (_, data, run) = trained();
+    let dir = tempfile::tempdir().unwrap();
+    let material = |out: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "train",
+            "--quiet",
+            "--stage",
+            "material",
+            "--data",
+            s(data),
+            "--out",
+            s(out),
+        ];
+        args.extend_from_slice(extra);
+        i2sdf(&args)
+    };
+    let nowhere = dir.path().join("nowhere");
+    expect(material(&nowhere, &[]), 2, &["nowhere", "stage-1 run"]);
+    assert!(!nowhere.exists());
+    let copy = dir.path().join("copy");
+    std::fs::create_dir(&copy).unwrap();
+    for f in ["checkpoint.safetensors", "config.toml", "run.json"] {
+        std::fs::copy(run.join(f), copy.join(f)).unwrap();
+    }
+    expect(material(&copy, &["--set", "stage2.pixels=0"]), 2, &["stage2.pixels"]);
+    expect(
+        material(&copy, &["--set", "stage2.refresh_pixels=5"]),
+        2,
+        &["stage2.refresh_pixels", "stage2.irradiance_radius"],
+    );
+    let tiny = [
+        "--set",
+        "stage2.iterations=3",
+        "--set",
+        "stage2.cache_samples=4",
+        "--set",
+        "stage2.bake_resolution=32",
+        "--set",
+        "material.hash_levels=2",
+        "--set",
+        "material.hash_log2_table=10",
+    ];
+    let o = material(&copy, &tiny);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    assert!(copy.join("stage2.safetensors").is_file() && copy.join("emitters.json").is_file());
+    let emitters: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(copy.join("emitters.json")).unwrap()).unwrap();
+    assert!(emitters["emitters"].is_array());
+    expect(material(&copy, &tiny), 2, &["stage2.safetensors", "--resume"]);
+    let o = material(&copy, &[&["--resume"][..], &tiny[..]].concat());
+    assert_eq!(o.code, 0, "{}", o.stderr);
+}
+
 #[test]
 fn mesh_bad_input_exits_2() {
     let (_, _, run) = trained();

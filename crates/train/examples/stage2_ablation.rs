@@ -40,7 +40,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (scene, _) = NeuralScene::load(&run.checkpoint_path())?;
     let t0 = Instant::now();
     let views = target_views(&dataset, first.stage2.use_hdr);
-    let mut stage = Stage2::new(first.clone(), scene, &views, radiometry(&dataset), None, &|_| {})?;
+    let mut stage = Stage2::new(first.clone(), scene, &views, radiometry(&dataset), None, &|m| {
+        eprintln!("{m}")
+    })?;
     let (surface, emitter) = stage.counts();
     println!(
         "cache: {surface} surface + {emitter} emitter pixels, {} samples, built in {:.1} s",
@@ -50,7 +52,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // The floor of the fit: the cached estimator with the GROUND-TRUTH materials of the training
     // pixels against their targets (what frozen geometry, F_c and the emissions allow).
     {
-        use i2sdf_train::shading::shade;
+        use i2sdf_train::shading::{shade, shade_pooled};
         use i2sdf_train::stage2::PixelKind;
         let train: Vec<_> = dataset.split(Split::Train).collect();
         let emission: Vec<Vec3> = (0..stage.fields.emitters.len())
@@ -73,12 +75,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 Vec3::from_slice(&ks.data[p * 3..p * 3 + 3]),
                 r.data[p],
             );
-            let pred = shade(
-                &brdf,
-                px.point.normal.dot(px.point.view),
-                &stage.cache[f0 as usize..f0 as usize + m],
-                &emission,
-            );
+            let samples = &stage.cache[f0 as usize..f0 as usize + m];
+            let nv = px.point.normal.dot(px.point.view);
+            let pred = match stage.diffuse.get(f0 as usize / m) {
+                Some(d) => shade_pooled(&brdf, nv, samples, &emission, d),
+                None => shade(&brdf, nv, samples, &emission),
+            };
             l1 += (pred - px.target).abs().element_sum() as f64 / 3.0;
             l1_rel += ((pred - px.target).abs().element_sum() / px.target.element_sum().max(1e-3)) as f64;
             ratio.push(pred.element_sum() / px.target.element_sum().max(1e-4));

@@ -67,6 +67,11 @@ pub struct Stage2Config {
     pub cache_samples: usize,
     /// Cached pixels whose samples are re-traced each iteration (0: the cache is traced once).
     pub refresh_pixels: usize,
+    /// Shade training pixels with the dataset's normal maps where it has them (else the SDF's).
+    pub input_normals: bool,
+    /// Radius (normalized units) over which the diffuse irradiance of cached pixels with similar
+    /// normals is averaged (0: each pixel's own samples only).
+    pub irradiance_radius: f32,
     /// Marching-cubes resolution of the frozen surface baked for the secondary rays (a BVH,
     /// hits refined onto the SDF; 0: sphere-trace every ray).
     pub bake_resolution: usize,
@@ -110,6 +115,8 @@ impl Default for Stage2Config {
             cache_samples: 64,
             refresh_pixels: 0,
             bake_resolution: 256,
+            irradiance_radius: 0.016,
+            input_normals: true,
             samples: 16,
             emitter_sampling: true,
             lr_grid: 1e-2,
@@ -317,6 +324,15 @@ impl TrainConfig {
         int("stage2.cache_pixels", s2.cache_pixels, 0, 1 << 26)?;
         int("stage2.cache_samples", s2.cache_samples, 1, 4096)?;
         int("stage2.refresh_pixels", s2.refresh_pixels, 0, MAX_POINTS)?;
+        real("stage2.irradiance_radius", s2.irradiance_radius, 0.0, 0.5)?;
+        if s2.refresh_pixels > 0 && s2.irradiance_radius > 0.0 {
+            // The pooled diffuse sums come from the samples traced at the start; refreshed
+            // samples would leave them stale (and a resumed run could not rebuild them).
+            return Err(format!(
+                "stage2.refresh_pixels = {} needs stage2.irradiance_radius = 0 (it is {}): pooled irradiance is computed once",
+                s2.refresh_pixels, s2.irradiance_radius
+            ));
+        }
         if s2.bake_resolution != 0 {
             int("stage2.bake_resolution", s2.bake_resolution, 16, 1024)?;
         }

@@ -158,6 +158,28 @@ pub fn components(points: &[[f64; 3]], link: f64) -> (Vec<usize>, usize) {
     (label, count)
 }
 
+/// Median distance from (up to 512 evenly chosen) points to their nearest other point.
+pub fn median_spacing(points: &[[f64; 3]]) -> f64 {
+    if points.len() < 2 {
+        return 0.0;
+    }
+    let step = points.len().div_ceil(512);
+    let mut d: Vec<f64> = (0..points.len())
+        .step_by(step)
+        .map(|i| {
+            points
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != i)
+                .map(|(_, q)| dist2(&points[i], q))
+                .fold(f64::INFINITY, f64::min)
+                .sqrt()
+        })
+        .collect();
+    d.sort_by(f64::total_cmp);
+    d[d.len() / 2]
+}
+
 /// Are the points one connected piece at link distance `link`?
 pub fn is_connected(points: &[[f64; 3]], link: f64) -> bool {
     points.len() <= 1 || components(points, link).1 == 1
@@ -331,6 +353,21 @@ mod tests {
         gap.push([10.0, 0.0, 0.0]);
         assert!(!is_connected(&gap, 0.11));
         assert!(is_connected(&[], 0.1) && is_connected(&[[1.0, 2.0, 3.0]], 0.1));
+    }
+
+    /// Forty points spread over the same panel (a small cache): still one emitter, not pieces.
+    #[test]
+    fn a_sparsely_sampled_panel_stays_one_emitter() {
+        let mut rng = Pcg64::seed_from_u64(8);
+        let mut pts = blob(&mut rng, [-0.6, 2.65, 0.0], [0.62, 0.0, 0.41], 40);
+        pts.extend(blob(&mut rng, [-1.8, 1.8, -1.5], [0.1, 0.1, 0.1], 12));
+        let s = ClusterSettings {
+            link: 0.05,
+            min_fraction: 0.05,
+            ..settings()
+        };
+        let (clusters, _) = cluster_emitters(&pts, &s, &mut rng);
+        assert_eq!(clusters.len(), 2, "{clusters:?}");
     }
 
     #[test]

@@ -12,3 +12,4 @@ pub mod schedule;
 pub mod shading;
 pub mod stage1;
 pub mod stage2;
+pub mod targets;

@@ -189,6 +189,127 @@ pub fn shade_backward(
     (sum, grad)
 }
 
+/// The diffuse part of a point's samples, Σ w L split into what F_c sends (`field`) and the
+/// weight that reaches each emitter (`emit[k]`, to multiply by L[k]): R̂ = Kd/π ⊙ (field +
+/// Σ emit[k] L[k]) + the specular part. Averaged over nearby points with similar normals
+/// (irradiance is smooth where albedo is not), it is a denoised diffuse estimate.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DiffuseSums {
+    pub field: Vec3,
+    pub emit: Vec<f32>,
+}
+
+impl DiffuseSums {
+    pub fn of(samples: &[IncidentSample], emitters: usize) -> Self {
+        let mut d = DiffuseSums {
+            field: Vec3::ZERO,
+            emit: vec![0.0; emitters],
+        };
+        for s in samples {
+            if s.emitter >= 0 {
+                d.emit[s.emitter as usize] += s.weight;
+            } else {
+                d.field += Vec3::from_array(s.radiance) * s.weight;
+            }
+        }
+        d
+    }
+
+    fn irradiance(&self, emission: &[Vec3]) -> Vec3 {
+        self.field + self.emit.iter().zip(emission).map(|(w, l)| *l * *w).sum::<Vec3>()
+    }
+}
+
+/// R̂ with the diffuse part taken from `diffuse` (see [`DiffuseSums`]) and the specular part
+/// from the samples; equal to [`shade`] when `diffuse` is the samples' own sums.
+pub fn shade_pooled(
+    brdf: &GgxBrdf,
+    n_dot_v: f32,
+    samples: &[IncidentSample],
+    emission: &[Vec3],
+    diffuse: &DiffuseSums,
+) -> Vec3 {
+    let spec = GgxBrdf {
+        kd: Vec3::ZERO,
+        ..*brdf
+    };
+    brdf.kd * std::f32::consts::FRAC_1_PI * diffuse.irradiance(emission) + shade(&spec, n_dot_v, samples, emission)
+}
+
+/// [`shade_pooled`] and its gradient (as [`shade_backward`]).
+pub fn shade_pooled_backward(
+    brdf: &GgxBrdf,
+    n_dot_v: f32,
+    samples: &[IncidentSample],
+    emission: &[Vec3],
+    diffuse: &DiffuseSums,
+    g: Vec3,
+    d_emission: &mut [Vec3],
+) -> (Vec3, GgxGrad) {
+    use std::f32::consts::FRAC_1_PI;
+    let spec = GgxBrdf {
+        kd: Vec3::ZERO,
+        ..*brdf
+    };
+    let (s, mut grad) = shade_backward(&spec, n_dot_v, samples, emission, g, d_emission);
+    let e = diffuse.irradiance(emission);
+    grad.kd = g * e * FRAC_1_PI;
+    for (d, w) in d_emission.iter_mut().zip(&diffuse.emit) {
+        *d += g * brdf.kd * (FRAC_1_PI * w);
+    }
+    (brdf.kd * FRAC_1_PI * e + s, grad)
+}
+
+/// Averages each surface pixel's [`DiffuseSums`] over the surface pixels within `radius` (world)
+/// whose normals agree (cos > 0.9): a uniform grid of cell `radius` finds them among 27 cells.
+/// Irradiance varies slowly across a surface while albedo does not, so the diffuse estimate of
+/// a pixel borrows the samples of its neighbours (from other views too) — the material fit no
+/// longer bakes one noisy draw per pixel into Kd. The bias is the blur of irradiance over the
+/// radius (shadow edges soften by about that much).
+pub fn pool_diffuse(points: &[ShadingPoint], sums: &[DiffuseSums], radius: f32) -> Vec<DiffuseSums> {
+    use std::collections::HashMap;
+    let cell = |p: Vec3| (p / radius).floor().as_ivec3().to_array();
+    let mut grid: HashMap<[i32; 3], Vec<u32>> = HashMap::new();
+    for (i, p) in points.iter().enumerate() {
+        grid.entry(cell(p.position)).or_default().push(i as u32);
+    }
+    let r2 = radius * radius;
+    (0..points.len())
+        .into_par_iter()
+        .map(|i| {
+            let p = &points[i];
+            let c = cell(p.position);
+            let mut acc = DiffuseSums {
+                field: Vec3::ZERO,
+                emit: vec![0.0; sums[i].emit.len()],
+            };
+            let mut n = 0u32;
+            for dx in -1..=1 {
+                for dy in -1..=1 {
+                    for dz in -1..=1 {
+                        let Some(list) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
+                            continue;
+                        };
+                        for &j in list {
+                            let q = &points[j as usize];
+                            if (q.position - p.position).length_squared() <= r2 && q.normal.dot(p.normal) > 0.9 {
+                                let s = &sums[j as usize];
+                                acc.field += s.field;
+                                acc.emit.iter_mut().zip(&s.emit).for_each(|(a, b)| *a += b);
+                                n += 1;
+                            }
+                        }
+                    }
+                }
+            }
+            let inv = 1.0 / n.max(1) as f32;
+            acc.field *= inv;
+            acc.emit.iter_mut().for_each(|a| *a *= inv);
+            acc
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -270,6 +391,29 @@ mod tests {
             p.rho += h;
             m.rho -= h;
             check("rho", grad.rho, loss(&p, &emission), loss(&m, &emission));
+            // The pooled form with the samples' own sums is the same estimator, gradients included.
+            let own = DiffuseSums::of(&samples, 2);
+            let mut d_em2 = vec![Vec3::ZERO; 2];
+            let (v2, g2) = shade_pooled_backward(&brdf, nv, &samples, &emission, &own, g, &mut d_em2);
+            assert!((v2 - value).abs().max_element() < 1e-4 * (1.0 + value.abs().max_element()));
+            assert!(
+                (v2 - shade_pooled(&brdf, nv, &samples, &emission, &own))
+                    .abs()
+                    .max_element()
+                    < 1e-5
+            );
+            for (a, b) in [
+                (g2.kd, grad.kd),
+                (g2.ks, grad.ks),
+                (d_em2[0], d_em[0]),
+                (d_em2[1], d_em[1]),
+            ] {
+                assert!(
+                    (a - b).abs().max_element() < 1e-4 * (1.0 + b.abs().max_element()),
+                    "{a} vs {b}"
+                );
+            }
+            assert!((g2.rho - grad.rho).abs() < 1e-4 * (1.0 + grad.rho.abs()));
         }
     }
 }

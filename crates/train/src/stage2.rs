@@ -23,11 +23,15 @@
 use crate::config::{Stage2Estimator, TrainConfig};
 use crate::driver::{StepOutcome, TrainStage};
 use crate::kmeans::{cluster_emitters, ClusterSettings};
-use crate::shading::{shade, shade_backward, trace_incident, IncidentSample, ShadingPoint};
+use crate::shading::{
+    pool_diffuse, shade, shade_backward, shade_pooled, shade_pooled_backward, trace_incident, DiffuseSums,
+    IncidentSample, ShadingPoint,
+};
+pub use crate::targets::{radiometry, target_views, TargetView, SATURATED};
 use glam::{DVec3, Vec3};
-use i2sdf_data::{DataError, Dataset, Split};
+use i2sdf_data::DataError;
 use i2sdf_model::emitters::{Emitter, EmitterTable};
-use i2sdf_model::intrinsic::{BakedSurface, FrozenScene, LabelledHit, Radiometry, Transfer};
+use i2sdf_model::intrinsic::{BakedSurface, FrozenScene, LabelledHit, Radiometry};
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::material_field::{
     MaterialBackbone, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
@@ -43,69 +47,6 @@ use rayon::prelude::*;
 use serde::Serialize;
 use std::path::Path;
 use std::sync::Arc;
-
-/// LDR values at or above this are saturated (8-bit 255 with some slack for 16-bit PNGs).
-pub const SATURATED: f32 = 254.5 / 255.0;
-
-/// One training view as stage 2 fits it: linear targets, which channels are saturated, and
-/// (where the dataset has them) the emitter mask.
-#[derive(Clone, Debug)]
-pub struct TargetView {
-    pub camera: i2sdf_data::Camera,
-    /// Linear RGB per pixel, row-major.
-    pub rgb: Vec<[f32; 3]>,
-    /// Per pixel, bit c set when channel c only bounds the prediction from below.
-    pub saturated: Vec<u8>,
-    pub emitter_mask: Option<Vec<bool>>,
-}
-
-/// The dataset's transfer and exposure.
-pub fn radiometry(dataset: &Dataset) -> Radiometry {
-    Radiometry {
-        transfer: if dataset.ldr_transfer == "linear" {
-            Transfer::Linear
-        } else {
-            Transfer::Srgb
-        },
-        exposure: dataset.ldr_exposure,
-    }
-}
-
-/// The training views' targets (see the module comment for the radiometry).
-pub fn target_views(dataset: &Dataset, use_hdr: bool) -> Vec<TargetView> {
-    let rm = radiometry(dataset);
-    dataset
-        .split(Split::Train)
-        .map(|f| {
-            let n = f.pixel_count();
-            let (mut rgb, mut saturated) = (Vec::with_capacity(n), Vec::with_capacity(n));
-            match (&f.hdr, use_hdr) {
-                (Some(hdr), true) => {
-                    let scale = rm.exposure.unwrap_or(1.0) as f32;
-                    for p in hdr.data.chunks_exact(3) {
-                        rgb.push([p[0] * scale, p[1] * scale, p[2] * scale]);
-                        saturated.push(0);
-                    }
-                }
-                _ => {
-                    for p in f.rgb.data.chunks_exact(3) {
-                        rgb.push([rm.linearize(p[0]), rm.linearize(p[1]), rm.linearize(p[2])]);
-                        saturated.push((0..3).fold(0u8, |m, c| m | (((p[c] >= SATURATED) as u8) << c)));
-                    }
-                }
-            }
-            TargetView {
-                camera: f.camera.clone(),
-                rgb,
-                saturated,
-                emitter_mask: f
-                    .emitter_mask
-                    .as_ref()
-                    .map(|m| m.data.iter().map(|&v| v > 0.5).collect()),
-            }
-        })
-        .collect()
-}
 
 /// What a cached pixel sees.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -162,6 +103,9 @@ pub struct Stage2 {
     surface: Vec<u32>,
     /// The frozen surface baked for ray casting (`stage2.bake_resolution`).
     baked: Option<Arc<BakedSurface>>,
+    /// Per surface pixel (cache order), the diffuse sums of its samples averaged over nearby
+    /// pixels (`stage2.irradiance_radius`); empty when pooling is off.
+    pub diffuse: Vec<DiffuseSums>,
 }
 
 /// The surface pixels (cache order) whose samples iteration `it` re-traces: `count` draws of the
@@ -409,6 +353,7 @@ impl Stage2 {
         frozen.emitter_threshold = c2.emitter_threshold;
         frozen.set_baked_surface(baked.clone());
         let mut pixels = Vec::with_capacity(hit_idx.len());
+        let (mut given_normals, mut normal_angle) = (0usize, 0.0f64);
         let mut surface = 0u32;
         for (j, &i) in hit_idx.iter().enumerate() {
             let h = hits[i].unwrap();
@@ -419,11 +364,19 @@ impl Stage2 {
                 None => prob[j] > c2.emitter_threshold,
             };
             let to_cam = -rays[i].dir;
-            let normal = if h.normal.dot(to_cam) < 0.0 {
-                -h.normal
-            } else {
-                h.normal
-            };
+            // The shading normal: the dataset's normal map where it has one (an input, as in
+            // stage 1's normal loss; sharper than the SDF's gradient at edges), else the SDF's.
+            let given = view
+                .normal
+                .as_ref()
+                .map(|n| Vec3::from_array(n[p as usize]))
+                .filter(|n| c2.input_normals && (n.length() - 1.0).abs() < 0.1);
+            if let Some(n) = given {
+                given_normals += 1;
+                normal_angle += n.normalize().dot(h.normal).abs().min(1.0).acos() as f64;
+            }
+            let normal = given.map(|n| n.normalize()).unwrap_or(h.normal);
+            let normal = if normal.dot(to_cam) < 0.0 { -normal } else { normal };
             let kind = if is_emitter {
                 match emitters.index(h.position.as_dvec3(), frozen.index_margin) {
                     Some(k) => PixelKind::Emitter(k as u32),
@@ -446,6 +399,12 @@ impl Stage2 {
                 view: v,
                 pixel: p,
             });
+        }
+        if given_normals > 0 {
+            progress(&format!(
+                "shading normals of {given_normals} pixels from the dataset's maps (mean {:.1}° from the SDF's)",
+                (normal_angle / given_normals as f64).to_degrees()
+            ));
         }
         // 4. Incident radiance of every surface pixel, traced once (in blocks: bounded memory).
         let surf: Vec<(usize, ShadingPoint)> = pixels
@@ -481,6 +440,17 @@ impl Stage2 {
         }
         drop(frozen);
         let surface: Vec<u32> = surf.iter().map(|(i, _)| *i as u32).collect();
+        let diffuse = if c2.irradiance_radius > 0.0 {
+            progress("pooling the diffuse irradiance of nearby pixels");
+            let sums: Vec<DiffuseSums> = cache
+                .par_chunks(m)
+                .map(|s| DiffuseSums::of(s, emitters.len()))
+                .collect();
+            let pts: Vec<ShadingPoint> = surf.iter().map(|(_, p)| *p).collect();
+            pool_diffuse(&pts, &sums, c2.irradiance_radius * scale)
+        } else {
+            Vec::new()
+        };
         let adam = new_adam(&config, &material, &emitters);
         let grad = material.new_grad();
         let k = emitters.len();
@@ -504,6 +474,7 @@ impl Stage2 {
             initial_emission,
             surface,
             baked,
+            diffuse,
         })
     }
 
@@ -730,6 +701,7 @@ impl TrainStage for Stage2 {
         // Re-render and emitter terms, pixel-parallel; per-chunk emission gradients reduced after.
         let pixels = &self.pixels;
         let cache = &self.cache;
+        let diffuse = &self.diffuse;
         let parts: Vec<(f32, f32, Vec<Vec3>)> = d_out[..b * MATERIAL_CHANNELS]
             .par_chunks_mut(MATERIAL_CHANNELS * 256)
             .enumerate()
@@ -746,14 +718,26 @@ impl TrainStage for Stage2 {
                                 None => &cache[first as usize..first as usize + m_cache],
                             };
                             let n_dot_v = px.point.normal.dot(px.point.view);
-                            let pred = shade(&brdfs[j], n_dot_v, samples, &emission);
+                            let pooled = match &live {
+                                None => diffuse.get(first as usize / m_cache),
+                                Some(_) => None,
+                            };
+                            let pred = match pooled {
+                                Some(d) => shade_pooled(&brdfs[j], n_dot_v, samples, &emission, d),
+                                None => shade(&brdfs[j], n_dot_v, samples, &emission),
+                            };
                             let mut g = Vec3::ZERO;
                             for c in 0..3 {
                                 let (l, s) = l1(pred[c], px.target[c], px.saturated >> c & 1 == 1);
                                 render += l;
                                 g[c] = s / (3.0 * n_surface);
                             }
-                            let (_, gr) = shade_backward(&brdfs[j], n_dot_v, samples, &emission, g, &mut d_em);
+                            let (_, gr) = match pooled {
+                                Some(d) => {
+                                    shade_pooled_backward(&brdfs[j], n_dot_v, samples, &emission, d, g, &mut d_em)
+                                }
+                                None => shade_backward(&brdfs[j], n_dot_v, samples, &emission, g, &mut d_em),
+                            };
                             dj[..3].copy_from_slice(&gr.kd.to_array());
                             dj[3..6].copy_from_slice(&gr.ks.to_array());
                             dj[6] = gr.rho;

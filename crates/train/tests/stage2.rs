@@ -201,6 +201,7 @@ fn gt_views(scene: &NeuralScene) -> Vec<TargetView> {
                 rgb,
                 saturated: vec![0; w * h],
                 emitter_mask: None,
+                normal: None,
             }
         })
         .collect()
@@ -271,41 +272,47 @@ fn tiny_scene_fit_recovers_the_albedo() {
 fn interrupted_and_resumed_stage2_continues_exactly() {
     let scene = tiny_scene();
     let views = gt_views(&scene);
-    let config = TrainConfig::load(
-        None,
-        &[
-            "stage2.iterations=30".into(),
-            "stage2.pixels=256".into(),
-            "stage2.cache_pixels=600".into(),
-            "stage2.cache_samples=16".into(),
-            "stage2.refresh_pixels=50".into(),
-            "material.hash_levels=4".into(),
-            "material.hash_log2_table=10".into(),
-            "material.hash_finest_resolution=32".into(),
-        ],
-    )
-    .unwrap();
-    let mut full = Trainer::new(Stage2::new(config.clone(), scene.clone(), &views, LINEAR, None, &|_| {}).unwrap());
-    while !full.done() {
-        full.step().unwrap();
+    // Refreshed samples (no pooling), and pooled irradiance (no refresh).
+    for extra in [
+        ["stage2.refresh_pixels=50", "stage2.irradiance_radius=0"],
+        ["stage2.refresh_pixels=0", "stage2.irradiance_radius=0.05"],
+    ] {
+        let mut sets: Vec<String> = extra.iter().map(|s| s.to_string()).collect();
+        sets.extend(
+            [
+                "stage2.iterations=30",
+                "stage2.pixels=256",
+                "stage2.cache_pixels=600",
+                "stage2.cache_samples=16",
+                "material.hash_levels=4",
+                "material.hash_log2_table=10",
+                "material.hash_finest_resolution=32",
+            ]
+            .map(String::from),
+        );
+        let config = TrainConfig::load(None, &sets).unwrap();
+        let mut full = Trainer::new(Stage2::new(config.clone(), scene.clone(), &views, LINEAR, None, &|_| {}).unwrap());
+        while !full.done() {
+            full.step().unwrap();
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let ckpt = dir.path().join("stage2.safetensors");
+        let mut part = Trainer::new(Stage2::new(config.clone(), scene.clone(), &views, LINEAR, None, &|_| {}).unwrap());
+        for _ in 0..13 {
+            part.step().unwrap();
+        }
+        part.save(&ckpt).unwrap();
+        let mut resumed = Trainer::new(Stage2::resume(config, scene.clone(), &views, LINEAR, &ckpt, &|_| {}).unwrap());
+        assert_eq!(resumed.stage.iteration(), 13);
+        while !resumed.done() {
+            resumed.step().unwrap();
+        }
+        let (a, b) = (&full.stage.fields, &resumed.stage.fields);
+        assert_eq!(a.material.mlp.params, b.material.mlp.params);
+        assert_eq!(
+            a.material.grid.as_ref().unwrap().params,
+            b.material.grid.as_ref().unwrap().params
+        );
+        assert_eq!(full.stage.cache, resumed.stage.cache);
     }
-    let dir = tempfile::tempdir().unwrap();
-    let ckpt = dir.path().join("stage2.safetensors");
-    let mut part = Trainer::new(Stage2::new(config.clone(), scene.clone(), &views, LINEAR, None, &|_| {}).unwrap());
-    for _ in 0..13 {
-        part.step().unwrap();
-    }
-    part.save(&ckpt).unwrap();
-    let mut resumed = Trainer::new(Stage2::resume(config, scene, &views, LINEAR, &ckpt, &|_| {}).unwrap());
-    assert_eq!(resumed.stage.iteration(), 13);
-    while !resumed.done() {
-        resumed.step().unwrap();
-    }
-    let (a, b) = (&full.stage.fields, &resumed.stage.fields);
-    assert_eq!(a.material.mlp.params, b.material.mlp.params);
-    assert_eq!(
-        a.material.grid.as_ref().unwrap().params,
-        b.material.grid.as_ref().unwrap().params
-    );
-    assert_eq!(full.stage.cache, resumed.stage.cache);
 }

@@ -1,0 +1,75 @@
+//! Stage 2's targets: the training views in linear radiance in the units of the input images
+//! (DESIGN.md "Emitters and stage 2"), with which channels are saturated, the emitter masks and
+//! the dataset's normals.
+
+use i2sdf_data::{Dataset, Split};
+use i2sdf_model::intrinsic::{Radiometry, Transfer};
+
+/// LDR values at or above this are saturated (8-bit 255 with some slack for 16-bit PNGs).
+pub const SATURATED: f32 = 254.5 / 255.0;
+
+/// One training view as stage 2 fits it: linear targets, which channels are saturated, and
+/// (where the dataset has them) the emitter mask.
+#[derive(Clone, Debug)]
+pub struct TargetView {
+    pub camera: i2sdf_data::Camera,
+    /// Linear RGB per pixel, row-major.
+    pub rgb: Vec<[f32; 3]>,
+    /// Per pixel, bit c set when channel c only bounds the prediction from below.
+    pub saturated: Vec<u8>,
+    pub emitter_mask: Option<Vec<bool>>,
+    /// The dataset's world-space normal per pixel, where it has normal maps (zero: none).
+    pub normal: Option<Vec<[f32; 3]>>,
+}
+
+/// The dataset's transfer and exposure.
+pub fn radiometry(dataset: &Dataset) -> Radiometry {
+    Radiometry {
+        transfer: if dataset.ldr_transfer == "linear" {
+            Transfer::Linear
+        } else {
+            Transfer::Srgb
+        },
+        exposure: dataset.ldr_exposure,
+    }
+}
+
+/// The training views' targets (see the module comment for the radiometry).
+pub fn target_views(dataset: &Dataset, use_hdr: bool) -> Vec<TargetView> {
+    let rm = radiometry(dataset);
+    dataset
+        .split(Split::Train)
+        .map(|f| {
+            let n = f.pixel_count();
+            let (mut rgb, mut saturated) = (Vec::with_capacity(n), Vec::with_capacity(n));
+            match (&f.hdr, use_hdr) {
+                (Some(hdr), true) => {
+                    let scale = rm.exposure.unwrap_or(1.0) as f32;
+                    for p in hdr.data.chunks_exact(3) {
+                        rgb.push([p[0] * scale, p[1] * scale, p[2] * scale]);
+                        saturated.push(0);
+                    }
+                }
+                _ => {
+                    for p in f.rgb.data.chunks_exact(3) {
+                        rgb.push([rm.linearize(p[0]), rm.linearize(p[1]), rm.linearize(p[2])]);
+                        saturated.push((0..3).fold(0u8, |m, c| m | (((p[c] >= SATURATED) as u8) << c)));
+                    }
+                }
+            }
+            TargetView {
+                camera: f.camera.clone(),
+                rgb,
+                saturated,
+                emitter_mask: f
+                    .emitter_mask
+                    .as_ref()
+                    .map(|m| m.data.iter().map(|&v| v > 0.5).collect()),
+                normal: f
+                    .normal
+                    .as_ref()
+                    .map(|m| m.data.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()),
+            }
+        })
+        .collect()
+}
