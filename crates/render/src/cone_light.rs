@@ -102,8 +102,8 @@ impl Light for ConeLight {
 mod tests {
     use super::*;
     use crate::area_light::test_support::check_density;
+    use crate::chi2::chi2_pvalue;
     use crate::mesh_geometry::MeshGeometry;
-    use crate::proposal::test_support::chi2_pvalue;
     use crate::sampling::uniform_sphere;
     use i2sdf_data::TriangleMesh;
     use rand::{Rng, SeedableRng};

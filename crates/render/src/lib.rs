@@ -13,6 +13,7 @@
 pub mod area_light;
 pub mod brdf;
 pub mod bvh;
+pub mod chi2;
 pub mod color;
 pub mod cone_light;
 pub mod constant_material;

@@ -79,111 +79,16 @@ fn pdf_integrates_to_one() {
 
 // ---- χ² goodness of fit of `sample_direction` against `pdf` (after pbrt-v4's chi2test) ----
 
-/// Regularized lower incomplete gamma P(a, x) (Numerical Recipes: series / continued fraction).
-fn gamma_p(a: f64, x: f64) -> f64 {
-    fn ln_gamma(x: f64) -> f64 {
-        let c = [
-            76.18009172947146,
-            -86.50532032941677,
-            24.01409824083091,
-            -1.231739572450155,
-            0.1208650973866179e-2,
-            -0.5395239384953e-5,
-        ];
-        let mut y = x;
-        let t = x + 5.5 - (x + 0.5) * (x + 5.5).ln();
-        let mut s = 1.000000000190015;
-        for ci in c {
-            y += 1.0;
-            s += ci / y;
-        }
-        -t + (2.5066282746310005 * s / x).ln()
-    }
-    if x <= 0.0 {
-        return 0.0;
-    }
-    if x < a + 1.0 {
-        let (mut sum, mut del, mut ap) = (1.0 / a, 1.0 / a, a);
-        for _ in 0..10_000 {
-            ap += 1.0;
-            del *= x / ap;
-            sum += del;
-            if del.abs() < sum.abs() * 1e-15 {
-                break;
-            }
-        }
-        sum * (-x + a * x.ln() - ln_gamma(a)).exp()
-    } else {
-        let (mut b, mut c, mut d) = (x + 1.0 - a, 1e300, 1.0 / (x + 1.0 - a));
-        let mut h = d;
-        for i in 1..10_000 {
-            let an = -(i as f64) * (i as f64 - a);
-            b += 2.0;
-            d = an * d + b;
-            d = 1.0 / if d.abs() < 1e-300 { 1e-300 } else { d };
-            c = b + an / c;
-            if c.abs() < 1e-300 {
-                c = 1e-300;
-            }
-            let del = d * c;
-            h *= del;
-            if (del - 1.0).abs() < 1e-15 {
-                break;
-            }
-        }
-        1.0 - (-x + a * x.ln() - ln_gamma(a)).exp() * h
-    }
-}
-
-/// p-value of the χ² test of `sample` against `pdf` on a (θ, φ) grid over the whole sphere.
+/// p-value of the χ² test of `sample_direction` against `pdf` over the whole sphere.
 fn chi2_pvalue(b: &GgxBrdf, v: Vec3, samples: usize, seed: u64) -> f64 {
-    let (nt, np, sub) = (40usize, 80usize, 12usize);
-    let mut observed = vec![0f64; nt * np];
-    let mut rng = Pcg64::seed_from_u64(seed);
-    for _ in 0..samples {
-        let d = b.sample_direction(Vec3::Z, v, [rng.gen(), rng.gen(), rng.gen()]);
-        let theta = (d.z as f64).clamp(-1.0, 1.0).acos();
-        let mut phi = (d.y as f64).atan2(d.x as f64);
-        if phi < 0.0 {
-            phi += 2.0 * PI;
-        }
-        let i = ((theta / PI * nt as f64) as usize).min(nt - 1);
-        let j = ((phi / (2.0 * PI) * np as f64) as usize).min(np - 1);
-        observed[i * np + j] += 1.0;
-    }
-    let (dt, dp) = (PI / nt as f64, 2.0 * PI / np as f64);
-    let mut cells: Vec<(f64, f64)> = Vec::with_capacity(nt * np);
-    for i in 0..nt {
-        for j in 0..np {
-            let mut e = 0.0;
-            for a in 0..sub {
-                let th = (i as f64 + (a as f64 + 0.5) / sub as f64) * dt;
-                for c in 0..sub {
-                    let ph = (j as f64 + (c as f64 + 0.5) / sub as f64) * dp;
-                    e += b.pdf(Vec3::Z, v, dir(th, ph)) as f64 * th.sin();
-                }
-            }
-            cells.push((e * dt * dp / (sub * sub) as f64 * samples as f64, observed[i * np + j]));
-        }
-    }
-    cells.sort_by(|a, b| a.0.partial_cmp(&b.0).unwrap());
-    let (mut pool_e, mut pool_o, mut chsq, mut dof) = (0.0, 0.0, 0.0, 0usize);
-    for &(e, o) in &cells {
-        if e == 0.0 {
-            assert!(o == 0.0, "samples where the pdf is zero");
-        } else if e < 5.0 {
-            pool_e += e;
-            pool_o += o;
-        } else {
-            chsq += (o - e) * (o - e) / e;
-            dof += 1;
-        }
-    }
-    if pool_e > 0.0 {
-        chsq += (pool_o - pool_e) * (pool_o - pool_e) / pool_e;
-        dof += 1;
-    }
-    1.0 - gamma_p((dof - 1) as f64 / 2.0, chsq / 2.0)
+    i2sdf_render::chi2::chi2_pvalue(
+        Vec3::Z,
+        -1.0,
+        |d| b.pdf(Vec3::Z, v, d) as f64,
+        |u| Some(b.sample_direction(Vec3::Z, v, u)),
+        samples,
+        seed,
+    )
 }
 
 #[test]
