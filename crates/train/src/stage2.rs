@@ -772,11 +772,15 @@ impl TrainStage for Stage2 {
         for j in 0..b {
             let (a, e) = (j * MATERIAL_CHANNELS, (b + j) * MATERIAL_CHANNELS);
             for (lo, hi) in [(0, 3), (3, 6), (6, 7)] {
-                let diff: Vec<f32> = (lo..hi).map(|c| out[a + c] - out[e + c]).collect();
+                let mut diff = [0.0f32; 3];
+                for c in lo..hi {
+                    diff[c - lo] = out[a + c] - out[e + c];
+                }
+                let diff = &diff[..hi - lo];
                 let norm = diff.iter().map(|v| v * v).sum::<f32>().sqrt();
                 smooth += norm;
                 if norm > 1e-8 {
-                    for (c, dv) in (lo..hi).zip(&diff) {
+                    for (c, dv) in (lo..hi).zip(diff) {
                         d_out[a + c] += ls * dv / norm;
                         d_out[e + c] -= ls * dv / norm;
                     }
