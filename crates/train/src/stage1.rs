@@ -55,24 +55,11 @@ pub struct StepStats {
     pub ms_backward: f32,
 }
 
-/// One optimizer group's moments as the checkpoint tensors `adam.{group}.m` / `.v`.
-struct AdamGroupState<'a> {
-    m: &'a [f32],
-    v: &'a [f32],
-}
+/// One optimizer group's moments, mutably, as the checkpoint tensors `adam.{group}.m` / `.v`
+/// (per group, so that groups of optional modules may be missing from a checkpoint).
 struct AdamGroupStateMut<'a> {
     m: &'a mut [f32],
     v: &'a mut [f32],
-}
-
-impl Parameters for AdamGroupState<'_> {
-    fn visit(&self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &[f32])) {
-        f(format!("{prefix}.m"), vec![self.m.len()], self.m);
-        f(format!("{prefix}.v"), vec![self.v.len()], self.v);
-    }
-    fn visit_mut(&mut self, _: &str, _: &mut dyn FnMut(String, Vec<usize>, &mut [f32])) {
-        unreachable!("read-only view")
-    }
 }
 
 impl Parameters for AdamGroupStateMut<'_> {
@@ -473,32 +460,14 @@ impl Stage1 {
     }
 
     fn checkpoint(&self, path: &Path) -> Result<(), DataError> {
-        let prefixes: Vec<String> = self
-            .specs
-            .iter()
-            .map(|g| format!("{OPTIMIZER_PREFIX}{}", g.name))
-            .collect();
-        let states: Vec<AdamGroupState> = self
-            .adam
-            .groups
-            .iter()
-            .map(|g| {
-                let (m, v) = g.state();
-                AdamGroupState { m, v }
-            })
-            .collect();
-        let modules: Vec<(&str, &dyn Parameters)> = prefixes
-            .iter()
-            .zip(&states)
-            .map(|(p, s)| (p.as_str(), s as &dyn Parameters))
-            .collect();
         self.scene.save_with(
             path,
             &[
                 ("iteration", self.iteration.to_string()),
                 ("adam_step", self.adam.step.to_string()),
             ],
-            &modules,
+            // Adam's own tensors: `adam.{group}.m` / `.v`, what `resume` reads per group.
+            &[("adam", &self.adam as &dyn Parameters)],
         )
     }
 }

@@ -5,6 +5,8 @@ use clap::{Args as ClapArgs, ValueEnum};
 use i2sdf_model::RunDir;
 use i2sdf_train::config::TrainConfig;
 use i2sdf_train::driver::{train_geometry, train_materials, Event, TrainStage};
+use i2sdf_train::stage1::StepStats;
+use i2sdf_train::stage2::Stage2Stats;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -107,43 +109,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if !done {
             let bar = bar("stage 1");
             let start = Instant::now();
-            let mut first = 0;
             let stage = train_geometry(
                 &run,
                 &dataset,
                 &args.data.display().to_string(),
                 config.clone(),
                 args.resume,
-                |e| match e {
-                    Event::Started { iteration, total, .. } => {
-                        first = iteration;
-                        bar.set_length(total);
-                        bar.set_position(iteration);
-                    }
-                    Event::Pause(what) => bar.set_message(format!("{what}…")),
-                    Event::Step {
-                        iteration, stats: s, ..
-                    } => {
-                        bar.set_position(iteration + 1);
-                        if iteration % 10 == 0 {
-                            let its = (iteration + 1 - first) as f64 / start.elapsed().as_secs_f64().max(1e-9);
-                            let msg = format!(
-                                "{:?} loss {:.4} psnr {:.2} depth {:.4} β {:.4} {:.1} it/s",
-                                s.phase.unwrap(),
-                                s.loss,
-                                s.psnr,
-                                s.depth,
-                                s.beta,
-                                its
-                            );
-                            if args.quiet {
-                                eprintln!("{iteration} {msg}");
-                            }
-                            bar.set_message(msg);
-                        }
-                    }
-                    Event::Checkpoint { .. } => {}
-                },
+                progress_events(&bar, start, args.quiet, |s: &StepStats| {
+                    format!(
+                        "{:?} loss {:.4} psnr {:.2} depth {:.4} β {:.4}",
+                        s.phase.unwrap(),
+                        s.loss,
+                        s.psnr,
+                        s.depth,
+                        s.beta
+                    )
+                }),
             )?;
             bar.finish();
             println!(
@@ -160,7 +141,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let start = Instant::now();
         let stage2_resume = args.resume || args.stage == Stage::All;
         let bar = bar("stage 2");
-        let mut first = 0;
         let quiet = args.quiet;
         let progress = |what: &str| {
             if quiet {
@@ -175,40 +155,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             config,
             stage2_resume && run.stage2_checkpoint_path().is_file(),
             &progress,
-            |e| match e {
-                Event::Started { iteration, total, .. } => {
-                    first = iteration;
-                    bar.set_length(total);
-                    bar.set_position(iteration);
-                }
-                Event::Pause(what) => bar.set_message(format!("{what}…")),
-                Event::Step {
-                    iteration, stats: s, ..
-                } => {
-                    bar.set_position(iteration + 1);
-                    if iteration % 10 == 0 {
-                        let its = (iteration + 1 - first) as f64 / start.elapsed().as_secs_f64().max(1e-9);
-                        let em: Vec<String> = s
-                            .emission
-                            .iter()
-                            .map(|e| format!("{:.2}", (e[0] + e[1] + e[2]) / 3.0))
-                            .collect();
-                        let msg = format!(
-                            "loss {:.4} render {:.4} emitter {:.4} L [{}] {:.1} it/s",
-                            s.loss,
-                            s.render,
-                            s.emitter,
-                            em.join(" "),
-                            its
-                        );
-                        if quiet {
-                            eprintln!("{iteration} {msg}");
-                        }
-                        bar.set_message(msg);
-                    }
-                }
-                Event::Checkpoint { .. } => {}
-            },
+            progress_events(&bar, start, quiet, |s: &Stage2Stats| {
+                let em: Vec<String> = s
+                    .emission
+                    .iter()
+                    .map(|e| format!("{:.2}", (e[0] + e[1] + e[2]) / 3.0))
+                    .collect();
+                format!(
+                    "loss {:.4} render {:.4} emitter {:.4} L [{}]",
+                    s.loss,
+                    s.render,
+                    s.emitter,
+                    em.join(" ")
+                )
+            }),
         )?;
         bar.finish();
         let (surface, emitter) = stage.counts();
@@ -223,4 +183,35 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// The driver's events on a progress bar (and, with `quiet`, one line per 10 iterations):
+/// `describe` says what a stage's statistics are; the rate is added here.
+fn progress_events<'a, T>(
+    bar: &'a ProgressBar,
+    start: Instant,
+    quiet: bool,
+    describe: impl Fn(&T) -> String + 'a,
+) -> impl FnMut(Event<T>) + 'a {
+    let mut first = 0;
+    move |e| match e {
+        Event::Started { iteration, total, .. } => {
+            first = iteration;
+            bar.set_length(total);
+            bar.set_position(iteration);
+        }
+        Event::Pause(what) => bar.set_message(format!("{what}…")),
+        Event::Step { iteration, stats, .. } => {
+            bar.set_position(iteration + 1);
+            if iteration % 10 == 0 {
+                let its = (iteration + 1 - first) as f64 / start.elapsed().as_secs_f64().max(1e-9);
+                let msg = format!("{} {its:.1} it/s", describe(stats));
+                if quiet {
+                    eprintln!("{iteration} {msg}");
+                }
+                bar.set_message(msg);
+            }
+        }
+        Event::Checkpoint { .. } => {}
+    }
 }
