@@ -4,6 +4,7 @@
 
 pub mod camera;
 pub mod dataset;
+pub mod edit_spec;
 pub mod error;
 pub mod fixture;
 pub mod imageio;
@@ -15,6 +16,7 @@ pub mod summary;
 
 pub use camera::Camera;
 pub use dataset::{load, Bounds, Dataset, Format, Frame, GtEmitter, Normalization, RelightSet, Split};
+pub use edit_spec::{EditOp, EditSpec};
 pub use error::DataError;
 pub use imageio::ImageF32;
 pub use mesh::TriangleMesh;

@@ -4,7 +4,7 @@
 //! each id.
 
 use crate::camera::place_camera;
-use crate::edit::{EditOp, EditSpec};
+use crate::edit::{self, EditOp, EditSpec};
 use crate::noise::DepthNoise;
 use crate::output::{self, FramePaths};
 use crate::scene::{SceneDesc, SceneObject};
@@ -145,11 +145,7 @@ pub fn default_relight_specs(scene: &RenderScene) -> Vec<(String, EditSpec)> {
         (0.5 * (lo + hi)).to_array()
     };
     let first = EditSpec {
-        ops: vec![EditOp::Relight {
-            at: centre(0),
-            scale: 2.0,
-            color: [1.0, 0.8, 0.6],
-        }],
+        ops: vec![EditOp::relight(centre(0), 2.0, [1.0, 0.8, 0.6])],
     };
     let last = scene.emitters.len() - 1;
     let (name, scale) = if last > 0 {
@@ -158,11 +154,7 @@ pub fn default_relight_specs(scene: &RenderScene) -> Vec<(String, EditSpec)> {
         ("light_dim", 0.5)
     };
     let second = EditSpec {
-        ops: vec![EditOp::Relight {
-            at: centre(last),
-            scale,
-            color: [1.0; 3],
-        }],
+        ops: vec![EditOp::relight(centre(last), scale, [1.0; 3])],
     };
     vec![("brighter_warmer".to_string(), first), (name.to_string(), second)]
 }
@@ -232,7 +224,7 @@ pub fn generate(
     for (name, spec) in default_relight_specs(&scene) {
         let spec_rel = format!("relight/{name}.toml");
         i2sdf_data::imageio::write_bytes_atomic(&out.join(&spec_rel), spec.to_toml_string().as_bytes())?;
-        let gains = spec.emitter_gains(&scene.emitters);
+        let gains = edit::emitter_gains(&spec, &scene.emitters);
         let mut frames = Vec::new();
         for (v, r) in pairs.iter().filter(|(v, _)| v.test) {
             let hdr = r.hdr(&gains);

@@ -16,7 +16,7 @@ pub mod tracer;
 
 pub use camera::looking;
 pub use dataset::{generate, SynthOptions, SynthSummary};
-pub use edit::{EditOp, EditSpec};
+pub use edit::{EditOp, EditSpec, RelightOp};
 pub use i2sdf_data::Camera;
 pub use mesh::SceneMesh;
 pub use noise::DepthNoise;

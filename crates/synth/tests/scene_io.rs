@@ -70,8 +70,10 @@ fn edit_spec_parses_and_defaults_colour() {
     let p = dir.path().join("e.toml");
     std::fs::write(&p, "[[op]]\nkind = \"relight\"\nat = [0.0, 2.5, 0.0]\nscale = 0.0\n").unwrap();
     let spec = EditSpec::read(&p).unwrap();
-    let i2sdf_synth::EditOp::Relight { color, scale, .. } = &spec.ops[0];
-    assert_eq!((*color, *scale), ([1.0; 3], 0.0));
+    let i2sdf_synth::EditOp::Relight(r) = &spec.ops[0] else {
+        panic!("{spec:?}")
+    };
+    assert_eq!((r.color, r.scale), ([1.0; 3], 0.0));
     std::fs::write(&p, "[[op]]\nkind = \"relight\"\nat = [0.0, 2.5, 0.0]\nscale = -1.0\n").unwrap();
     assert!(EditSpec::read(&p).is_err());
 }
