@@ -407,8 +407,8 @@ impl<'a> FrozenScene<'a> {
         });
     }
 
-    /// The SDF (normalized units) and its gradient at world points.
-    fn sdf_gradient(&self, points_world: &[Vec3]) -> Vec<(f32, Vec3)> {
+    /// The SDF (normalized units) and its gradient (the same in either frame) at world points.
+    pub fn sdf_gradient(&self, points_world: &[Vec3]) -> Vec<(f32, Vec3)> {
         let mut dg = vec![(0.0f32, Vec3::ZERO); points_world.len()];
         self.blocks(points_world, &mut dg, 1, |q, norm, _, o| {
             let m = o.len();
@@ -552,7 +552,15 @@ impl Material for NeuralMaterial<'_> {
 /// still found by BRDF sampling, whose MIS weight is then 1 (the light pdf there is 0), so the
 /// estimate stays unbiased.
 pub fn emitter_lights(table: &EmitterTable) -> LightSet {
-    let lights: Vec<Box<dyn Light>> = table
+    let mut labels = vec![None];
+    labels.extend((0..table.len() as u32).map(Some));
+    LightSet::new(emitter_cone_lights(table), labels)
+}
+
+/// The lights of [`emitter_lights`], one [`ConeLight`] per emitter in table order (for light
+/// sets that add lights of their own, as the edit renderer's inserted emitters).
+pub fn emitter_cone_lights(table: &EmitterTable) -> Vec<Box<dyn Light>> {
+    table
         .emitters
         .iter()
         .enumerate()
@@ -563,10 +571,7 @@ pub fn emitter_lights(table: &EmitterTable) -> LightSet {
                 table.emission(k),
             )) as Box<dyn Light>
         })
-        .collect();
-    let mut labels = vec![None];
-    labels.extend((0..table.len() as u32).map(Some));
-    LightSet::new(lights, labels)
+        .collect()
 }
 
 /// Re-renders a view of the intrinsic scene (eq:render with eq:radiance): the camera ray's

@@ -11,6 +11,10 @@ pub struct MeshGeometry {
     /// Unit geometric normal of each triangle (its winding: outward).
     normals: Vec<Vec3>,
     surface_of: Vec<u32>,
+    /// Per-vertex shading normals with each triangle's vertex indices, when the mesh samples a
+    /// smooth surface (a marching-cubes mesh of an SDF, with the SDF's gradient at its
+    /// vertices): hits then carry the barycentric blend, not the facet's normal.
+    smooth: Option<(Vec<Vec3>, Vec<[u32; 3]>)>,
 }
 
 impl MeshGeometry {
@@ -28,7 +32,18 @@ impl MeshGeometry {
             bvh: Bvh::build(mesh),
             normals,
             surface_of,
+            smooth: None,
         }
+    }
+
+    /// As [`MeshGeometry::new`], with shading normals interpolated from `vertex_normals` (one
+    /// unit outward normal per vertex). A blend that comes out zero or facing against the
+    /// facet falls back to the facet's normal.
+    pub fn with_vertex_normals(mesh: &TriangleMesh, surface_of: Vec<u32>, vertex_normals: Vec<Vec3>) -> Self {
+        assert_eq!(vertex_normals.len(), mesh.positions.len(), "one normal per vertex");
+        let mut g = MeshGeometry::new(mesh, surface_of);
+        g.smooth = Some((vertex_normals, mesh.faces.clone()));
+        g
     }
 
     pub fn bvh(&self) -> &Bvh {
@@ -41,14 +56,27 @@ impl MeshGeometry {
     }
 
     fn hit_one(&self, r: &Ray, stack: &mut Vec<u32>) -> Option<Hit> {
-        self.bvh
-            .intersect(r.origin, r.dir, r.t_min, r.t_max, stack)
-            .map(|h| Hit {
+        self.bvh.intersect(r.origin, r.dir, r.t_min, r.t_max, stack).map(|h| {
+            let facet = self.normals[h.triangle as usize];
+            let normal = match &self.smooth {
+                None => facet,
+                Some((vn, faces)) => {
+                    let [a, b, c] = faces[h.triangle as usize].map(|i| vn[i as usize]);
+                    let n = (a * (1.0 - h.u - h.v) + b * h.u + c * h.v).normalize_or_zero();
+                    if n.dot(facet) > 0.0 {
+                        n
+                    } else {
+                        facet
+                    }
+                }
+            };
+            Hit {
                 t: h.t,
-                normal: self.normals[h.triangle as usize],
+                normal,
                 surface: self.surface_of[h.triangle as usize],
                 prim: h.triangle,
-            })
+            }
+        })
     }
 }
 
@@ -137,5 +165,27 @@ mod tests {
             n_hit > 300 && n_hit < 2700,
             "{n_hit} hits: the test needs both outcomes"
         );
+    }
+
+    /// With the sphere's own normals at the vertices, hits carry the blend: far nearer the true
+    /// normal than the facets are.
+    #[test]
+    fn vertex_normals_are_interpolated() {
+        let mesh = TriangleMesh::unit_icosphere(2);
+        let vn: Vec<Vec3> = mesh.positions.iter().map(|p| Vec3::from(*p).normalize()).collect();
+        let flat = MeshGeometry::new(&mesh, vec![0; mesh.faces.len()]);
+        let smooth = MeshGeometry::with_vertex_normals(&mesh, vec![0; mesh.faces.len()], vn);
+        let mut rng = rand_pcg::Pcg32::seed_from_u64(3);
+        let (mut err_flat, mut err_smooth) = (0.0f32, 0.0f32);
+        for _ in 0..200 {
+            let o = Vec3::new(rng.gen_range(-3.0..3.0), rng.gen_range(-3.0..3.0), 4.0);
+            let r = Ray::new(o, (-o).normalize(), 0.0, f32::INFINITY);
+            let (a, b) = (intersect_one(&flat, r).unwrap(), intersect_one(&smooth, r).unwrap());
+            assert_eq!((a.t, a.prim), (b.t, b.prim));
+            let truth = r.at(a.t).normalize();
+            err_flat = err_flat.max(a.normal.angle_between(truth));
+            err_smooth = err_smooth.max(b.normal.angle_between(truth));
+        }
+        assert!(err_smooth < 0.3 * err_flat, "smooth {err_smooth} vs flat {err_flat}");
     }
 }

@@ -1,0 +1,174 @@
+//! What stage 2 recovered, as the edit renderer's base: the frozen SDF's surface as a labelled
+//! triangle mesh ([`RecoveredSurface`]), the material fields for materials, and each K-means
+//! emitter as an area light over its own triangles with L[k].
+//!
+//! Why a mesh and not stage 2's baked cast (BVH hit refined onto the SDF by a Newton step): a
+//! path tracer samples points *on* its emitters and tests the segment to them; on a refined
+//! surface those points lie a fraction of a voxel off the surface the shadow ray meets, and the
+//! test fails at random. On the mesh, sampled points and hits are the same surface, the labels
+//! are per triangle (no F_e query per hit), the normals are the SDF's gradient at the vertices
+//! interpolated, and a ray costs a BVH traversal alone.
+
+use crate::scene::{BaseLights, EditedScene};
+use glam::{DVec3, Vec3};
+use i2sdf_data::{Bounds, Camera, DataError, TriangleMesh};
+use i2sdf_model::{emitter_cone_lights, extract_mesh, EmitterTable, FrozenScene, MaterialField, NeuralMaterial};
+use i2sdf_render::{AreaLight, Estimator, Integrator, Light, MeshGeometry, ViewRender, ViewSettings};
+
+/// The frozen SDF's zero level set as the edit renderer's base geometry: the marching-cubes mesh
+/// (world units) with, per triangle, label 0 (ordinary) or k + 1 (emitter k: F_e > threshold at
+/// its centroid and `index` k there, as [`FrozenScene::cast`] labels hits) and the SDF's gradient
+/// at the vertices as shading normals.
+pub struct RecoveredSurface {
+    pub geometry: MeshGeometry,
+    pub mesh: TriangleMesh,
+    /// The triangles of each emitter.
+    pub emitter_faces: Vec<Vec<u32>>,
+}
+
+/// Each side of the mesh's bounds is enlarged by this fraction at both ends (walls on the
+/// bounds stay closed), as stage 2's bake.
+const PAD_FRACTION: f64 = 0.05;
+
+impl RecoveredSurface {
+    /// Extracts the surface at `resolution` samples along the bounds' longest side.
+    pub fn extract(frozen: &FrozenScene, bounds: &Bounds, resolution: usize) -> Result<Self, DataError> {
+        let mesh = extract_mesh(frozen.scene, bounds, resolution, PAD_FRACTION)?;
+        if mesh.faces.is_empty() {
+            return Err(DataError::failed(
+                "the recovered SDF has no surface inside the scene bounds",
+            ));
+        }
+        let vertices: Vec<Vec3> = mesh.positions.iter().map(|p| Vec3::from(*p)).collect();
+        let normals: Vec<Vec3> = frozen
+            .sdf_gradient(&vertices)
+            .into_iter()
+            .map(|(_, g)| g.normalize_or_zero())
+            .collect();
+        let centroids: Vec<Vec3> = mesh
+            .faces
+            .iter()
+            .map(|f| f.iter().map(|&i| vertices[i as usize]).sum::<Vec3>() / 3.0)
+            .collect();
+        let mut labels = vec![0u32; mesh.faces.len()];
+        let mut emitter_faces = vec![Vec::new(); frozen.emitters.len()];
+        if !frozen.emitters.is_empty() {
+            let near: Vec<(usize, usize)> = (0..centroids.len())
+                .filter_map(|t| Some((t, frozen.emitters.index(centroids[t].as_dvec3(), frozen.index_margin)?)))
+                .collect();
+            let points: Vec<Vec3> = near.iter().map(|&(t, _)| centroids[t]).collect();
+            let mut prob = vec![0.0; points.len()];
+            frozen.emitter_prob(&points, &mut prob);
+            for (&(t, k), p) in near.iter().zip(prob) {
+                if p > frozen.emitter_threshold {
+                    labels[t] = k as u32 + 1;
+                    emitter_faces[k].push(t as u32);
+                }
+            }
+        }
+        Ok(RecoveredSurface {
+            geometry: MeshGeometry::with_vertex_normals(&mesh, labels, normals),
+            mesh,
+            emitter_faces,
+        })
+    }
+
+    /// The recovered emitters as cone lights (without a surface to sample): label 0 ordinary surface, k + 1 emitter k;
+    /// emitter k an area light over its triangles emitting L[k] (a cone light about its
+    /// cluster where it has none), its box its cluster's (centre ± extent / 2).
+    pub fn lights(&self, table: &EmitterTable) -> BaseLights {
+        let mut base = recovered_lights(table);
+        for (k, faces) in self.emitter_faces.iter().enumerate() {
+            if !faces.is_empty() {
+                base.lights[k] = Box::new(AreaLight::new(&self.mesh, faces, table.emission(k))) as Box<dyn Light>;
+            }
+        }
+        base
+    }
+}
+
+/// How an edited view is rendered.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EditSettings {
+    /// Paths per pixel.
+    pub spp: u32,
+    /// Most scattering events per path (Russian roulette from the third).
+    pub bounces: u32,
+    pub seed: u64,
+}
+
+impl Default for EditSettings {
+    fn default() -> Self {
+        EditSettings {
+            spp: 64,
+            bounces: 8,
+            seed: 0,
+        }
+    }
+}
+
+impl EditSettings {
+    /// The integrator's settings for view `view`: the dataset's estimator (`i2sdf synth`'s
+    /// path-space regularization after a diffuse bounce: the edits' mirrors and the camera's own
+    /// glossy reflections stay sharp; the bulb's caustics through glossy surfaces lose their
+    /// fireflies, as in the images the relit ground truth was rendered with).
+    pub fn view_settings(&self, view: u32) -> ViewSettings {
+        ViewSettings {
+            spp: self.spp,
+            seed: self.seed,
+            view,
+            integrator: Integrator {
+                estimator: Estimator::DATASET,
+                max_depth: self.bounces,
+            },
+        }
+    }
+}
+
+/// The recovered emitters as cone lights (without a surface to sample): label 0 ordinary surface, k + 1 emitter k (the
+/// frozen scene's labels), each emitter's box its cluster's (centre ± extent / 2).
+pub fn recovered_lights(table: &EmitterTable) -> BaseLights {
+    let mut emitter_of_label = vec![None];
+    emitter_of_label.extend((0..table.len() as u32).map(Some));
+    let boxes = table
+        .emitters
+        .iter()
+        .map(|e| {
+            let (c, h) = (DVec3::from_array(e.centre), 0.5 * DVec3::from_array(e.extent));
+            ((c - h).as_vec3(), (c + h).as_vec3())
+        })
+        .collect();
+    BaseLights {
+        lights: emitter_cone_lights(table),
+        emitter_of_label,
+        boxes,
+    }
+}
+
+/// Renders view `view` of the edited recovered scene: full path tracing (no radiance-field
+/// shortcut), every emitter's share in its own slot. The camera is world-space.
+pub fn render_recovered(
+    edited: &EditedScene,
+    surface: &RecoveredSurface,
+    frozen: &FrozenScene,
+    material: &MaterialField,
+    camera: &Camera,
+    settings: &EditSettings,
+    view: u32,
+    on_row: &(dyn Fn() + Sync),
+) -> ViewRender {
+    let nm = NeuralMaterial::new(material, frozen);
+    edited.render(
+        &surface.geometry,
+        &nm,
+        None,
+        camera,
+        &settings.view_settings(view),
+        on_row,
+    )
+}
+
+/// The HDR image of a render with per-emitter gains (linear image units), RGB per pixel.
+pub fn relit(v: &ViewRender, gains: &[Vec3]) -> Vec<Vec3> {
+    v.hdr(gains)
+}
