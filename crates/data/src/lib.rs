@@ -4,6 +4,7 @@
 
 pub mod camera;
 pub mod dataset;
+pub mod edit_assets;
 pub mod edit_spec;
 pub mod error;
 pub mod fixture;
@@ -16,6 +17,7 @@ pub mod summary;
 
 pub use camera::Camera;
 pub use dataset::{load, Bounds, Dataset, Format, Frame, GtEmitter, Normalization, RelightSet, Split};
+pub use edit_assets::EditAssets;
 pub use edit_spec::{EditOp, EditSpec};
 pub use error::DataError;
 pub use imageio::ImageF32;

@@ -2,6 +2,7 @@
 //! regions, texture lookup, mesh transforms and emitter selection.
 
 use glam::Vec3;
+use i2sdf_data::edit_assets::EditAssets;
 use i2sdf_data::edit_spec::*;
 use i2sdf_data::imageio::{self, ImageF32};
 use i2sdf_data::{ply, TriangleMesh};
