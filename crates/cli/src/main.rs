@@ -31,6 +31,8 @@ enum Command {
     Mesh(cmd::mesh::Args),
     /// Render views with the trained fields: colour, depth, normals, emitter probability.
     Render(cmd::render::Args),
+    /// Render edited views of a stage-2 run by path tracing: relight emitters, override materials in regions, insert objects.
+    Edit(cmd::edit::Args),
     /// Evaluate a run against its dataset: image, depth, normal and mesh metrics as JSON.
     Eval(cmd::eval::Args),
     /// Run the whole pipeline on the built-in synthetic room (synth → check → train → mesh → render → eval).
@@ -46,6 +48,7 @@ fn main() -> ExitCode {
         Command::Train(a) => cmd::train::run(a),
         Command::Mesh(a) => cmd::mesh::run(a),
         Command::Render(a) => cmd::render::run(a),
+        Command::Edit(a) => cmd::edit::run(a),
         Command::Eval(a) => cmd::eval::run(a),
         Command::Demo(a) => cmd::demo::run(a),
     };

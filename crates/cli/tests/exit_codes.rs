@@ -370,3 +370,175 @@ fn failed_writes_exit_1_and_leave_nothing_half_written() {
         .collect();
     assert_eq!(left, ["not_a_directory"], "{left:?}");
 }
+
+/// A copy of the tiny run with a tiny stage 2, for the commands that need one.
+fn trained_stage2() -> &'static (tempfile::TempDir, PathBuf) {
+    static RUN: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let (_, data, run) = trained();
+        let dir = tempfile::tempdir().unwrap();
+        let copy = dir.path().join("run2");
+        std::fs::create_dir(&copy).unwrap();
+        for f in ["checkpoint.safetensors", "config.toml", "run.json"] {
+            std::fs::copy(run.join(f), copy.join(f)).unwrap();
+        }
+        let mut args = vec![
+            "train",
+            "--quiet",
+            "--stage",
+            "material",
+            "--data",
+            s(data),
+            "--out",
+            s(&copy),
+        ];
+        args.extend_from_slice(&[
+            "--set",
+            "stage2.iterations=2",
+            "--set",
+            "stage2.cache_samples=4",
+            "--set",
+            "stage2.bake_resolution=32",
+            "--set",
+            "material.hash_levels=2",
+            "--set",
+            "material.hash_log2_table=10",
+        ]);
+        let o = i2sdf(&args);
+        assert_eq!(o.code, 0, "{}", o.stderr);
+        (dir, copy)
+    })
+}
+
+/// `i2sdf edit`: every bad input exits 2 naming the op, key, file or argument and writes
+/// nothing; a spec with every op kind renders PNG + EXR + the spec's copy; a failed write exits 1.
+#[test]
+fn edit_bad_input_exits_2_and_good_specs_render() {
+    let (_, stage1) = (trained(), &trained().2);
+    let (_, run) = trained_stage2();
+    let dir = tempfile::tempdir().unwrap();
+    let spec = |name: &str, text: &str| {
+        let p = dir.path().join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    };
+    let out = dir.path().join("out");
+    let edit = |run: &Path, spec: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "edit",
+            "--run",
+            s(run),
+            "--spec",
+            s(spec),
+            "--out",
+            s(&out),
+            "--spp",
+            "2",
+            "--bounces",
+            "2",
+            "--mesh-resolution",
+            "32",
+        ];
+        args.extend_from_slice(extra);
+        i2sdf(&args)
+    };
+    let empty = spec("empty.toml", "");
+    let cases: Vec<(PathBuf, Vec<&str>, Vec<&str>)> = vec![
+        (spec("kind.toml", "[[op]]\nkind = \"paint\"\n"), vec![], vec!["kind.toml", "op[0].kind", "paint"]),
+        (
+            spec("key.toml", "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = 1\nshine = 2\n"),
+            vec![],
+            vec!["op[0].shine"],
+        ),
+        (
+            spec("box.toml", "[[op]]\nkind = \"material\"\nbox = { lo = [1, 0, 0], hi = [0, 1, 1] }\npreset = \"mirror\"\n"),
+            vec![],
+            vec!["op[0].box.lo"],
+        ),
+        (
+            spec(
+                "tex.toml",
+                "[[op]]\nkind = \"material\"\nsphere = { centre = [0, 0, 0], radius = 1 }\ntexture = { image = \"missing.png\", origin = [0, 0, 0], u = [1, 0, 0], v = [0, 1, 0] }\n",
+            ),
+            vec![],
+            vec!["op[0].texture.image", "missing.png"],
+        ),
+        (
+            spec("mesh.toml", "[[op]]\nkind = \"insert\"\nmesh = { path = \"broken.ply\" }\n"),
+            vec![],
+            vec!["op[0].mesh.path"],
+        ),
+        (
+            spec("nan.toml", "[[op]]\nkind = \"relight\"\nat = [nan, 0, 0]\nscale = 1\n"),
+            vec![],
+            vec!["op[0].at"],
+        ),
+        (empty.clone(), vec!["--view", "99"], vec!["--view 99"]),
+        (empty.clone(), vec!["--width", "20"], vec!["--width and --height"]),
+        (empty.clone(), vec!["--split", "validation"], vec!["--split validation"]),
+        (dir.path().join("absent.toml"), vec![], vec!["absent.toml"]),
+    ];
+    std::fs::write(dir.path().join("broken.ply"), b"ply\nformat nonsense\n").unwrap();
+    for (spec, extra, needles) in &cases {
+        expect(edit(run, spec, extra), 2, needles);
+        assert!(!out.exists(), "{} wrote {}", spec.display(), out.display());
+    }
+    for (flag, value) in [("--spp", "0"), ("--bounces", "0"), ("--mesh-resolution", "3")] {
+        let o = i2sdf(&[
+            "edit",
+            "--run",
+            s(run),
+            "--spec",
+            s(&empty),
+            "--out",
+            s(&out),
+            flag,
+            value,
+        ]);
+        expect(o, 2, &[&format!("{flag} {value}")]);
+    }
+    expect(edit(stage1, &empty, &[]), 2, &["stage2.safetensors", "no stage 2"]);
+    assert!(!out.exists());
+    // Every op kind at once: a relight, a mirror region, an emitting inserted sphere, a box.
+    let full = spec(
+        "full.toml",
+        "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = 2\ncolor = [1, 0.8, 0.6]\n\
+         [[op]]\nkind = \"material\"\nbelow = { point = [0, 0, 0], normal = [0, 1, 0] }\npreset = \"mirror\"\n\
+         [[op]]\nkind = \"insert\"\nsphere = { centre = [0, 0.5, 0], radius = 0.1 }\npreset = \"matte\"\nemission = [5, 5, 5]\n\
+         [[op]]\nkind = \"insert\"\nbox = { lo = [-0.2, 0, -0.2], hi = [0.2, 0.1, 0.2] }\nkd = [0.2, 0.5, 0.2]\n",
+    );
+    let o = edit(run, &full, &["--view", "0", "--width", "12", "--height", "10"]);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    let names: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names.len(), 3, "{names:?}");
+    assert!(names.iter().any(|n| n.ends_with(".png")) && names.iter().any(|n| n.ends_with(".exr")));
+    assert_eq!(
+        std::fs::read(out.join("edit.toml")).unwrap(),
+        std::fs::read(&full).unwrap()
+    );
+    let png = i2sdf_data::imageio::read_image(&out.join(names.iter().find(|n| n.ends_with(".png")).unwrap())).unwrap();
+    assert_eq!((png.width, png.height), (12, 10));
+    // A failed write exits 1.
+    let blocked = unwritable(dir.path(), "out");
+    let o = i2sdf(&[
+        "edit",
+        "--run",
+        s(run),
+        "--spec",
+        s(&empty),
+        "--out",
+        s(&blocked),
+        "--spp",
+        "1",
+        "--bounces",
+        "1",
+        "--mesh-resolution",
+        "32",
+        "--view",
+        "0",
+    ]);
+    expect(o, 1, &["not_a_directory"]);
+}

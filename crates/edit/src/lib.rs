@@ -9,7 +9,9 @@ pub mod material;
 pub mod scene;
 
 pub use geometry::UnionGeometry;
-pub use material::{EditedMaterial, KdLookup, MaterialEdit, RegionTest};
+pub use material::{brdf_of, values_of, EditedMaterial, MaterialEdit};
 pub use scene::{mesh_box, BaseLights, EditedScene, InsertedObject};
 pub mod recovered;
-pub use recovered::{recovered_lights, render_recovered, EditSettings, RecoveredSurface};
+pub use recovered::{edit_images, recovered_lights, EditSettings, RecoveredScene, RecoveredSurface};
+pub mod apply;
+pub use apply::{edited_scene, light_gains};

@@ -4,39 +4,34 @@
 //! bounce, as the integrator asks.
 
 use glam::Vec3;
+use i2sdf_data::edit_spec::{MaterialOverride, MaterialValues, Region};
+use i2sdf_data::ImageF32;
 use i2sdf_render::{GgxBrdf, Material, SurfacePoint};
 
-/// Where an override applies (world position → inside).
-pub type RegionTest = Box<dyn Fn(Vec3) -> bool + Send + Sync>;
-/// Kd of a projected texture at a world position (linear RGB).
-pub type KdLookup = Box<dyn Fn(Vec3) -> Vec3 + Send + Sync>;
-
-/// One `kind = "material"` op, resolved: inside `region`, each given parameter replaces the
-/// recovered one (`None` keeps it); a texture, where given, sets Kd.
+/// One `kind = "material"` op with its decoded texture (where it projects one).
 pub struct MaterialEdit {
-    pub region: RegionTest,
-    pub kd: Option<Vec3>,
-    pub ks: Option<Vec3>,
-    pub roughness: Option<f32>,
-    pub texture: Option<KdLookup>,
+    pub region: Region,
+    pub material: MaterialOverride,
+    pub texture: Option<ImageF32>,
+}
+
+/// A [`GgxBrdf`] as the spec's material values, and back.
+pub fn values_of(b: &GgxBrdf) -> MaterialValues {
+    MaterialValues {
+        kd: b.kd.to_array(),
+        ks: b.ks.to_array(),
+        roughness: b.rho,
+    }
+}
+
+pub fn brdf_of(v: &MaterialValues) -> GgxBrdf {
+    GgxBrdf::new(Vec3::from(v.kd), Vec3::from(v.ks), v.roughness)
 }
 
 impl MaterialEdit {
     fn apply(&self, p: Vec3, brdf: &mut GgxBrdf) {
-        if !(self.region)(p) {
-            return;
-        }
-        if let Some(kd) = self.kd {
-            brdf.kd = kd;
-        }
-        if let Some(t) = &self.texture {
-            brdf.kd = t(p);
-        }
-        if let Some(ks) = self.ks {
-            brdf.ks = ks;
-        }
-        if let Some(r) = self.roughness {
-            brdf.rho = r;
+        if self.region.contains(p) {
+            *brdf = brdf_of(&self.material.apply(values_of(brdf), p, self.texture.as_ref()));
         }
     }
 }
@@ -78,26 +73,51 @@ impl Material for EditedMaterial<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use i2sdf_data::edit_spec::{PartialMaterial, Preset, Texture};
     use i2sdf_render::ConstantMaterial;
 
     #[test]
     fn overrides_apply_in_order_inside_their_regions_and_inserts_keep_theirs() {
         let recovered = GgxBrdf::new(Vec3::splat(0.5), Vec3::splat(0.04), 0.6);
         let base = ConstantMaterial::new(vec![recovered; 3]);
+        // A 2×1 texture, left texel black, right texel white, projected along x over [0, 2].
+        let image = ImageF32::from_data(2, 1, 3, vec![0.0, 0.0, 0.0, 1.0, 1.0, 1.0]);
         let edits = [
             MaterialEdit {
-                region: Box::new(|p: Vec3| p.x > 0.0),
-                kd: Some(Vec3::ZERO),
-                ks: Some(Vec3::ONE),
-                roughness: Some(0.02),
+                region: Region::Above {
+                    point: [0.0; 3],
+                    normal: [1.0, 0.0, 0.0],
+                },
+                material: MaterialOverride::Preset(Preset::Mirror),
                 texture: None,
             },
             MaterialEdit {
-                region: Box::new(|p: Vec3| p.y > 0.0),
-                kd: None,
-                ks: None,
-                roughness: Some(0.3),
-                texture: Some(Box::new(|p: Vec3| Vec3::splat(p.z))),
+                region: Region::Above {
+                    point: [0.0; 3],
+                    normal: [0.0, 1.0, 0.0],
+                },
+                material: MaterialOverride::Texture {
+                    texture: Texture {
+                        image: "unused.png".into(),
+                        origin: [-1.0, 0.0, 0.0],
+                        u: [2.0, 0.0, 0.0],
+                        v: [0.0, 0.0, 1.0],
+                    },
+                    ks: None,
+                    roughness: Some(0.3),
+                },
+                texture: Some(image),
+            },
+            MaterialEdit {
+                region: Region::Sphere {
+                    centre: [5.0, 5.0, 5.0],
+                    radius: 0.5,
+                },
+                material: MaterialOverride::Values(PartialMaterial {
+                    kd: Some([0.1, 0.2, 0.3]),
+                    ..Default::default()
+                }),
+                texture: None,
             },
         ];
         let glass = GgxBrdf::new(Vec3::splat(0.1), Vec3::splat(0.9), 0.1);
@@ -116,16 +136,20 @@ mod tests {
         let pts = [
             p(-1.0, -1.0, 0.0, 0),
             p(1.0, -1.0, 0.0, 0),
-            p(1.0, 1.0, 0.25, 0),
-            p(-1.0, 1.0, 0.75, 2),
+            p(-0.5, 1.0, 0.25, 0),
+            p(0.5, 1.0, 0.75, 2),
             p(1.0, 1.0, 0.0, 3),
+            p(5.0, 5.2, 5.0, 1),
         ];
-        let mut out = [recovered; 5];
+        let mut out = [recovered; 6];
         m.eval_batch(&pts, &mut out);
+        let mirror = brdf_of(&Preset::Mirror.values());
         assert_eq!(out[0], recovered);
-        assert_eq!(out[1], GgxBrdf::new(Vec3::ZERO, Vec3::ONE, 0.02));
-        assert_eq!(out[2], GgxBrdf::new(Vec3::splat(0.25), Vec3::ONE, 0.3));
-        assert_eq!(out[3], GgxBrdf::new(Vec3::splat(0.75), Vec3::splat(0.04), 0.3));
+        assert_eq!(out[1], mirror);
+        // Texel centres: s = 0.25 is the black texel's, s = 0.75 the white one's.
+        assert_eq!(out[2], GgxBrdf::new(Vec3::ZERO, recovered.ks, 0.3));
+        assert_eq!(out[3], GgxBrdf::new(Vec3::ONE, mirror.ks, 0.3));
         assert_eq!(out[4], glass);
+        assert_eq!(out[5], GgxBrdf::new(Vec3::new(0.1, 0.2, 0.3), mirror.ks, 0.3));
     }
 }

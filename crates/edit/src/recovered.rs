@@ -9,11 +9,17 @@
 //! are per triangle (no F_e query per hit), the normals are the SDF's gradient at the vertices
 //! interpolated, and a ray costs a BVH traversal alone.
 
+use crate::apply::edited_scene;
 use crate::scene::{BaseLights, EditedScene};
 use glam::{DVec3, Vec3};
-use i2sdf_data::{Bounds, Camera, DataError, TriangleMesh};
-use i2sdf_model::{emitter_cone_lights, extract_mesh, EmitterTable, FrozenScene, MaterialField, NeuralMaterial};
-use i2sdf_render::{AreaLight, Estimator, Integrator, Light, MeshGeometry, ViewRender, ViewSettings};
+use i2sdf_data::edit_spec::EditSpec;
+use i2sdf_data::{Bounds, Camera, DataError, EditAssets, ImageF32, TriangleMesh};
+use i2sdf_model::intrinsic_io::IntrinsicFields;
+use i2sdf_model::{
+    emitter_cone_lights, extract_mesh, EmitterTable, FrozenScene, MaterialField, NeuralMaterial, NeuralScene,
+    Radiometry,
+};
+use i2sdf_render::{AreaLight, Estimator, Integrator, Light, MeshGeometry, PathStart, ViewRender, ViewSettings};
 
 /// The frozen SDF's zero level set as the edit renderer's base geometry: the marching-cubes mesh
 /// (world units) with, per triangle, label 0 (ordinary) or k + 1 (emitter k: F_e > threshold at
@@ -145,30 +151,80 @@ pub fn recovered_lights(table: &EmitterTable) -> BaseLights {
     }
 }
 
-/// Renders view `view` of the edited recovered scene: full path tracing (no radiance-field
-/// shortcut), every emitter's share in its own slot. The camera is world-space.
-pub fn render_recovered(
-    edited: &EditedScene,
-    surface: &RecoveredSurface,
-    frozen: &FrozenScene,
-    material: &MaterialField,
-    camera: &Camera,
-    settings: &EditSettings,
-    view: u32,
-    on_row: &(dyn Fn() + Sync),
-) -> ViewRender {
-    let nm = NeuralMaterial::new(material, frozen);
-    edited.render(
-        &surface.geometry,
-        &nm,
-        None,
-        camera,
-        &settings.view_settings(view),
-        on_row,
-    )
+/// A run's recovered scene, ready to render edits of: its frozen stage-1 fields with the
+/// emitter table, the surface mesh, and the material fields.
+pub struct RecoveredScene<'a> {
+    pub frozen: FrozenScene<'a>,
+    pub surface: RecoveredSurface,
+    pub material: &'a MaterialField,
+    pub radiometry: Radiometry,
 }
 
-/// The HDR image of a render with per-emitter gains (linear image units), RGB per pixel.
-pub fn relit(v: &ViewRender, gains: &[Vec3]) -> Vec<Vec3> {
-    v.hdr(gains)
+impl<'a> RecoveredScene<'a> {
+    /// `emitter_threshold`: the F_e threshold stage 2 labelled its emitters with; the surface is
+    /// extracted over `bounds` (world units) at `resolution` samples along the longest side.
+    pub fn new(
+        scene: &'a NeuralScene,
+        fields: &'a IntrinsicFields,
+        emitter_threshold: f32,
+        bounds: &Bounds,
+        resolution: usize,
+    ) -> Result<Self, DataError> {
+        let mut frozen = FrozenScene::new(scene, &fields.emitters, fields.radiometry);
+        frozen.emitter_threshold = emitter_threshold;
+        let surface = RecoveredSurface::extract(&frozen, bounds, resolution)?;
+        Ok(RecoveredScene {
+            frozen,
+            surface,
+            material: &fields.material,
+            radiometry: fields.radiometry,
+        })
+    }
+
+    /// The edited scene of `spec` over this one.
+    pub fn edited(&self, spec: &EditSpec, assets: &EditAssets) -> EditedScene {
+        edited_scene(spec, assets, self.surface.lights(self.frozen.emitters))
+    }
+
+    /// Renders view `view` of `edited`: full path tracing (no radiance-field shortcut), every
+    /// emitter's share in its own slot. The camera is world-space.
+    pub fn render(
+        &self,
+        edited: &EditedScene,
+        camera: &Camera,
+        settings: &EditSettings,
+        view: u32,
+        on_row: &(dyn Fn() + Sync),
+    ) -> ViewRender {
+        let nm = NeuralMaterial::new(self.material, &self.frozen);
+        edited.render(
+            &self.surface.geometry,
+            &nm,
+            None,
+            camera,
+            &settings.view_settings(view),
+            on_row,
+        )
+    }
+}
+
+impl RecoveredScene<'_> {
+    /// Traces `paths` through `edited` ([`EditedScene::trace`]) with the integrator of
+    /// `settings`.
+    pub fn trace(&self, edited: &EditedScene, settings: &EditSettings, paths: &mut [PathStart], radiance: &mut [Vec3]) {
+        let nm = NeuralMaterial::new(self.material, &self.frozen);
+        let integrator = settings.view_settings(0).integrator;
+        edited.trace(&self.surface.geometry, &nm, &integrator, paths, radiance);
+    }
+}
+
+/// A render's image with per-light gains: linear HDR (image units) and, tone-mapped as the
+/// dataset's images, LDR.
+pub fn edit_images(v: &ViewRender, gains: &[Vec3], radiometry: &Radiometry) -> (ImageF32, ImageF32) {
+    let hdr: Vec<f32> = v.hdr(gains).iter().flat_map(|c| c.to_array()).collect();
+    let ldr = hdr.iter().map(|&x| radiometry.encode(x)).collect();
+    (
+        ImageF32::from_data(v.width, v.height, 3, hdr),
+        ImageF32::from_data(v.width, v.height, 3, ldr),
+    )
 }

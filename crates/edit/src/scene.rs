@@ -11,8 +11,8 @@ use crate::material::{EditedMaterial, MaterialEdit};
 use glam::Vec3;
 use i2sdf_data::{Camera, TriangleMesh};
 use i2sdf_render::{
-    render_view, AreaLight, Geometry, GgxBrdf, Light, LightSet, Material, MeshGeometry, RadianceField, Scene,
-    SphereLight, ViewRender, ViewSettings,
+    render_view, AreaLight, Geometry, GgxBrdf, Integrator, Light, LightSet, Material, MeshGeometry, PathStart,
+    RadianceField, Scene, SphereLight, ViewRender, ViewSettings,
 };
 
 /// An inserted object, in world units.
@@ -96,6 +96,36 @@ impl EditedScene {
 
     pub fn base_emitters(&self) -> usize {
         self.base_emitters
+    }
+
+    /// Traces arbitrary paths through the edited scene (no radiance field), adding light k's
+    /// share of path i to `radiance[i · lights() + k]`: the integrator's own interface, for
+    /// rays that no camera makes (the mirror check's reflected rays).
+    pub fn trace(
+        &self,
+        base_geometry: &dyn Geometry,
+        base_material: &dyn Material,
+        integrator: &Integrator,
+        paths: &mut [PathStart],
+        radiance: &mut [Vec3],
+    ) {
+        let geometry = UnionGeometry {
+            base: base_geometry,
+            inserts: self.inserts.as_ref(),
+        };
+        let material = EditedMaterial {
+            base: base_material,
+            first_insert_label: self.first_insert_label,
+            edits: &self.edits,
+            inserts: &self.insert_brdfs,
+        };
+        let scene = Scene {
+            geometry: &geometry,
+            material: &material,
+            lights: &self.lights,
+            radiance_field: None,
+        };
+        integrator.trace(&scene, paths, radiance);
     }
 
     /// Renders one view of the edited scene through the shared integrator (`settings` says spp,

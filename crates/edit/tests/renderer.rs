@@ -3,6 +3,7 @@
 
 use glam::{DVec3, Vec3};
 use i2sdf_data::camera::look_at;
+use i2sdf_data::edit_spec::{MaterialOverride, PartialMaterial, Region};
 use i2sdf_data::{Camera, TriangleMesh};
 use i2sdf_edit::{BaseLights, EditedScene, InsertedObject, MaterialEdit};
 use i2sdf_render::{
@@ -163,10 +164,15 @@ fn white_furnace_over_an_analytic_sdf() {
         sphere: Some((Vec3::ZERO, 0.35)),
     }];
     let edits = vec![MaterialEdit {
-        region: Box::new(|p: Vec3| p.x > 0.0),
-        kd: Some(Vec3::ONE),
-        ks: Some(Vec3::ZERO),
-        roughness: None,
+        region: Region::Above {
+            point: [0.0; 3],
+            normal: [1.0, 0.0, 0.0],
+        },
+        material: MaterialOverride::Values(PartialMaterial {
+            kd: Some([1.0; 3]),
+            ks: Some([0.0; 3]),
+            roughness: None,
+        }),
         texture: None,
     }];
     let scene = EditedScene::new(base, inserts, edits);

@@ -8,6 +8,7 @@ pub mod kdtree;
 pub mod mesh;
 pub mod mesh_metrics;
 pub mod neural;
+pub mod relight;
 pub mod report;
 
 pub use i2sdf_data::ply::{read_ply, write_ply};

@@ -180,10 +180,33 @@ pub struct EmitterMatch {
     pub emission_ratio_mean: Option<f64>,
 }
 
+/// The dataset's relit sets rendered with their specs (`i2sdf edit`'s path tracer) against their
+/// ground truth: over all their frames, and per set (named by its spec's file stem).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct RelightMetrics {
     pub psnr: Option<f64>,
     pub ssim: Option<f64>,
+    pub sets: Option<std::collections::BTreeMap<String, RelightSetMetrics>>,
+    /// The unedited path-traced render against the test images of the same cameras (the
+    /// renderer's own floor, before any edit).
+    pub unedited: Option<ImagePair>,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RelightSetMetrics {
+    pub psnr: Option<f64>,
+    pub ssim: Option<f64>,
+    /// The unedited render against this set's relit ground truth: what doing nothing scores.
+    pub psnr_unedited: Option<f64>,
+    pub ssim_unedited: Option<f64>,
+    pub frames: usize,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ImagePair {
+    pub psnr: Option<f64>,
+    pub ssim: Option<f64>,
+    pub frames: usize,
 }
 
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

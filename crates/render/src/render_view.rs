@@ -47,8 +47,12 @@ impl ViewRender {
     /// HDR image with emitter k's emission multiplied by `gains[k]` (all ones: the scene as is).
     pub fn hdr(&self, gains: &[Vec3]) -> Vec<Vec3> {
         assert_eq!(gains.len(), self.emitters, "one gain per emitter");
+        if self.emitters == 0 {
+            // A scene without emitters (or radiance field) is black.
+            return vec![Vec3::ZERO; self.width * self.height];
+        }
         self.radiance
-            .chunks(self.emitters.max(1))
+            .chunks(self.emitters)
             .map(|px| px.iter().zip(gains).map(|(l, g)| *l * *g).sum())
             .collect()
     }

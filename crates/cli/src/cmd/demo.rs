@@ -121,6 +121,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         mesh_resolution: resolution,
         threshold: 0.05,
         spp: if args.quick { 16 } else { 64 },
+        bounces: if args.quick { 4 } else { 8 },
     })?;
     Ok(())
 }

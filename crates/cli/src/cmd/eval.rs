@@ -1,12 +1,16 @@
 //! `i2sdf eval --run RUN --data SCENE --out METRICS.json`: the DESIGN.md metrics JSON (every
 //! figure that cannot be computed is null). Also writes the extracted mesh beside the JSON. With
 //! stage 2 (`RUN/stage2.safetensors`) it fills `rerender`, `material` and `emitters` from a Monte
-//! Carlo re-render of the test views (`--spp` paths per pixel); without, they stay null.
+//! Carlo re-render of the test views (`--spp` paths per pixel), and `relight` from path-traced
+//! renders of the dataset's relit sets with their specs (`--spp`, `--bounces`); without, they
+//! stay null.
 
 use clap::Args as ClapArgs;
 use i2sdf_data::{imageio, Split};
+use i2sdf_edit::EditSettings;
 use i2sdf_eval::intrinsic::{intrinsic_metrics_with_progress, IntrinsicOptions};
 use i2sdf_eval::neural::{evaluate, EvalOptions};
+use i2sdf_eval::relight::{relight_frames, relight_metrics, RelightOptions};
 use indicatif::ProgressBar;
 use std::path::PathBuf;
 
@@ -25,9 +29,12 @@ pub struct Args {
     /// F-score threshold in scene (world) units.
     #[arg(long, default_value_t = 0.05)]
     pub threshold: f64,
-    /// Paths per pixel of stage 2's re-render of the test views.
+    /// Paths per pixel of stage 2's re-render of the test views and of the relit sets' renders.
     #[arg(long, default_value_t = 64)]
     pub spp: u32,
+    /// Most scattering events per path of the relit sets' renders (the edit renderer's).
+    #[arg(long, default_value_t = EditSettings::default().bounces)]
+    pub bounces: u32,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -40,6 +47,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     if args.spp == 0 {
         return Err(i2sdf_data::DataError::invalid("--spp 0: must be at least 1").into());
+    }
+    if !(1..=1024).contains(&args.bounces) {
+        return Err(i2sdf_data::DataError::invalid(format!("--bounces {}: must be in [1, 1024]", args.bounces)).into());
     }
     let (scene, fields, info) = super::load_run_intrinsic(&args.run)?;
     let dataset = i2sdf_data::load(&args.data)?;
@@ -64,6 +74,27 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         report.rerender = rerender;
         report.material = material;
         report.emitters = emitters;
+        let frames = relight_frames(&dataset);
+        if frames > 0 {
+            let relight = RelightOptions {
+                render: EditSettings {
+                    spp: args.spp,
+                    bounces: args.bounces,
+                    seed: 0,
+                },
+                emitter_threshold: intrinsic.emitter_threshold,
+                ..Default::default()
+            };
+            let rows: usize = dataset
+                .relight
+                .iter()
+                .flat_map(|s| &s.frames)
+                .map(|f| f.camera.height)
+                .sum();
+            let bar = ProgressBar::new(rows as u64).with_message("relit sets");
+            report.relight = relight_metrics(&scene, fields, &dataset, &relight, &|| bar.inc(1))?;
+            bar.finish_and_clear();
+        }
     }
     report.time_s.stage1 = (info.stage1.iterations > 0).then_some(info.stage1.seconds);
     report.time_s.stage2 = info.stage2.filter(|s| s.iterations > 0).map(|s| s.seconds);

@@ -1,6 +1,7 @@
 pub mod bench;
 pub mod check;
 pub mod demo;
+pub mod edit;
 pub mod eval;
 pub mod mesh;
 pub mod render;

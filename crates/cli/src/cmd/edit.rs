@@ -1,0 +1,155 @@
+//! `i2sdf edit --run RUN --spec EDIT.toml --out DIR`: renders the dataset's views of the edited
+//! intrinsic scene (stage 2's emitters, materials and the frozen SDF's surface, with the spec's
+//! relight, material and insert ops) by Monte Carlo path tracing: `DIR/NAME.png` (tone-mapped as
+//! the dataset's images), `DIR/NAME.exr` (linear HDR in the input images' units, as
+//! `RUN/emitters.json`'s `emission`: divide by the dataset's exposure for its HDR units) and a
+//! copy of the spec as `DIR/edit.toml`. An empty spec renders the unedited scene. Everything is
+//! checked (run, spec, its textures and meshes, the arguments) before anything is written.
+
+use clap::Args as ClapArgs;
+use i2sdf_data::edit_spec::EditSpec;
+use i2sdf_data::{imageio, Camera, DataError, Split};
+use i2sdf_edit::{edit_images, light_gains, EditSettings, RecoveredScene};
+use indicatif::ProgressBar;
+use std::path::PathBuf;
+
+#[derive(ClapArgs)]
+pub struct Args {
+    #[arg(long)]
+    pub run: PathBuf,
+    /// The edit spec (TOML `[[op]]` list; DESIGN.md "Editing and relighting").
+    #[arg(long)]
+    pub spec: PathBuf,
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Which views: test or train.
+    #[arg(long, default_value = "test")]
+    pub split: String,
+    /// Only this view (its index within the split).
+    #[arg(long)]
+    pub view: Option<usize>,
+    /// Paths per pixel.
+    #[arg(long, default_value_t = EditSettings::default().spp)]
+    pub spp: u32,
+    /// Most scattering events per path (Russian roulette from the third).
+    #[arg(long, default_value_t = EditSettings::default().bounces)]
+    pub bounces: u32,
+    /// Output width in pixels (with --height; the intrinsics are scaled to it).
+    #[arg(long)]
+    pub width: Option<usize>,
+    #[arg(long)]
+    pub height: Option<usize>,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Marching-cubes resolution of the recovered surface (samples along the scene's longest side).
+    #[arg(long, default_value_t = 256)]
+    pub mesh_resolution: usize,
+    /// Dataset (defaults to the one the run was trained on).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+}
+
+/// Largest output side, spp and bounce count accepted.
+const MAX_SIDE: usize = 16384;
+const MAX_SPP: u32 = 1 << 20;
+const MAX_BOUNCES: u32 = 1024;
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let split = Split::parse(&args.split)
+        .ok_or_else(|| DataError::invalid(format!("--split {}: expected train or test", args.split)))?;
+    if !(1..=MAX_SPP).contains(&args.spp) {
+        return Err(DataError::invalid(format!("--spp {}: must be in [1, {MAX_SPP}]", args.spp)).into());
+    }
+    if !(1..=MAX_BOUNCES).contains(&args.bounces) {
+        return Err(DataError::invalid(format!("--bounces {}: must be in [1, {MAX_BOUNCES}]", args.bounces)).into());
+    }
+    if !(16..=2048).contains(&args.mesh_resolution) {
+        return Err(DataError::invalid(format!(
+            "--mesh-resolution {}: must be in [16, 2048]",
+            args.mesh_resolution
+        ))
+        .into());
+    }
+    let size = match (args.width, args.height) {
+        (None, None) => None,
+        (Some(w), Some(h)) if (1..=MAX_SIDE).contains(&w) && (1..=MAX_SIDE).contains(&h) => Some((w, h)),
+        (Some(_), Some(_)) => {
+            return Err(DataError::invalid(format!("--width/--height: each must be in [1, {MAX_SIDE}]")).into())
+        }
+        _ => return Err(DataError::invalid("--width and --height go together").into()),
+    };
+    let spec = EditSpec::read(&args.spec)?;
+    let assets = spec.load_assets()?;
+    let (scene, fields, info) = super::load_run_intrinsic(&args.run)?;
+    let fields = fields.ok_or_else(|| super::no_stage2(&args.run))?;
+    let data = args.data.clone().unwrap_or_else(|| PathBuf::from(&info.data));
+    let dataset = i2sdf_data::load(&data)?;
+    let frames: Vec<_> = dataset.split(split).collect();
+    let views: Vec<usize> = match args.view {
+        Some(v) if v < frames.len() => vec![v],
+        Some(v) => {
+            return Err(DataError::invalid(format!(
+                "--view {v}: the {} split has {} views (0 to {})",
+                split.name(),
+                frames.len(),
+                frames.len().saturating_sub(1)
+            ))
+            .into())
+        }
+        None if frames.is_empty() => {
+            return Err(DataError::invalid(format!("the {} split has no views", split.name())).into())
+        }
+        None => (0..frames.len()).collect(),
+    };
+    let threshold = super::run_emitter_threshold(&args.run)?;
+    let spec_text = std::fs::read(&args.spec).map_err(|e| DataError::file(&args.spec, e.to_string()))?;
+
+    eprintln!("extracting the recovered surface at {}…", args.mesh_resolution);
+    let recovered = RecoveredScene::new(&scene, &fields, threshold, &dataset.bounds, args.mesh_resolution)?;
+    let edited = recovered.edited(&spec, &assets);
+    let gains = light_gains(&spec, &edited);
+    let settings = EditSettings {
+        spp: args.spp,
+        bounces: args.bounces,
+        seed: args.seed,
+    };
+    std::fs::create_dir_all(&args.out).map_err(|e| DataError::io(&args.out, e.to_string()))?;
+    imageio::write_bytes_atomic(&args.out.join("edit.toml"), &spec_text)?;
+    let cameras: Vec<Camera> = views.iter().map(|&v| resized(&frames[v].camera, size)).collect();
+    let rows: usize = cameras.iter().map(|c| c.height).sum();
+    let bar = ProgressBar::new(rows as u64);
+    for (&v, cam) in views.iter().zip(&cameras) {
+        let render = recovered.render(&edited, cam, &settings, v as u32, &|| bar.inc(1));
+        let (hdr, ldr) = edit_images(&render, &gains, &recovered.radiometry);
+        let name = &frames[v].name;
+        imageio::write_exr(&args.out.join(format!("{name}.exr")), &hdr)?;
+        imageio::write_png(&args.out.join(format!("{name}.png")), &ldr)?;
+    }
+    bar.finish();
+    println!(
+        "rendered {} edited {} view(s) ({} op(s), {} light(s)) into {}",
+        views.len(),
+        split.name(),
+        spec.ops.len(),
+        edited.lights(),
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// The camera with its image resized to `size` (intrinsics scaled: the same field of view).
+fn resized(cam: &Camera, size: Option<(usize, usize)>) -> Camera {
+    let Some((w, h)) = size else {
+        return cam.clone();
+    };
+    let (sx, sy) = (w as f64 / cam.width as f64, h as f64 / cam.height as f64);
+    Camera {
+        width: w,
+        height: h,
+        fx: cam.fx * sx,
+        fy: cam.fy * sy,
+        cx: cam.cx * sx,
+        cy: cam.cy * sy,
+        c2w: cam.c2w,
+    }
+}

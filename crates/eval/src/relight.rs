@@ -1,0 +1,166 @@
+//! Relighting evaluation: each of the dataset's `relight` sets rendered with its edit spec by the
+//! edit renderer (path tracing the recovered scene, emitters × the spec's gains) and compared,
+//! tone-mapped as the dataset's images, with its ground-truth images. Also what doing nothing
+//! scores (the unedited render against the relit truth), and the unedited render against the
+//! test images of the same cameras.
+//!
+//! Sets whose specs only relight share one render per camera: relighting is exact from the
+//! per-emitter radiance slots, so only the gains differ.
+
+use crate::image_metrics::{psnr, ssim, ImageRef};
+use crate::report::{ImagePair, RelightMetrics, RelightSetMetrics};
+use glam::Vec3;
+use i2sdf_data::edit_spec::{EditOp, EditSpec};
+use i2sdf_data::{DataError, Dataset, Frame, ImageF32, Split};
+use i2sdf_edit::{edit_images, light_gains, EditSettings, RecoveredScene};
+use i2sdf_model::intrinsic_io::IntrinsicFields;
+use i2sdf_model::NeuralScene;
+use i2sdf_render::ViewRender;
+use std::collections::{BTreeMap, HashMap};
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RelightOptions {
+    pub render: EditSettings,
+    /// F_e threshold of the emitter labels (the run's `stage2.emitter_threshold`).
+    pub emitter_threshold: f32,
+    /// Marching-cubes resolution of the recovered surface.
+    pub mesh_resolution: usize,
+}
+
+impl Default for RelightOptions {
+    fn default() -> Self {
+        RelightOptions {
+            render: EditSettings::default(),
+            emitter_threshold: 0.5,
+            mesh_resolution: 256,
+        }
+    }
+}
+
+/// Frames to render: every relit frame (None when the dataset has no relit sets).
+pub fn relight_frames(dataset: &Dataset) -> usize {
+    dataset.relight.iter().map(|s| s.frames.len()).sum()
+}
+
+/// A camera's identity for sharing renders between sets (exact pose and intrinsics).
+fn camera_key(f: &Frame) -> Vec<u64> {
+    let c = &f.camera;
+    let mut k = vec![c.width as u64, c.height as u64];
+    k.extend([c.fx, c.fy, c.cx, c.cy].map(f64::to_bits));
+    k.extend(c.c2w.to_cols_array().map(f64::to_bits));
+    k
+}
+
+fn scores(pred: &ImageF32, gt: &ImageF32) -> Result<(Option<f64>, Option<f64>), DataError> {
+    let (w, h) = (pred.width, pred.height);
+    let p = ImageRef::new(&pred.data, w, h, 3)?;
+    let g = ImageRef::new(&gt.data, w, h, 3)?;
+    Ok((psnr(p, g, None)?.map(|x| x.min(100.0)), ssim(p, g, None)?))
+}
+
+fn mean(v: &[f64]) -> Option<f64> {
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+/// The relight section of the report; all null without relit sets. `on_row` is called after
+/// each rendered row.
+pub fn relight_metrics(
+    scene: &NeuralScene,
+    fields: &IntrinsicFields,
+    dataset: &Dataset,
+    options: &RelightOptions,
+    on_row: &(dyn Fn() + Sync),
+) -> Result<RelightMetrics, DataError> {
+    if dataset.relight.is_empty() {
+        return Ok(RelightMetrics::default());
+    }
+    // Every spec and asset is read before the (long) rendering starts.
+    let mut specs = Vec::new();
+    for set in &dataset.relight {
+        let spec = EditSpec::read(&set.spec)?;
+        let assets = spec.load_assets()?;
+        specs.push((spec, assets));
+    }
+    let recovered = RecoveredScene::new(
+        scene,
+        fields,
+        options.emitter_threshold,
+        &dataset.bounds,
+        options.mesh_resolution,
+    )?;
+    let unedited_scene = recovered.edited(&EditSpec::default(), &Default::default());
+    let tests: HashMap<Vec<u64>, &Frame> = dataset.split(Split::Test).map(|f| (camera_key(f), f)).collect();
+    let mut shared: HashMap<Vec<u64>, ViewRender> = HashMap::new();
+    let (mut all_p, mut all_s) = (Vec::new(), Vec::new());
+    let (mut base_p, mut base_s) = (Vec::new(), Vec::new());
+    let mut seen_tests = std::collections::HashSet::new();
+    let mut sets = BTreeMap::new();
+    let mut view = 0u32;
+    for (set, (spec, assets)) in dataset.relight.iter().zip(&specs) {
+        let relight_only = spec.ops.iter().all(|op| matches!(op, EditOp::Relight(_)));
+        let own = (!relight_only).then(|| recovered.edited(spec, assets));
+        let edited = own.as_ref().unwrap_or(&unedited_scene);
+        let gains = light_gains(spec, edited);
+        let ones = vec![Vec3::ONE; edited.lights()];
+        let (mut p, mut s, mut pu, mut su) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for f in &set.frames {
+            let key = camera_key(f);
+            let fresh;
+            let render = match (relight_only, shared.get(&key)) {
+                (true, Some(r)) => r,
+                _ => {
+                    fresh = recovered.render(edited, &f.camera, &options.render, view, on_row);
+                    view += 1;
+                    if relight_only {
+                        shared.entry(key.clone()).or_insert(fresh)
+                    } else {
+                        &fresh
+                    }
+                }
+            };
+            let (_, relit) = edit_images(render, &gains, &recovered.radiometry);
+            let (x, y) = scores(&relit, &f.rgb)?;
+            p.extend(x);
+            s.extend(y);
+            if relight_only {
+                let (_, plain) = edit_images(render, &ones, &recovered.radiometry);
+                let (x, y) = scores(&plain, &f.rgb)?;
+                pu.extend(x);
+                su.extend(y);
+                if let Some(t) = tests.get(&key) {
+                    if seen_tests.insert(key) {
+                        let (x, y) = scores(&plain, &t.rgb)?;
+                        base_p.extend(x);
+                        base_s.extend(y);
+                    }
+                }
+            }
+        }
+        all_p.extend(&p);
+        all_s.extend(&s);
+        let name = set
+            .spec
+            .file_stem()
+            .map_or_else(|| format!("set{}", sets.len()), |s| s.to_string_lossy().into_owned());
+        sets.insert(
+            name,
+            RelightSetMetrics {
+                psnr: mean(&p),
+                ssim: mean(&s),
+                psnr_unedited: mean(&pu),
+                ssim_unedited: mean(&su),
+                frames: set.frames.len(),
+            },
+        );
+    }
+    Ok(RelightMetrics {
+        psnr: mean(&all_p),
+        ssim: mean(&all_s),
+        sets: Some(sets),
+        unedited: (!base_p.is_empty()).then(|| ImagePair {
+            psnr: mean(&base_p),
+            ssim: mean(&base_s),
+            frames: base_p.len(),
+        }),
+    })
+}
