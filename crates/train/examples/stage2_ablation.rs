@@ -61,6 +61,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let m = first.stage2.cache_samples;
         let (mut l1, mut l1_rel, mut n) = (0.0f64, 0.0f64, 0.0f64);
         let mut ratio = Vec::new();
+        // DUMP_RATIO=DIR: the GT-material pred/target ratio of the first training views as
+        // images (grey = ratio / 2: mid-grey where the fit's floor is exact).
+        let dump = std::env::var("DUMP_RATIO").ok();
+        let mut ratio_maps: Vec<Vec<f32>> = train.iter().take(6).map(|f| vec![0.0; f.pixel_count() * 3]).collect();
         for px in &stage.pixels {
             let PixelKind::Surface { first: f0 } = px.kind else {
                 continue;
@@ -84,7 +88,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             l1 += (pred - px.target).abs().element_sum() as f64 / 3.0;
             l1_rel += ((pred - px.target).abs().element_sum() / px.target.element_sum().max(1e-3)) as f64;
             ratio.push(pred.element_sum() / px.target.element_sum().max(1e-4));
+            if let Some(m) = ratio_maps.get_mut(px.view as usize) {
+                let r = 0.5 * pred.element_sum() / px.target.element_sum().max(1e-4);
+                m[p * 3..p * 3 + 3].copy_from_slice(&[r; 3]);
+            }
             n += 1.0;
+        }
+        if let Some(dir) = &dump {
+            std::fs::create_dir_all(dir)?;
+            for (v, m) in ratio_maps.into_iter().enumerate() {
+                let c = &train[v].camera;
+                let img = i2sdf_data::ImageF32::from_data(c.width, c.height, 3, m);
+                i2sdf_data::imageio::write_png(&std::path::Path::new(dir).join(format!("ratio_{v}.png")), &img)?;
+            }
         }
         ratio.sort_by(f32::total_cmp);
         let q = |f: f64| ratio[((ratio.len() - 1) as f64 * f) as usize];
