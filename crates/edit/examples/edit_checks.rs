@@ -41,7 +41,8 @@ fn main() {
     let (scene, fields) = intrinsic_io::load_run(&run).unwrap();
     let fields = fields.unwrap();
     let t = Instant::now();
-    let rec = RecoveredScene::new(&scene, &fields, 0.5, &ds.bounds, 256).unwrap();
+    let train: Vec<_> = ds.split(Split::Train).map(|f| f.camera.clone()).collect();
+    let rec = RecoveredScene::new(&scene, &fields, 0.5, &ds.bounds, 256, Some(&train)).unwrap();
     println!("surface: {:.1} s", t.elapsed().as_secs_f64());
     let frames: Vec<_> = ds.split(Split::Test).collect();
     let cam = &frames[0].camera;

@@ -15,6 +15,7 @@ use glam::{DVec3, Vec3};
 use i2sdf_data::edit_spec::EditSpec;
 use i2sdf_data::{Bounds, Camera, DataError, EditAssets, ImageF32, TriangleMesh};
 use i2sdf_model::intrinsic_io::IntrinsicFields;
+use i2sdf_model::observed::ObservedViews;
 use i2sdf_model::{
     emitter_cone_lights, extract_mesh, EmitterTable, FrozenScene, MaterialField, NeuralMaterial, NeuralScene,
     Radiometry,
@@ -38,13 +39,25 @@ const PAD_FRACTION: f64 = 0.05;
 
 impl RecoveredSurface {
     /// Extracts the surface at `resolution` samples along the bounds' longest side.
-    pub fn extract(frozen: &FrozenScene, bounds: &Bounds, resolution: usize) -> Result<Self, DataError> {
+    ///
+    /// With `cameras` (the training views), triangles inside an emitter's sphere that none of
+    /// them sees are that emitter whatever F_e says, as stage 2 labels its hits
+    /// (`stage2.label_unobserved`, [`i2sdf_model::observed`]).
+    pub fn extract(
+        frozen: &FrozenScene,
+        bounds: &Bounds,
+        resolution: usize,
+        cameras: Option<&[Camera]>,
+    ) -> Result<Self, DataError> {
         let mesh = extract_mesh(frozen.scene, bounds, resolution, PAD_FRACTION)?;
         if mesh.faces.is_empty() {
             return Err(DataError::failed(
                 "the recovered SDF has no surface inside the scene bounds",
             ));
         }
+        let observed = cameras
+            .filter(|_| !frozen.emitters.is_empty())
+            .map(|c| ObservedViews::new(&MeshGeometry::new(&mesh, vec![0; mesh.faces.len()]), c));
         let vertices: Vec<Vec3> = mesh.positions.iter().map(|p| Vec3::from(*p)).collect();
         let normals: Vec<Vec3> = frozen
             .sdf_gradient(&vertices)
@@ -66,7 +79,7 @@ impl RecoveredSurface {
             let mut prob = vec![0.0; points.len()];
             frozen.emitter_prob(&points, &mut prob);
             for (&(t, k), p) in near.iter().zip(prob) {
-                if p > frozen.emitter_threshold {
+                if p > frozen.emitter_threshold || observed.as_ref().is_some_and(|o| !o.observed(centroids[t])) {
                     labels[t] = k as u32 + 1;
                     emitter_faces[k].push(t as u32);
                 }
@@ -162,17 +175,20 @@ pub struct RecoveredScene<'a> {
 
 impl<'a> RecoveredScene<'a> {
     /// `emitter_threshold`: the F_e threshold stage 2 labelled its emitters with; the surface is
-    /// extracted over `bounds` (world units) at `resolution` samples along the longest side.
+    /// extracted over `bounds` (world units) at `resolution` samples along the longest side;
+    /// `cameras`: the training views, where stage 2 labelled unobserved emitter surface
+    /// (`stage2.label_unobserved`).
     pub fn new(
         scene: &'a NeuralScene,
         fields: &'a IntrinsicFields,
         emitter_threshold: f32,
         bounds: &Bounds,
         resolution: usize,
+        cameras: Option<&[Camera]>,
     ) -> Result<Self, DataError> {
         let mut frozen = FrozenScene::new(scene, &fields.emitters, fields.radiometry);
         frozen.emitter_threshold = emitter_threshold;
-        let surface = RecoveredSurface::extract(&frozen, bounds, resolution)?;
+        let surface = RecoveredSurface::extract(&frozen, bounds, resolution, cameras)?;
         Ok(RecoveredScene {
             frozen,
             surface,

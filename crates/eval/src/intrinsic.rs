@@ -23,6 +23,9 @@ pub struct IntrinsicOptions {
     /// Bake the frozen surface over the dataset's bounds at this resolution for the re-render's
     /// rays (as stage 2 does; 0: sphere-trace every ray).
     pub bake_resolution: usize,
+    /// Label the unobserved surface inside emitters as emitting, as stage 2 did (the run's
+    /// `stage2.label_unobserved`; the training views are what was observed).
+    pub label_unobserved: bool,
 }
 
 impl Default for IntrinsicOptions {
@@ -32,6 +35,7 @@ impl Default for IntrinsicOptions {
             seed: 0,
             emitter_threshold: 0.5,
             bake_resolution: 256,
+            label_unobserved: true,
         }
     }
 }
@@ -290,6 +294,10 @@ pub fn intrinsic_metrics_with_progress(
     let mut frozen = frozen_scene(scene, fields, options.emitter_threshold);
     if options.bake_resolution > 0 {
         frozen.bake(&dataset.bounds, options.bake_resolution)?;
+    }
+    if options.label_unobserved {
+        let train: Vec<_> = dataset.split(Split::Train).map(|f| f.camera.clone()).collect();
+        frozen.observe(&train);
     }
     let (mut p, mut s) = (Vec::new(), Vec::new());
     let mut acc = MaterialAccumulator::default();

@@ -25,6 +25,9 @@ pub struct RelightOptions {
     pub emitter_threshold: f32,
     /// Marching-cubes resolution of the recovered surface.
     pub mesh_resolution: usize,
+    /// Label the unobserved surface inside emitters as emitting (the run's
+    /// `stage2.label_unobserved`).
+    pub label_unobserved: bool,
 }
 
 impl Default for RelightOptions {
@@ -33,6 +36,7 @@ impl Default for RelightOptions {
             render: EditSettings::default(),
             emitter_threshold: 0.5,
             mesh_resolution: 256,
+            label_unobserved: true,
         }
     }
 }
@@ -81,12 +85,14 @@ pub fn relight_metrics(
         let assets = spec.load_assets()?;
         specs.push((spec, assets));
     }
+    let train: Vec<_> = dataset.split(Split::Train).map(|f| f.camera.clone()).collect();
     let recovered = RecoveredScene::new(
         scene,
         fields,
         options.emitter_threshold,
         &dataset.bounds,
         options.mesh_resolution,
+        options.label_unobserved.then_some(&train[..]),
     )?;
     let unedited_scene = recovered.edited(&EditSpec::default(), &Default::default());
     let tests: HashMap<Vec<u64>, &Frame> = dataset.split(Split::Test).map(|f| (camera_key(f), f)).collect();

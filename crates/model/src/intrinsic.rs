@@ -25,6 +25,7 @@
 use crate::emitters::EmitterTable;
 use crate::marching_cubes::{extract_mesh, sdf_grid};
 use crate::material_field::{MaterialBackbone, MaterialField, MaterialInferWorkspace, MATERIAL_CHANNELS};
+use crate::observed::ObservedViews;
 use crate::query::SceneQuery;
 use crate::raycast::{CastSettings, Hit as CastHit, SdfCaster, CAST_CHUNK};
 use crate::renderer::sphere_exit;
@@ -136,6 +137,10 @@ pub struct FrozenScene<'a> {
     /// The baked surface ([`FrozenScene::bake`]), when baked (shared: a trainer bakes once and
     /// hands it to every `FrozenScene` it makes).
     baked: Option<Arc<BakedSurface>>,
+    /// What the training cameras saw ([`FrozenScene::observe`]): where set, a hit inside an
+    /// emitter's sphere that no camera saw is that emitter's whatever F_e says (F_e was never
+    /// trained there: the far side of a bulb).
+    pub observed: Option<Arc<ObservedViews>>,
 }
 
 /// The marching-cubes mesh of the frozen SDF in a BVH, world units.
@@ -164,7 +169,26 @@ impl<'a> FrozenScene<'a> {
             index_margin: 0.02 * scene.normalization.scale,
             baked_exact_normals: false,
             baked: None,
+            observed: None,
         }
+    }
+
+    /// Records what `cameras` (the training views) see of the frozen surface, for the emitter
+    /// labels ([`FrozenScene::observed`]): one cast per pixel centre (bake first: it is fast).
+    pub fn observe(&mut self, cameras: &[Camera]) {
+        let none = EmitterTable::new(Vec::new(), &[]);
+        let unlabelled = FrozenScene {
+            scene: self.scene,
+            caster: SdfCaster::new(self.scene, self.caster.settings),
+            emitters: &none,
+            radiometry: self.radiometry,
+            emitter_threshold: self.emitter_threshold,
+            index_margin: self.index_margin,
+            baked_exact_normals: false,
+            baked: self.baked.clone(),
+            observed: None,
+        };
+        self.observed = Some(Arc::new(ObservedViews::new(&unlabelled, cameras)));
     }
 
     /// Bakes the frozen SDF for ray casting: its marching-cubes mesh over `bounds` (world units;
@@ -362,8 +386,8 @@ impl<'a> FrozenScene<'a> {
         let points: Vec<Vec3> = idx.iter().map(|&i| out[i].unwrap().position).collect();
         let mut prob = vec![0.0; points.len()];
         self.emitter_prob(&points, &mut prob);
-        for ((&i, p), k) in idx.iter().zip(&prob).zip(cluster) {
-            if *p > self.emitter_threshold {
+        for (((&i, p), k), x) in idx.iter().zip(&prob).zip(cluster).zip(&points) {
+            if *p > self.emitter_threshold || self.observed.as_ref().is_some_and(|o| !o.observed(*x)) {
                 out[i].as_mut().unwrap().emitter = Some(k);
             }
         }

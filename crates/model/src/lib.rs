@@ -13,6 +13,7 @@ pub mod intrinsic_io;
 pub mod marching_cubes;
 pub mod material_field;
 pub mod mc_tables;
+pub mod observed;
 pub mod query;
 pub mod raycast;
 pub mod renderer;

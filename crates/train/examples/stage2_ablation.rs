@@ -95,10 +95,31 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             n += 1.0;
         }
         if let Some(dir) = &dump {
+            // Block means (4 × 4 pixels: the sampled pixels are sparse), shown 4× enlarged.
             std::fs::create_dir_all(dir)?;
             for (v, m) in ratio_maps.into_iter().enumerate() {
                 let c = &train[v].camera;
-                let img = i2sdf_data::ImageF32::from_data(c.width, c.height, 3, m);
+                let (bw, bh) = (c.width.div_ceil(4), c.height.div_ceil(4));
+                let mut sum = vec![(0.0f32, 0u32); bw * bh];
+                for p in 0..c.width * c.height {
+                    if m[p * 3] > 0.0 {
+                        let b = (p / c.width / 4) * bw + (p % c.width) / 4;
+                        sum[b].0 += m[p * 3];
+                        sum[b].1 += 1;
+                    }
+                }
+                let mut img = i2sdf_data::ImageF32::new(c.width, c.height, 3);
+                for p in 0..c.width * c.height {
+                    let (s, k) = sum[(p / c.width / 4) * bw + (p % c.width) / 4];
+                    // Red: too dark (ratio < 1), green: too bright, black: no sample.
+                    let r = if k > 0 { 2.0 * s / k as f32 } else { 1.0 };
+                    let px = [
+                        (1.0 - r).max(0.0) * 3.0,
+                        (r - 1.0).max(0.0) * 3.0,
+                        (k == 0) as u8 as f32 * 0.0,
+                    ];
+                    img.data[p * 3..p * 3 + 3].copy_from_slice(&px);
+                }
                 i2sdf_data::imageio::write_png(&std::path::Path::new(dir).join(format!("ratio_{v}.png")), &img)?;
             }
         }

@@ -69,6 +69,9 @@ pub struct Stage2Config {
     pub refresh_pixels: usize,
     /// Shade training pixels with the dataset's normal maps where it has them (else the SDF's).
     pub input_normals: bool,
+    /// Hits inside an emitter's sphere that no training camera saw are that emitter (F_e was
+    /// never trained there: the far side of a bulb), whatever F_e says.
+    pub label_unobserved: bool,
     /// Radius (normalized units) over which the diffuse irradiance of cached pixels with similar
     /// normals is averaged (0: each pixel's own samples only).
     pub irradiance_radius: f32,
@@ -117,6 +120,7 @@ impl Default for Stage2Config {
             bake_resolution: 256,
             irradiance_radius: 0.016,
             input_normals: true,
+            label_unobserved: true,
             samples: 16,
             emitter_sampling: true,
             lr_grid: 1e-2,

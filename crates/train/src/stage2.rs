@@ -36,6 +36,7 @@ use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::material_field::{
     MaterialBackbone, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
 };
+use i2sdf_model::observed::ObservedViews;
 use i2sdf_model::NeuralScene;
 use i2sdf_nn::params::ModuleSlot;
 use i2sdf_nn::{Adam, AdamConfig, LrSchedule, Parameters};
@@ -103,6 +104,9 @@ pub struct Stage2 {
     surface: Vec<u32>,
     /// The frozen surface baked for ray casting (`stage2.bake_resolution`).
     baked: Option<Arc<BakedSurface>>,
+    /// What the training cameras see (`stage2.label_unobserved`): the emitter labels of traced
+    /// hits ([`FrozenScene::observed`]).
+    observed: Option<Arc<ObservedViews>>,
     /// Per surface pixel (cache order), the diffuse sums of its samples averaged over nearby
     /// pixels (`stage2.irradiance_radius`); empty when pooling is off.
     pub diffuse: Vec<DiffuseSums>,
@@ -352,6 +356,12 @@ impl Stage2 {
         let mut frozen = FrozenScene::new(&scene, &emitters, radiometry);
         frozen.emitter_threshold = c2.emitter_threshold;
         frozen.set_baked_surface(baked.clone());
+        if c2.label_unobserved && !emitters.is_empty() {
+            progress("finding what the training cameras see (emitter labels of unseen surfaces)");
+            let cameras: Vec<_> = views.iter().map(|v| v.camera.clone()).collect();
+            frozen.observe(&cameras);
+        }
+        let observed = frozen.observed.clone();
         let mut pixels = Vec::with_capacity(hit_idx.len());
         let (mut given_normals, mut normal_angle) = (0usize, 0.0f64);
         let mut surface = 0u32;
@@ -474,6 +484,7 @@ impl Stage2 {
             initial_emission,
             surface,
             baked,
+            observed,
             diffuse,
         })
     }
@@ -551,6 +562,7 @@ impl Stage2 {
         let mut f = FrozenScene::new(&self.scene, &self.fields.emitters, self.fields.radiometry);
         f.emitter_threshold = self.config.stage2.emitter_threshold;
         f.set_baked_surface(self.baked.clone());
+        f.observed = self.observed.clone();
         f
     }
 

@@ -105,7 +105,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let spec_text = std::fs::read(&args.spec).map_err(|e| DataError::file(&args.spec, e.to_string()))?;
 
     eprintln!("extracting the recovered surface at {}…", args.mesh_resolution);
-    let recovered = RecoveredScene::new(&scene, &fields, threshold, &dataset.bounds, args.mesh_resolution)?;
+    let train: Vec<Camera> = dataset.split(Split::Train).map(|f| f.camera.clone()).collect();
+    let cameras = super::run_label_unobserved(&args.run)?.then_some(&train[..]);
+    let recovered = RecoveredScene::new(
+        &scene,
+        &fields,
+        threshold,
+        &dataset.bounds,
+        args.mesh_resolution,
+        cameras,
+    )?;
     let edited = recovered.edited(&spec, &assets);
     let gains = light_gains(&spec, &edited);
     let settings = EditSettings {

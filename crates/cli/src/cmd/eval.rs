@@ -64,6 +64,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let intrinsic = IntrinsicOptions {
             spp: args.spp,
             emitter_threshold: super::run_emitter_threshold(&args.run)?,
+            label_unobserved: super::run_label_unobserved(&args.run)?,
             ..Default::default()
         };
         let rows: usize = dataset.split(Split::Test).map(|f| f.camera.height).sum();
@@ -83,6 +84,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     seed: 0,
                 },
                 emitter_threshold: intrinsic.emitter_threshold,
+                label_unobserved: intrinsic.label_unobserved,
                 ..Default::default()
             };
             let rows: usize = dataset

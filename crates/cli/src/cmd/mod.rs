@@ -64,6 +64,13 @@ pub fn run_emitter_threshold(run: &std::path::Path) -> Result<f32, i2sdf_data::D
     Ok(config.stage2.emitter_threshold)
 }
 
+/// Whether stage 2 labelled the unobserved surface inside emitters as emitting (the run's
+/// `stage2.label_unobserved`): the re-render, `render` and `edit` label hits the same way.
+pub fn run_label_unobserved(run: &std::path::Path) -> Result<bool, i2sdf_data::DataError> {
+    let config = i2sdf_train::driver::read_run_config(&i2sdf_model::RunDir::new(run))?;
+    Ok(config.stage2.label_unobserved)
+}
+
 /// The volume renderer's settings the run was trained with (its `[sampling]` section), so
 /// `render` and `eval` see what training saw.
 pub fn run_render_settings(

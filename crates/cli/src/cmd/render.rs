@@ -80,6 +80,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(fr) = frozen.as_mut() {
         // Baked as stage 2 and eval bake it: the re-render's rays in a BVH, refined onto the SDF.
         fr.bake(&dataset.bounds, 256)?;
+        if super::run_label_unobserved(&args.run)? {
+            let train: Vec<_> = dataset.split(Split::Train).map(|f| f.camera.clone()).collect();
+            fr.observe(&train);
+        }
     }
     let rows: usize = frames.iter().map(|f| f.camera.height).sum();
     let passes = stage1 as usize + stage2 as usize;
