@@ -120,46 +120,19 @@ fn train_bad_input_exits_2_naming_the_key_or_file() {
 fn train_material_stage() {
     let (_, data, run) = trained();
     let dir = tempfile::tempdir().unwrap();
-    let material = |out: &Path, extra: &[&str]| {
-        let mut args = vec![
-            "train",
-            "--quiet",
-            "--stage",
-            "material",
-            "--data",
-            s(data),
-            "--out",
-            s(out),
-        ];
-        args.extend_from_slice(extra);
-        i2sdf(&args)
-    };
+    let material = |out: &Path, extra: &[&str]| train_material(data, out, extra);
     let nowhere = dir.path().join("nowhere");
     expect(material(&nowhere, &[]), 2, &["nowhere", "stage-1 run"]);
     assert!(!nowhere.exists());
     let copy = dir.path().join("copy");
-    std::fs::create_dir(&copy).unwrap();
-    for f in ["checkpoint.safetensors", "config.toml", "run.json"] {
-        std::fs::copy(run.join(f), copy.join(f)).unwrap();
-    }
+    copy_stage1(run, &copy);
     expect(material(&copy, &["--set", "stage2.pixels=0"]), 2, &["stage2.pixels"]);
     expect(
         material(&copy, &["--set", "stage2.refresh_pixels=5"]),
         2,
         &["stage2.refresh_pixels", "stage2.irradiance_radius"],
     );
-    let tiny = [
-        "--set",
-        "stage2.iterations=3",
-        "--set",
-        "stage2.cache_samples=4",
-        "--set",
-        "stage2.bake_resolution=32",
-        "--set",
-        "material.hash_levels=2",
-        "--set",
-        "material.hash_log2_table=10",
-    ];
+    let tiny = TINY_STAGE2;
     let o = material(&copy, &tiny);
     assert_eq!(o.code, 0, "{}", o.stderr);
     assert!(copy.join("stage2.safetensors").is_file() && copy.join("emitters.json").is_file());
@@ -371,6 +344,44 @@ fn failed_writes_exit_1_and_leave_nothing_half_written() {
     assert_eq!(left, ["not_a_directory"], "{left:?}");
 }
 
+/// `i2sdf train --stage material` of `data` into `out`.
+fn train_material(data: &Path, out: &Path, extra: &[&str]) -> Outcome {
+    let mut args = vec![
+        "train",
+        "--quiet",
+        "--stage",
+        "material",
+        "--data",
+        s(data),
+        "--out",
+        s(out),
+    ];
+    args.extend_from_slice(extra);
+    i2sdf(&args)
+}
+
+/// Settings that make stage 2 on the tiny run take a second.
+const TINY_STAGE2: [&str; 10] = [
+    "--set",
+    "stage2.iterations=3",
+    "--set",
+    "stage2.cache_samples=4",
+    "--set",
+    "stage2.bake_resolution=32",
+    "--set",
+    "material.hash_levels=2",
+    "--set",
+    "material.hash_log2_table=10",
+];
+
+/// A finished stage-1 run's files copied into a new run directory `dest`.
+fn copy_stage1(run: &Path, dest: &Path) {
+    std::fs::create_dir(dest).unwrap();
+    for f in ["checkpoint.safetensors", "config.toml", "run.json"] {
+        std::fs::copy(run.join(f), dest.join(f)).unwrap();
+    }
+}
+
 /// A copy of the tiny run with a tiny stage 2, for the commands that need one.
 fn trained_stage2() -> &'static (tempfile::TempDir, PathBuf) {
     static RUN: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
@@ -378,33 +389,8 @@ fn trained_stage2() -> &'static (tempfile::TempDir, PathBuf) {
         let (_, data, run) = trained();
         let dir = tempfile::tempdir().unwrap();
         let copy = dir.path().join("run2");
-        std::fs::create_dir(&copy).unwrap();
-        for f in ["checkpoint.safetensors", "config.toml", "run.json"] {
-            std::fs::copy(run.join(f), copy.join(f)).unwrap();
-        }
-        let mut args = vec![
-            "train",
-            "--quiet",
-            "--stage",
-            "material",
-            "--data",
-            s(data),
-            "--out",
-            s(&copy),
-        ];
-        args.extend_from_slice(&[
-            "--set",
-            "stage2.iterations=2",
-            "--set",
-            "stage2.cache_samples=4",
-            "--set",
-            "stage2.bake_resolution=32",
-            "--set",
-            "material.hash_levels=2",
-            "--set",
-            "material.hash_log2_table=10",
-        ]);
-        let o = i2sdf(&args);
+        copy_stage1(run, &copy);
+        let o = train_material(data, &copy, &TINY_STAGE2);
         assert_eq!(o.code, 0, "{}", o.stderr);
         (dir, copy)
     })

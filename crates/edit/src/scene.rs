@@ -98,6 +98,32 @@ impl EditedScene {
         self.base_emitters
     }
 
+    /// The integrator's scene of this edit over a base, handed to `f`.
+    fn with_scene<R>(
+        &self,
+        base_geometry: &dyn Geometry,
+        base_material: &dyn Material,
+        radiance_field: Option<&dyn RadianceField>,
+        f: impl FnOnce(&Scene) -> R,
+    ) -> R {
+        let geometry = UnionGeometry {
+            base: base_geometry,
+            inserts: self.inserts.as_ref(),
+        };
+        let material = EditedMaterial {
+            base: base_material,
+            first_insert_label: self.first_insert_label,
+            edits: &self.edits,
+            inserts: &self.insert_brdfs,
+        };
+        f(&Scene {
+            geometry: &geometry,
+            material: &material,
+            lights: &self.lights,
+            radiance_field,
+        })
+    }
+
     /// Traces arbitrary paths through the edited scene (no radiance field), adding light k's
     /// share of path i to `radiance[i · lights() + k]`: the integrator's own interface, for
     /// rays that no camera makes (the mirror check's reflected rays).
@@ -109,23 +135,9 @@ impl EditedScene {
         paths: &mut [PathStart],
         radiance: &mut [Vec3],
     ) {
-        let geometry = UnionGeometry {
-            base: base_geometry,
-            inserts: self.inserts.as_ref(),
-        };
-        let material = EditedMaterial {
-            base: base_material,
-            first_insert_label: self.first_insert_label,
-            edits: &self.edits,
-            inserts: &self.insert_brdfs,
-        };
-        let scene = Scene {
-            geometry: &geometry,
-            material: &material,
-            lights: &self.lights,
-            radiance_field: None,
-        };
-        integrator.trace(&scene, paths, radiance);
+        self.with_scene(base_geometry, base_material, None, |scene| {
+            integrator.trace(scene, paths, radiance)
+        })
     }
 
     /// Renders one view of the edited scene through the shared integrator (`settings` says spp,
@@ -140,23 +152,9 @@ impl EditedScene {
         settings: &ViewSettings,
         on_row: &(dyn Fn() + Sync),
     ) -> ViewRender {
-        let geometry = UnionGeometry {
-            base: base_geometry,
-            inserts: self.inserts.as_ref(),
-        };
-        let material = EditedMaterial {
-            base: base_material,
-            first_insert_label: self.first_insert_label,
-            edits: &self.edits,
-            inserts: &self.insert_brdfs,
-        };
-        let scene = Scene {
-            geometry: &geometry,
-            material: &material,
-            lights: &self.lights,
-            radiance_field,
-        };
-        render_view(&scene, camera, settings, on_row)
+        self.with_scene(base_geometry, base_material, radiance_field, |scene| {
+            render_view(scene, camera, settings, on_row)
+        })
     }
 }
 

@@ -35,7 +35,7 @@ impl Default for IntrinsicOptions {
             seed: 0,
             emitter_threshold: 0.5,
             bake_resolution: 256,
-            label_unobserved: true,
+            label_unobserved: false,
         }
     }
 }

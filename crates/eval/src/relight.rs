@@ -36,7 +36,7 @@ impl Default for RelightOptions {
             render: EditSettings::default(),
             emitter_threshold: 0.5,
             mesh_resolution: 256,
-            label_unobserved: true,
+            label_unobserved: false,
         }
     }
 }
