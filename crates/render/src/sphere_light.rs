@@ -6,9 +6,9 @@
 //! cone pdf is constant over the bulb. Points inside the sphere fall back to area sampling.
 
 use crate::area_light::AreaLight;
+use crate::cone_light::cone_sample;
 use crate::geometry::Hit;
 use crate::light::{cone_one_minus_cos, Light, LightSample, Visibility};
-use crate::sampling::Frame;
 use glam::Vec3;
 use i2sdf_data::TriangleMesh;
 
@@ -36,20 +36,13 @@ impl SphereLight {
 
 impl Light for SphereLight {
     fn sample(&self, x: Vec3, u: [f32; 3]) -> Option<LightSample> {
-        let Some(omc) = self.cone(x) else {
+        // Uniform in the cone around x → centre (pbrt-v3 §14.2.2), as the cone light samples.
+        let Some((wi, pdf)) = cone_sample(x, self.center, self.radius, u[1], u[2]) else {
             return self.area.sample(x, u);
         };
-        // Uniform in the cone around x → centre with 1 − cos θ_max = omc (pbrt-v3 §14.2.2),
-        // computed from 1 − cos θ so that distant, small cones keep their precision.
-        let axis = (self.center - x).normalize();
-        let one_minus_cos = u[1] * omc;
-        let cos_t = 1.0 - one_minus_cos;
-        let sin_t = (one_minus_cos * (2.0 - one_minus_cos)).max(0.0).sqrt();
-        let phi = std::f32::consts::TAU * u[2];
-        let wi = Frame::from_normal(axis).to_world(Vec3::new(sin_t * phi.cos(), sin_t * phi.sin(), cos_t));
         Some(LightSample {
             wi,
-            pdf: 1.0 / (std::f32::consts::TAU * omc),
+            pdf,
             radiance: self.area.emission,
             // The chord through the tessellation starts within the circumscribed sphere.
             visibility: Visibility::FirstHit((self.center - x).length() + self.radius),
