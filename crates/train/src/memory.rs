@@ -1,0 +1,1 @@
+//! Training memory estimates (filled in below).
