@@ -462,6 +462,7 @@ fn edit_bad_input_exits_2_and_good_specs_render() {
         (empty.clone(), vec!["--view", "99"], vec!["--view 99"]),
         (empty.clone(), vec!["--width", "20"], vec!["--width and --height"]),
         (empty.clone(), vec!["--split", "validation"], vec!["--split validation"]),
+        (empty.clone(), vec!["--composite", "ratio"], vec!["--composite", "ratio"]),
         (dir.path().join("absent.toml"), vec![], vec!["absent.toml"]),
     ];
     std::fs::write(dir.path().join("broken.ply"), b"ply\nformat nonsense\n").unwrap();
@@ -507,6 +508,24 @@ fn edit_bad_input_exits_2_and_good_specs_render() {
     );
     let png = i2sdf_data::imageio::read_image(&out.join(names.iter().find(|n| n.ends_with(".png")).unwrap())).unwrap();
     assert_eq!((png.width, png.height), (12, 10));
+    // The same edit by differential rendering (two path-traced passes and the radiance field).
+    std::fs::remove_dir_all(&out).unwrap();
+    let o = edit(
+        run,
+        &full,
+        &[
+            "--view",
+            "0",
+            "--width",
+            "12",
+            "--height",
+            "10",
+            "--composite",
+            "differential",
+        ],
+    );
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    assert_eq!(std::fs::read_dir(&out).unwrap().count(), 3);
     // A failed write exits 1.
     let blocked = unwritable(dir.path(), "out");
     let o = i2sdf(&[
@@ -527,4 +546,79 @@ fn edit_bad_input_exits_2_and_good_specs_render() {
         "0",
     ]);
     expect(o, 1, &["not_a_directory"]);
+}
+
+/// `i2sdf eval` on a dataset with relit sets (here the fixture's test views declared relit, with a
+/// relight-only spec and one that also edits a material: the truth is not theirs, the pipeline
+/// is what is tested) fills `relight`, path traced and by differential rendering, per set.
+#[test]
+fn eval_scores_the_relit_sets() {
+    let (_, run) = trained_stage2();
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    fixture::write_native(&data, &FixtureOptions::default());
+    let json_path = data.join("transforms.json");
+    let mut top: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+    let tests: Vec<serde_json::Value> = top["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|f| f["split"] == "test")
+        .map(|f| {
+            let mut f = f.clone();
+            f.as_object_mut().unwrap().remove("split");
+            f
+        })
+        .collect();
+    assert!(!tests.is_empty());
+    std::fs::write(
+        data.join("brighter.toml"),
+        "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = 2\n",
+    )
+    .unwrap();
+    std::fs::write(
+        data.join("mirror.toml"),
+        "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = 0.5\n\
+         [[op]]\nkind = \"material\"\nbelow = { point = [0, 0, 0], normal = [0, 1, 0] }\npreset = \"mirror\"\n",
+    )
+    .unwrap();
+    top["relight"] = serde_json::json!([
+        {"spec": "brighter.toml", "frames": tests},
+        {"spec": "mirror.toml", "frames": tests},
+    ]);
+    std::fs::write(&json_path, serde_json::to_string(&top).unwrap()).unwrap();
+    let out = dir.path().join("m.json");
+    let o = i2sdf(&[
+        "eval",
+        "--run",
+        s(run),
+        "--data",
+        s(&data),
+        "--out",
+        s(&out),
+        "--spp",
+        "2",
+        "--bounces",
+        "2",
+        "--mesh-resolution",
+        "32",
+    ]);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let r = &m["relight"];
+    for key in ["psnr", "ssim", "psnr_differential", "ssim_differential"] {
+        assert!(r[key].is_number(), "relight.{key}: {r}");
+    }
+    for set in ["brighter", "mirror"] {
+        let v = &r["sets"][set];
+        assert!(
+            v["psnr"].is_number() && v["psnr_differential"].is_number(),
+            "{set}: {v}"
+        );
+        assert_eq!(v["frames"], tests.len());
+    }
+    // Doing nothing is scored for the relight-only set, and the unedited render on the tests.
+    assert!(r["sets"]["brighter"]["psnr_unedited"].is_number());
+    assert!(r["sets"]["mirror"]["psnr_unedited"].is_null());
+    assert_eq!(r["unedited"]["frames"], tests.len());
 }

@@ -15,3 +15,5 @@ pub mod recovered;
 pub use recovered::{edit_images, recovered_lights, EditSettings, RecoveredScene, RecoveredSurface};
 pub mod apply;
 pub use apply::{edited_scene, light_gains};
+pub mod differential;
+pub use differential::{differential_hdr, hdr_ldr_images, Composite};

@@ -10,12 +10,15 @@
 //! interpolated, and a ray costs a BVH traversal alone.
 
 use crate::apply::edited_scene;
+use crate::differential::hdr_ldr_images;
 use crate::scene::{BaseLights, EditedScene};
 use glam::{DVec3, Vec3};
 use i2sdf_data::edit_spec::EditSpec;
 use i2sdf_data::{Bounds, Camera, DataError, EditAssets, ImageF32, TriangleMesh};
+use i2sdf_model::images::render_volume_view;
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::observed::ObservedViews;
+use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::{
     emitter_cone_lights, extract_mesh, EmitterTable, FrozenScene, MaterialField, NeuralMaterial, NeuralScene,
     Radiometry,
@@ -225,6 +228,12 @@ impl<'a> RecoveredScene<'a> {
 }
 
 impl RecoveredScene<'_> {
+    /// Stage 1's radiance field seen from `camera` (display values, as the dataset's images): the
+    /// captured image of [`crate::differential`].
+    pub fn captured(&self, camera: &Camera, settings: &RenderSettings) -> ImageF32 {
+        render_volume_view(self.frozen.scene, settings, camera).rgb
+    }
+
     /// Traces `paths` through `edited` ([`EditedScene::trace`]) with the integrator of
     /// `settings`.
     pub fn trace(&self, edited: &EditedScene, settings: &EditSettings, paths: &mut [PathStart], radiance: &mut [Vec3]) {
@@ -237,10 +246,5 @@ impl RecoveredScene<'_> {
 /// A render's image with per-light gains: linear HDR (image units) and, tone-mapped as the
 /// dataset's images, LDR.
 pub fn edit_images(v: &ViewRender, gains: &[Vec3], radiometry: &Radiometry) -> (ImageF32, ImageF32) {
-    let hdr: Vec<f32> = v.hdr(gains).iter().flat_map(|c| c.to_array()).collect();
-    let ldr = hdr.iter().map(|&x| radiometry.encode(x)).collect();
-    (
-        ImageF32::from_data(v.width, v.height, 3, hdr),
-        ImageF32::from_data(v.width, v.height, 3, ldr),
-    )
+    hdr_ldr_images(&v.hdr(gains), v.width, v.height, radiometry)
 }

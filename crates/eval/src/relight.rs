@@ -5,20 +5,24 @@
 //! test images of the same cameras.
 //!
 //! Sets whose specs only relight share one render per camera: relighting is exact from the
-//! per-emitter radiance slots, so only the gains differ.
+//! per-emitter radiance slots, so only the gains differ. With `volume` set, each set is also
+//! scored by differential rendering ([`i2sdf_edit::differential`]): stage 1's radiance field of
+//! the camera + the path-traced change, from the same renders (and, for a set that edits more
+//! than lights, the unedited render of the same paths).
 
 use crate::image_metrics::{psnr, ssim, ImageRef};
 use crate::report::{ImagePair, RelightMetrics, RelightSetMetrics};
 use glam::Vec3;
 use i2sdf_data::edit_spec::{EditOp, EditSpec};
 use i2sdf_data::{DataError, Dataset, Frame, ImageF32, Split};
-use i2sdf_edit::{edit_images, light_gains, EditSettings, RecoveredScene};
+use i2sdf_edit::{differential_hdr, edit_images, hdr_ldr_images, light_gains, EditSettings, RecoveredScene};
 use i2sdf_model::intrinsic_io::IntrinsicFields;
+use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::NeuralScene;
 use i2sdf_render::ViewRender;
 use std::collections::{BTreeMap, HashMap};
 
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct RelightOptions {
     pub render: EditSettings,
     /// F_e threshold of the emitter labels (the run's `stage2.emitter_threshold`).
@@ -28,6 +32,8 @@ pub struct RelightOptions {
     /// Label the unobserved surface inside emitters as emitting (the run's
     /// `stage2.label_unobserved`).
     pub label_unobserved: bool,
+    /// The radiance field's render settings (the run's); None: no differential figures.
+    pub volume: Option<RenderSettings>,
 }
 
 impl Default for RelightOptions {
@@ -37,6 +43,7 @@ impl Default for RelightOptions {
             emitter_threshold: 0.5,
             mesh_resolution: 256,
             label_unobserved: false,
+            volume: None,
         }
     }
 }
@@ -96,7 +103,11 @@ pub fn relight_metrics(
     )?;
     let unedited_scene = recovered.edited(&EditSpec::default(), &Default::default());
     let tests: HashMap<Vec<u64>, &Frame> = dataset.split(Split::Test).map(|f| (camera_key(f), f)).collect();
-    let mut shared: HashMap<Vec<u64>, ViewRender> = HashMap::new();
+    // Per camera: the unedited render (shared by the relight-only sets, the differential base of
+    // the others), the view index its paths were drawn with, and the radiance field's image.
+    let mut shared: HashMap<Vec<u64>, (ViewRender, u32)> = HashMap::new();
+    let mut captured: HashMap<Vec<u64>, ImageF32> = HashMap::new();
+    let (mut all_dp, mut all_ds) = (Vec::new(), Vec::new());
     let (mut all_p, mut all_s) = (Vec::new(), Vec::new());
     let (mut base_p, mut base_s) = (Vec::new(), Vec::new());
     let mut seen_tests = std::collections::HashSet::new();
@@ -109,25 +120,42 @@ pub fn relight_metrics(
         let gains = light_gains(spec, edited);
         let ones = vec![Vec3::ONE; edited.lights()];
         let (mut p, mut s, mut pu, mut su) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut dp, mut ds) = (Vec::new(), Vec::new());
         for f in &set.frames {
             let key = camera_key(f);
-            let fresh;
-            let render = match (relight_only, shared.get(&key)) {
-                (true, Some(r)) => r,
-                _ => {
-                    fresh = recovered.render(edited, &f.camera, &options.render, view, on_row);
-                    view += 1;
-                    if relight_only {
-                        shared.entry(key.clone()).or_insert(fresh)
-                    } else {
-                        &fresh
-                    }
-                }
-            };
+            if !shared.contains_key(&key) && (relight_only || options.volume.is_some()) {
+                let r = recovered.render(&unedited_scene, &f.camera, &options.render, view, on_row);
+                shared.insert(key.clone(), (r, view));
+                view += 1;
+            }
+            let own_render = own.as_ref().map(|ed| {
+                // The unedited render's paths when there is one (the differential's edited and
+                // unedited images then share their noise), else a fresh view index.
+                let v = shared.get(&key).map_or_else(
+                    || {
+                        view += 1;
+                        view - 1
+                    },
+                    |(_, v)| *v,
+                );
+                recovered.render(ed, &f.camera, &options.render, v, on_row)
+            });
+            let base = shared.get(&key).map(|(r, _)| r);
+            let render = own_render.as_ref().or(base).expect("a render of the edited scene");
             let (_, relit) = edit_images(render, &gains, &recovered.radiometry);
             let (x, y) = scores(&relit, &f.rgb)?;
             p.extend(x);
             s.extend(y);
+            if let (Some(volume), Some(base)) = (&options.volume, base) {
+                let cap = captured
+                    .entry(key.clone())
+                    .or_insert_with(|| recovered.captured(&f.camera, volume));
+                let d = differential_hdr(cap, render, &gains, base, &recovered.radiometry);
+                let (_, ldr) = hdr_ldr_images(&d, render.width, render.height, &recovered.radiometry);
+                let (x, y) = scores(&ldr, &f.rgb)?;
+                dp.extend(x);
+                ds.extend(y);
+            }
             if relight_only {
                 let (_, plain) = edit_images(render, &ones, &recovered.radiometry);
                 let (x, y) = scores(&plain, &f.rgb)?;
@@ -142,6 +170,8 @@ pub fn relight_metrics(
                 }
             }
         }
+        all_dp.extend(&dp);
+        all_ds.extend(&ds);
         all_p.extend(&p);
         all_s.extend(&s);
         let name = set
@@ -155,6 +185,8 @@ pub fn relight_metrics(
                 ssim: mean(&s),
                 psnr_unedited: mean(&pu),
                 ssim_unedited: mean(&su),
+                psnr_differential: mean(&dp),
+                ssim_differential: mean(&ds),
                 frames: set.frames.len(),
             },
         );
@@ -168,5 +200,7 @@ pub fn relight_metrics(
             ssim: mean(&base_s),
             frames: base_p.len(),
         }),
+        psnr_differential: mean(&all_dp),
+        ssim_differential: mean(&all_ds),
     })
 }

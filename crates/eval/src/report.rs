@@ -1,7 +1,8 @@
 //! The `eval` command's JSON (DESIGN.md "The command line"): every figure that cannot be computed
 //! is `null`, never absent. Extra keys beyond the contract: `geometry.mesh.per_object_recall`
 //! (with the dataset's object names and tags), `geometry.thin_objects`, `material.pixels` and
-//! `material.albedo_scale`, `emitters.emission` and `emitters.matches`.
+//! `material.albedo_scale`, `emitters.emission` and `emitters.matches`, `relight.unedited`,
+//! `relight.psnr_differential`/`ssim_differential` and the per-set `*_unedited`, `*_differential`.
 
 use crate::mesh_metrics::{GroupRecall, MeshMetrics};
 use i2sdf_data::dataset::ObjectInfo;
@@ -190,6 +191,10 @@ pub struct RelightMetrics {
     /// The unedited path-traced render against the test images of the same cameras (the
     /// renderer's own floor, before any edit).
     pub unedited: Option<ImagePair>,
+    /// The same sets by differential rendering (`i2sdf edit --composite differential`: stage 1's
+    /// radiance field + the path-traced change), over all their frames.
+    pub psnr_differential: Option<f64>,
+    pub ssim_differential: Option<f64>,
 }
 
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -199,6 +204,9 @@ pub struct RelightSetMetrics {
     /// The unedited render against this set's relit ground truth: what doing nothing scores.
     pub psnr_unedited: Option<f64>,
     pub ssim_unedited: Option<f64>,
+    /// By differential rendering (see [`RelightMetrics::psnr_differential`]).
+    pub psnr_differential: Option<f64>,
+    pub ssim_differential: Option<f64>,
     pub frames: usize,
 }
 

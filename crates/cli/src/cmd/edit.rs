@@ -5,11 +5,13 @@
 //! `RUN/emitters.json`'s `emission`: divide by the dataset's exposure for its HDR units) and a
 //! copy of the spec as `DIR/edit.toml`. An empty spec renders the unedited scene. Everything is
 //! checked (run, spec, its textures and meshes, the arguments) before anything is written.
+//! `--composite differential` forms the image by differential rendering (`i2sdf_edit::differential`).
 
 use clap::Args as ClapArgs;
+use i2sdf_data::edit_spec::EditOp;
 use i2sdf_data::edit_spec::EditSpec;
 use i2sdf_data::{imageio, Camera, DataError, Split};
-use i2sdf_edit::{edit_images, light_gains, EditSettings, RecoveredScene};
+use i2sdf_edit::{differential_hdr, edit_images, hdr_ldr_images, light_gains, Composite, EditSettings, RecoveredScene};
 use indicatif::ProgressBar;
 use std::path::PathBuf;
 
@@ -47,6 +49,12 @@ pub struct Args {
     /// Dataset (defaults to the one the run was trained on).
     #[arg(long)]
     pub data: Option<PathBuf>,
+    /// How the image is formed: `path-traced` (the edited scene's render as it is) or
+    /// `differential` (stage 1's radiance field + the path-traced change, edited − unedited:
+    /// the captured appearance where the edit leaves it; twice the path tracing unless the spec
+    /// only relights).
+    #[arg(long, default_value = "path-traced")]
+    pub composite: String,
 }
 
 /// Largest output side, spp and bounce count accepted.
@@ -70,6 +78,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ))
         .into());
     }
+    let composite =
+        Composite::from_name(&args.composite).map_err(|e| DataError::invalid(format!("--composite {e}")))?;
     let size = match (args.width, args.height) {
         (None, None) => None,
         (Some(w), Some(h)) if (1..=MAX_SIDE).contains(&w) && (1..=MAX_SIDE).contains(&h) => Some((w, h)),
@@ -116,6 +126,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         cameras,
     )?;
     let edited = recovered.edited(&spec, &assets);
+    // Differential rendering needs the unedited scene's render of the same paths: the edited
+    // render itself when the spec only relights (the gains differ, not the paths).
+    let relight_only = spec.ops.iter().all(|op| matches!(op, EditOp::Relight(_)));
+    let unedited = (composite == Composite::Differential && !relight_only)
+        .then(|| recovered.edited(&EditSpec::default(), &Default::default()));
+    let volume = super::run_render_settings(&args.run)?;
     let gains = light_gains(&spec, &edited);
     let settings = EditSettings {
         spp: args.spp,
@@ -126,21 +142,34 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     imageio::write_bytes_atomic(&args.out.join("edit.toml"), &spec_text)?;
     let cameras: Vec<Camera> = views.iter().map(|&v| resized(&frames[v].camera, size)).collect();
     let rows: usize = cameras.iter().map(|c| c.height).sum();
-    let bar = ProgressBar::new(rows as u64);
+    let passes = if unedited.is_some() { 2 } else { 1 };
+    let bar = ProgressBar::new((rows * passes) as u64);
+    let rm = &recovered.radiometry;
     for (&v, cam) in views.iter().zip(&cameras) {
         let render = recovered.render(&edited, cam, &settings, v as u32, &|| bar.inc(1));
-        let (hdr, ldr) = edit_images(&render, &gains, &recovered.radiometry);
+        let (hdr, ldr) = match composite {
+            Composite::PathTraced => edit_images(&render, &gains, rm),
+            Composite::Differential => {
+                let base = unedited
+                    .as_ref()
+                    .map(|u| recovered.render(u, cam, &settings, v as u32, &|| bar.inc(1)));
+                let captured = recovered.captured(cam, &volume);
+                let d = differential_hdr(&captured, &render, &gains, base.as_ref().unwrap_or(&render), rm);
+                hdr_ldr_images(&d, render.width, render.height, rm)
+            }
+        };
         let name = &frames[v].name;
         imageio::write_exr(&args.out.join(format!("{name}.exr")), &hdr)?;
         imageio::write_png(&args.out.join(format!("{name}.png")), &ldr)?;
     }
     bar.finish();
     println!(
-        "rendered {} edited {} view(s) ({} op(s), {} light(s)) into {}",
+        "rendered {} edited {} view(s) ({} op(s), {} light(s), {}) into {}",
         views.len(),
         split.name(),
         spec.ops.len(),
         edited.lights(),
+        composite.name(),
         args.out.display()
     );
     Ok(())

@@ -2,8 +2,8 @@
 //! figure that cannot be computed is null). Also writes the extracted mesh beside the JSON. With
 //! stage 2 (`RUN/stage2.safetensors`) it fills `rerender`, `material` and `emitters` from a Monte
 //! Carlo re-render of the test views (`--spp` paths per pixel), and `relight` from path-traced
-//! renders of the dataset's relit sets with their specs (`--spp`, `--bounces`); without, they
-//! stay null.
+//! renders of the dataset's relit sets with their specs (`--spp`, `--bounces`), path traced and
+//! by differential rendering; without, they stay null.
 
 use clap::Args as ClapArgs;
 use i2sdf_data::{imageio, Split};
@@ -85,6 +85,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 },
                 emitter_threshold: intrinsic.emitter_threshold,
                 label_unobserved: intrinsic.label_unobserved,
+                volume: Some(options.render.clone()),
                 ..Default::default()
             };
             let rows: usize = dataset
