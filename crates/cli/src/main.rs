@@ -35,6 +35,8 @@ enum Command {
     Edit(cmd::edit::Args),
     /// Evaluate a run against its dataset: image, depth, normal and mesh metrics as JSON.
     Eval(cmd::eval::Args),
+    /// Write a static HTML report of a run: metrics against the paper's, training curves, GT | ours | error grids, emitters, the surface, relit and edited views.
+    Report(cmd::report::Args),
     /// Run the whole pipeline on the built-in synthetic room (synth → check → train → mesh → render → eval).
     Demo(cmd::demo::Args),
 }
@@ -50,6 +52,7 @@ fn main() -> ExitCode {
         Command::Render(a) => cmd::render::run(a),
         Command::Edit(a) => cmd::edit::run(a),
         Command::Eval(a) => cmd::eval::run(a),
+        Command::Report(a) => cmd::report::run(a),
         Command::Demo(a) => cmd::demo::run(a),
     };
     match result {

@@ -5,6 +5,7 @@ pub mod edit;
 pub mod eval;
 pub mod mesh;
 pub mod render;
+pub mod report;
 pub mod synth;
 pub mod train;
 

@@ -1,0 +1,87 @@
+//! `i2sdf report --run RUN [--data SCENE] [--metrics M.json] --out DIR`: a static HTML report of
+//! the run (`DIR/index.html`, `DIR/img/*.png`, `DIR/*.svg`; see `i2sdf_report`). Everything is
+//! checked (run, dataset, metrics file, arguments) before anything is written; the report is
+//! built in `DIR/.partial` and moved into place at the end.
+
+use clap::Args as ClapArgs;
+use i2sdf_data::DataError;
+use i2sdf_report::{write_report, ReportOptions, RunInputs};
+use std::path::PathBuf;
+
+#[derive(ClapArgs)]
+pub struct Args {
+    #[arg(long)]
+    pub run: PathBuf,
+    /// Output directory (created; a previous report there is replaced).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Dataset (defaults to the one the run was trained on).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// The `i2sdf eval` JSON of this run (without it the metrics table says how to make one).
+    #[arg(long)]
+    pub metrics: Option<PathBuf>,
+    /// Index of the test view shown.
+    #[arg(long, default_value_t = 0)]
+    pub view: usize,
+    /// Paths per pixel of the path-traced images.
+    #[arg(long, default_value_t = 32)]
+    pub spp: u32,
+    /// Most scattering events per path of the relit and edited views.
+    #[arg(long, default_value_t = ReportOptions::default().bounces)]
+    pub bounces: u32,
+    /// Marching-cubes resolution of the surface preview and the edit renderer's mesh.
+    #[arg(long, default_value_t = ReportOptions::default().mesh_resolution)]
+    pub mesh_resolution: usize,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if !(1..=65536).contains(&args.spp) {
+        return Err(DataError::invalid(format!("--spp {}: must be in [1, 65536]", args.spp)).into());
+    }
+    if !(1..=1024).contains(&args.bounces) {
+        return Err(DataError::invalid(format!("--bounces {}: must be in [1, 1024]", args.bounces)).into());
+    }
+    if !(16..=1024).contains(&args.mesh_resolution) {
+        return Err(DataError::invalid(format!(
+            "--mesh-resolution {}: must be in [16, 1024]",
+            args.mesh_resolution
+        ))
+        .into());
+    }
+    let metrics = match &args.metrics {
+        Some(p) => Some((p.clone(), i2sdf_report::metrics::read_metrics(p)?)),
+        None => None,
+    };
+    let (scene, fields, info) = super::load_run_intrinsic(&args.run)?;
+    let data = args.data.clone().unwrap_or_else(|| PathBuf::from(&info.data));
+    let dataset = i2sdf_data::load(&data)?;
+    let run_dir = i2sdf_model::RunDir::new(&args.run);
+    let input = RunInputs {
+        run: &args.run,
+        data: &data,
+        info: &info,
+        config_toml: run_dir.read_config_toml().ok(),
+        scene: &scene,
+        fields: fields.as_ref(),
+        dataset: &dataset,
+        metrics: metrics.as_ref().map(|(p, v)| (p.as_path(), v)),
+        volume: super::run_render_settings(&args.run)?,
+        emitter_threshold: super::run_emitter_threshold(&args.run)?,
+        label_unobserved: super::run_label_unobserved(&args.run)?,
+    };
+    let options = ReportOptions {
+        view: args.view,
+        spp: args.spp,
+        bounces: args.bounces,
+        mesh_resolution: args.mesh_resolution,
+    };
+    let summary = write_report(&input, &options, &args.out, &|step| eprintln!("report: {step}…"))?;
+    println!(
+        "wrote {} ({} files) in {:.1} s",
+        summary.index.display(),
+        summary.files,
+        summary.seconds
+    );
+    Ok(())
+}

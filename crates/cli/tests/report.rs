@@ -1,0 +1,244 @@
+//! `i2sdf report`: on a tiny fixture run (stage 1 only, then with a tiny stage 2) the page is
+//! valid HTML (html5ever, through `scraper`, reports no parse error), every file it references
+//! exists inside the report, and it links nothing outside (no network); bad input exits 2
+//! naming the file, an unwritable output exits 1, and neither leaves a report behind.
+
+use i2sdf_data::fixture::{self, FixtureOptions};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+struct Outcome {
+    code: i32,
+    stderr: String,
+}
+
+fn i2sdf(args: &[&str]) -> Outcome {
+    let out = Command::new(env!("CARGO_BIN_EXE_i2sdf")).args(args).output().unwrap();
+    Outcome {
+        code: out.status.code().unwrap_or(-1),
+        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+    }
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[track_caller]
+fn expect(o: Outcome, code: i32, needles: &[&str]) {
+    assert_eq!(o.code, code, "expected exit {code}; stderr: {}", o.stderr);
+    for n in needles {
+        assert!(o.stderr.contains(n), "expected '{n}' in: {}", o.stderr);
+    }
+}
+
+/// As `exit_codes.rs`: settings that make a fixture run take a second or two.
+const TINY: [&str; 12] = [
+    "--set",
+    "train.iterations=4",
+    "--set",
+    "model.hash_levels=4",
+    "--set",
+    "model.hash_log2_table=12",
+    "--set",
+    "train.rays=64",
+    "--set",
+    "train.eikonal_points=64",
+    "--set",
+    "train.bubble_points=64",
+];
+
+const TINY_STAGE2: [&str; 10] = [
+    "--set",
+    "stage2.iterations=3",
+    "--set",
+    "stage2.cache_samples=4",
+    "--set",
+    "stage2.bake_resolution=32",
+    "--set",
+    "material.hash_levels=2",
+    "--set",
+    "material.hash_log2_table=10",
+];
+
+/// The fixture dataset, a tiny stage-1 run, and a copy of it with a tiny stage 2.
+fn runs() -> &'static (tempfile::TempDir, PathBuf, PathBuf, PathBuf) {
+    static RUNS: OnceLock<(tempfile::TempDir, PathBuf, PathBuf, PathBuf)> = OnceLock::new();
+    RUNS.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let data = dir.path().join("data");
+        fixture::write_native(&data, &FixtureOptions::default());
+        let run = dir.path().join("run");
+        let mut args = vec!["train", "--quiet", "--data", s(&data), "--out", s(&run)];
+        args.extend_from_slice(&TINY);
+        let o = i2sdf(&args);
+        assert_eq!(o.code, 0, "{}", o.stderr);
+        let run2 = dir.path().join("run2");
+        std::fs::create_dir(&run2).unwrap();
+        for f in ["checkpoint.safetensors", "config.toml", "run.json", "log.jsonl"] {
+            std::fs::copy(run.join(f), run2.join(f)).unwrap();
+        }
+        let mut args = vec![
+            "train",
+            "--quiet",
+            "--stage",
+            "material",
+            "--data",
+            s(&data),
+            "--out",
+            s(&run2),
+        ];
+        args.extend_from_slice(&TINY_STAGE2);
+        let o = i2sdf(&args);
+        assert_eq!(o.code, 0, "{}", o.stderr);
+        (dir, data, run, run2)
+    })
+}
+
+/// `i2sdf report` with the fast settings and `extra` arguments.
+fn report(run: &Path, out: &Path, extra: &[&str]) -> Outcome {
+    let mut args = vec![
+        "report",
+        "--run",
+        s(run),
+        "--out",
+        s(out),
+        "--spp",
+        "2",
+        "--bounces",
+        "2",
+        "--mesh-resolution",
+        "32",
+    ];
+    args.extend_from_slice(extra);
+    i2sdf(&args)
+}
+
+/// Parses `DIR/index.html`: no parse errors, every `src`/`href` a relative path to a file inside
+/// DIR (or a `#fragment` of the page); returns the page's text and how many files it references.
+fn check_page(dir: &Path) -> (String, usize) {
+    let text = std::fs::read_to_string(dir.join("index.html")).unwrap();
+    let doc = scraper::Html::parse_document(&text);
+    assert!(doc.errors.is_empty(), "HTML parse errors: {:?}", doc.errors);
+    let sel = scraper::Selector::parse("[src], [href]").unwrap();
+    let mut files = 0;
+    for el in doc.select(&sel) {
+        for attr in ["src", "href"] {
+            let Some(link) = el.value().attr(attr) else { continue };
+            if link.starts_with('#') {
+                let id = &link[1..];
+                let by_id = scraper::Selector::parse(&format!("[id=\"{id}\"]")).unwrap();
+                assert!(doc.select(&by_id).next().is_some(), "no element with id {id}");
+                continue;
+            }
+            assert!(
+                !link.contains(':') && !link.starts_with('/') && !link.contains(".."),
+                "not a relative link inside the report: {link}"
+            );
+            assert!(dir.join(link).is_file(), "{attr}={link} does not exist");
+            files += 1;
+        }
+    }
+    assert!(!dir.join(".partial").exists(), "the staging directory was left behind");
+    (text, files)
+}
+
+#[test]
+fn stage1_and_stage2_reports_are_valid_and_complete() {
+    let (_, data, run, run2) = runs();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("r1");
+    let o = report(run, &out, &["--data", s(data)]);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    let (text, files) = check_page(&out);
+    assert!(files >= 10, "only {files} files referenced");
+    assert!(
+        text.contains("Not evaluated") && text.contains("No stage 2"),
+        "stage-1 page"
+    );
+    for name in [
+        "rgb_gt",
+        "rgb_ours",
+        "rgb_err",
+        "depth_err",
+        "normal_err",
+        "emitter_err",
+        "mesh_overview",
+    ] {
+        assert!(out.join(format!("img/{name}.png")).is_file(), "{name}");
+    }
+    assert!(text.contains("chart_0.svg") && out.join("emitters_top.svg").is_file());
+
+    // With stage 2 and a metrics file (the dataset defaults to the run's).
+    let metrics = dir.path().join("m.json");
+    std::fs::write(
+        &metrics,
+        r#"{"novel_view": {"psnr": 21.5, "ssim": 0.5, "lpips": null}, "geometry": {"mesh": {"fscore": 0.4}}}"#,
+    )
+    .unwrap();
+    let out2 = dir.path().join("r2");
+    let o = report(run2, &out2, &["--metrics", s(&metrics)]);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    let (text, _) = check_page(&out2);
+    assert!(
+        text.contains("21.50") && text.contains("28.42"),
+        "metrics beside the paper's"
+    );
+    for name in [
+        "albedo_ours",
+        "roughness_ours",
+        "rerender_ours",
+        "mirror_traced",
+        "mirror_diff",
+    ] {
+        assert!(out2.join(format!("img/{name}.png")).is_file(), "{name}");
+    }
+    // A second report into the same directory replaces the first.
+    let o = report(run, &out2, &["--data", s(data)]);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    check_page(&out2);
+    assert!(
+        !out2.join("img/albedo_ours.png").exists(),
+        "stale images of the previous report"
+    );
+}
+
+#[test]
+fn bad_input_exits_2_and_failed_writes_exit_1() {
+    let (_, data, run, _) = runs();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    expect(report(&dir.path().join("nowhere"), &out, &[]), 2, &["run.json"]);
+    let bad = dir.path().join("bad_metrics.json");
+    std::fs::write(&bad, "{ \"novel_view\": ").unwrap();
+    expect(report(run, &out, &["--metrics", s(&bad)]), 2, &["bad_metrics.json"]);
+    std::fs::write(&bad, "[1, 2, 3]").unwrap();
+    expect(report(run, &out, &["--metrics", s(&bad)]), 2, &["bad_metrics.json"]);
+    expect(
+        report(run, &out, &["--metrics", s(&dir.path().join("absent.json"))]),
+        2,
+        &["absent.json"],
+    );
+    expect(
+        report(run, &out, &["--data", s(&dir.path().join("no_data"))]),
+        2,
+        &["no_data"],
+    );
+    expect(
+        report(run, &out, &["--data", s(data), "--view", "99"]),
+        2,
+        &["--view 99"],
+    );
+    let spp0 = ["report", "--run", s(run), "--out", s(&out), "--spp", "0"];
+    expect(i2sdf(&spp0), 2, &["--spp 0"]);
+    assert!(!out.exists(), "a refused report wrote {}", out.display());
+    // The output's parent is a regular file: nothing can be created there.
+    let blocker = dir.path().join("not_a_directory");
+    std::fs::write(&blocker, b"x").unwrap();
+    expect(
+        report(run, &blocker.join("r"), &["--data", s(data)]),
+        1,
+        &["not_a_directory"],
+    );
+}

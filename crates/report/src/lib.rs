@@ -1,0 +1,468 @@
+//! `i2sdf report`: one self-contained static HTML page about a run (DESIGN.md's command line):
+//! the metrics against the paper's, training curves, GT | ours | error grids of a test view,
+//! the emitters from above, the recovered surface, relit and edited views, timings and memory.
+//! `index.html` with its images under `img/` and SVG charts beside it; relative links only, no
+//! network, scripts or external styles, so it opens from disk in any browser.
+//!
+//! The renders reuse what `render`, `eval` and `edit` call (see [`views`]); nothing long runs
+//! here (no evaluation: its figures come from `i2sdf eval`'s JSON).
+
+pub mod charts;
+pub mod html;
+pub mod images;
+pub mod metrics;
+pub mod views;
+
+use charts::{line_chart, top_view, Series, TopView, TrainingLog};
+use html::{esc, format_sig, Assets};
+use i2sdf_data::{DataError, Dataset, Split};
+use i2sdf_edit::{EditSettings, RecoveredScene};
+use i2sdf_model::intrinsic_io::IntrinsicFields;
+use i2sdf_model::renderer::RenderSettings;
+use i2sdf_model::{extract_mesh, NeuralScene, RunInfo};
+use i2sdf_render::{Geometry, MeshGeometry};
+use serde_json::Value;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// What the report is about: the loaded run, its dataset and (optionally) its evaluation.
+pub struct RunInputs<'a> {
+    pub run: &'a Path,
+    pub data: &'a Path,
+    pub info: &'a RunInfo,
+    /// `RUN/config.toml` as written by `train`.
+    pub config_toml: Option<String>,
+    pub scene: &'a NeuralScene,
+    pub fields: Option<&'a IntrinsicFields>,
+    pub dataset: &'a Dataset,
+    /// The `eval` JSON and its file.
+    pub metrics: Option<(&'a Path, &'a Value)>,
+    /// The run's volume-render settings (its `[sampling]`).
+    pub volume: RenderSettings,
+    /// The run's `stage2.emitter_threshold` and `stage2.label_unobserved`.
+    pub emitter_threshold: f32,
+    pub label_unobserved: bool,
+}
+
+/// How much rendering the report does.
+#[derive(Clone, Copy, Debug)]
+pub struct ReportOptions {
+    /// Index of the test view shown.
+    pub view: usize,
+    /// Paths per pixel of the path-traced images (re-render, relit sets, the mirror edit).
+    pub spp: u32,
+    pub bounces: u32,
+    /// Marching-cubes resolution of the surface (preview, top view, the edit renderer's mesh and
+    /// the re-render's bake): modest, the report is a preview.
+    pub mesh_resolution: usize,
+}
+
+impl Default for ReportOptions {
+    fn default() -> Self {
+        ReportOptions {
+            view: 0,
+            spp: 32,
+            bounces: EditSettings::default().bounces,
+            mesh_resolution: 160,
+        }
+    }
+}
+
+/// What was written.
+pub struct ReportSummary {
+    pub index: PathBuf,
+    pub files: usize,
+    pub seconds: f64,
+}
+
+/// The process's peak resident memory (VmHWM) in bytes, where /proc says.
+pub fn peak_rss() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Writes the report into `out` (created; a previous report there is replaced). `progress` is
+/// told each step as it starts.
+pub fn write_report(
+    input: &RunInputs,
+    options: &ReportOptions,
+    out: &Path,
+    progress: &dyn Fn(&str),
+) -> Result<ReportSummary, DataError> {
+    let start = Instant::now();
+    let dataset = input.dataset;
+    let (split, frames): (Split, Vec<_>) = match dataset.count(Split::Test) {
+        0 => (Split::Train, dataset.split(Split::Train).collect()),
+        _ => (Split::Test, dataset.split(Split::Test).collect()),
+    };
+    let frame = *frames.get(options.view).ok_or_else(|| {
+        DataError::invalid(format!(
+            "--view {}: the {} split has {} views",
+            options.view,
+            split.name(),
+            frames.len()
+        ))
+    })?;
+    let mut assets = Assets::new(out)?;
+    let mut timings: Vec<(String, f64)> = Vec::new();
+    let mut lap = Instant::now();
+    let mut mark = |name: &str, timings: &mut Vec<(String, f64)>| {
+        timings.push((name.to_string(), lap.elapsed().as_secs_f64()));
+        lap = Instant::now();
+    };
+    let mut body = String::new();
+    header(&mut body, input, &frame.name, split);
+    body.push_str(&metrics::metrics_section(input.metrics, input.run, input.data));
+
+    progress("training curves");
+    let log = TrainingLog::read(&input.run.join("log.jsonl"))?;
+    body.push_str(&curves_section(&mut assets, &log)?);
+    mark("training curves", &mut timings);
+
+    progress("stage-1 maps of the test view");
+    let _ = write!(
+        body,
+        "<h2 id=\"images\">Test view {}</h2><p>Ground truth | ours | error heat-map. Stage 1: the \
+         volume renderer with the run's sampling settings.</p>",
+        esc(&frame.name)
+    );
+    body.push_str(&views::stage1_grid(&mut assets, input.scene, &input.volume, frame)?);
+    mark("stage-1 maps", &mut timings);
+
+    if let Some(fields) = input.fields {
+        progress("stage-2 maps (re-render)");
+        let mut frozen = i2sdf_eval::intrinsic::frozen_scene(input.scene, fields, input.emitter_threshold);
+        frozen.bake(&dataset.bounds, options.mesh_resolution)?;
+        if input.label_unobserved {
+            let train: Vec<_> = dataset.split(Split::Train).map(|f| f.camera.clone()).collect();
+            frozen.observe(&train);
+        }
+        let _ = write!(
+            body,
+            "<h3>Stage 2: materials</h3><p>From one Monte Carlo re-render ({} paths per pixel), its \
+             secondary rays cast in the surface baked at {}.</p>",
+            options.spp, options.mesh_resolution
+        );
+        body.push_str(&views::stage2_grid(
+            &mut assets,
+            &frozen,
+            fields,
+            frame,
+            options.view as u32,
+            options.spp,
+        )?);
+        mark("stage-2 maps", &mut timings);
+    } else {
+        body.push_str("<h3>Stage 2: materials</h3><p class=\"muted\">No stage 2 in this run (no <code>RUN/stage2.safetensors</code>): train it with <code>i2sdf train --stage material</code>.</p>");
+    }
+
+    progress("surface (marching cubes)");
+    let train: Vec<_> = dataset.split(Split::Train).map(|f| f.camera.clone()).collect();
+    let recovered = match input.fields {
+        Some(fields) => Some(RecoveredScene::new(
+            input.scene,
+            fields,
+            input.emitter_threshold,
+            &dataset.bounds,
+            options.mesh_resolution,
+            input.label_unobserved.then_some(&train[..]),
+        )?),
+        None => None,
+    };
+    let own_mesh;
+    let own_geometry;
+    let (mesh, geometry): (&i2sdf_data::TriangleMesh, &dyn Geometry) = match &recovered {
+        Some(r) => (&r.surface.mesh, &r.surface.geometry),
+        None => {
+            own_mesh = extract_mesh(input.scene, &dataset.bounds, options.mesh_resolution, 0.05)?;
+            own_geometry = MeshGeometry::new(&own_mesh, vec![0; own_mesh.faces.len()]);
+            (&own_mesh, &own_geometry)
+        }
+    };
+    mark("marching cubes", &mut timings);
+
+    progress("emitters and mesh preview");
+    body.push_str(&emitters_section(&mut assets, input, &mesh.positions)?);
+    let _ = write!(
+        body,
+        "<h2 id=\"mesh\">Recovered surface</h2><p>Marching cubes of the SDF at {} samples along the \
+         bounds' longest side ({} triangles), ray cast and coloured by normal ((n + 1) / 2).</p>",
+        options.mesh_resolution,
+        mesh.faces.len()
+    );
+    let overview = views::overview_camera(&dataset.bounds, 480, 360);
+    let cells = [
+        html::Cell::img(
+            format!("test camera ({})", frame.name),
+            assets.png("mesh_test", &views::normal_shaded(geometry, &frame.camera))?,
+        ),
+        html::Cell::img(
+            "overview camera (a top corner)",
+            assets.png("mesh_overview", &views::normal_shaded(geometry, &overview))?,
+        ),
+    ];
+    body.push_str(&html::grid_row("mesh", &cells, ""));
+    mark("emitters, mesh preview", &mut timings);
+
+    body.push_str("<h2 id=\"relight\">Relighting and editing</h2>");
+    match &recovered {
+        Some(r) => {
+            let ctx = views::EditContext {
+                recovered: r,
+                volume: &input.volume,
+                settings: EditSettings {
+                    spp: options.spp,
+                    bounces: options.bounces,
+                    seed: 0,
+                },
+            };
+            let _ = write!(
+                body,
+                "<p>Path traced by the edit renderer ({} paths per pixel, {} bounces) in the \
+                 recovered scene; differential: stage 1's radiance field + the path-traced change \
+                 (Debevec 1998). Captions: PSNR against the ground truth.</p>",
+                options.spp, options.bounces
+            );
+            if dataset.relight.is_empty() {
+                body.push_str("<p class=\"muted\">The dataset has no relit sets.</p>");
+            } else {
+                progress("relit sets");
+                body.push_str(&views::relight_grid(&mut assets, &ctx, dataset)?);
+                mark("relit sets", &mut timings);
+            }
+            progress("mirror edit");
+            body.push_str(&views::mirror_grid(&mut assets, &ctx, &dataset.bounds, frame)?);
+            mark("mirror edit", &mut timings);
+        }
+        None => body.push_str("<p class=\"muted\">Relighting and editing need stage 2.</p>"),
+    }
+
+    let total = start.elapsed().as_secs_f64();
+    body.push_str(&resources_section(input, &timings, total));
+    if let Some(cfg) = &input.config_toml {
+        let _ = write!(
+            body,
+            "<h2 id=\"config\">Configuration</h2><details><summary>RUN/config.toml</summary><pre>{}</pre></details>",
+            esc(cfg)
+        );
+    }
+    let files = assets.files.len() + 1;
+    let index = assets.publish(&html::page(&format!("i2sdf report — {}", input.run.display()), &body))?;
+    Ok(ReportSummary {
+        index,
+        files,
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+fn header(body: &mut String, input: &RunInputs, view: &str, split: Split) {
+    let stage = |s: Option<&i2sdf_model::StageProgress>| match s {
+        Some(p) if p.iterations > 0 => format!(
+            "{} iterations{}, {} s",
+            p.iterations,
+            if p.done { "" } else { " (not finished)" },
+            format_sig(p.seconds)
+        ),
+        _ => "not trained".into(),
+    };
+    let _ = write!(
+        body,
+        "<h1>i2sdf report</h1><table><tr><th>run</th><td><code>{}</code></td></tr>\
+         <tr><th>dataset</th><td><code>{}</code> ({} train, {} test views, {}×{})</td></tr>\
+         <tr><th>stage 1</th><td>{}</td></tr><tr><th>stage 2</th><td>{}</td></tr>\
+         <tr><th>view shown</th><td>{} ({} split)</td></tr></table>\
+         <p><a href=\"#metrics\">metrics</a> · <a href=\"#curves\">training curves</a> · \
+         <a href=\"#images\">images</a> · <a href=\"#emitters\">emitters</a> · \
+         <a href=\"#mesh\">surface</a> · <a href=\"#relight\">relighting and editing</a> · \
+         <a href=\"#resources\">timings and memory</a></p>",
+        esc(&input.run.display().to_string()),
+        esc(&input.data.display().to_string()),
+        input.dataset.count(Split::Train),
+        input.dataset.count(Split::Test),
+        input.dataset.frames.first().map_or(0, |f| f.camera.width),
+        input.dataset.frames.first().map_or(0, |f| f.camera.height),
+        stage(Some(&input.info.stage1)),
+        stage(input.info.stage2.as_ref()),
+        esc(view),
+        split.name()
+    );
+}
+
+/// Stage 1's loss terms (log scale), PSNR and β; stage 2's losses and emissions.
+fn curves_section(assets: &mut Assets, log: &TrainingLog) -> Result<String, DataError> {
+    let mut s = String::from("<h2 id=\"curves\">Training curves</h2>");
+    if log.unreadable > 0 {
+        let _ = write!(
+            s,
+            "<p class=\"muted\">{} unreadable line(s) of RUN/log.jsonl skipped.</p>",
+            log.unreadable
+        );
+    }
+    let charts: [(&str, &str, &str, &[&str], bool); 6] = [
+        (
+            "stage1",
+            "stage 1 losses",
+            "value (each term as logged)",
+            &[
+                "loss", "rgb", "depth", "normal", "eikonal", "emitter", "bubble", "smooth",
+            ],
+            true,
+        ),
+        ("stage1", "stage 1 training PSNR", "dB", &["psnr"], false),
+        ("stage1", "stage 1 β (VolSDF density)", "β", &["beta"], true),
+        (
+            "stage1",
+            "stage 1 time per iteration",
+            "ms",
+            &["ms_forward", "ms_backward", "ms_sampling"],
+            false,
+        ),
+        (
+            "stage2",
+            "stage 2 losses",
+            "value",
+            &["loss", "render", "emitter", "smooth", "energy"],
+            true,
+        ),
+        ("stage2", "", "", &[], true),
+    ];
+    let mut any = false;
+    s.push_str("<div class=\"charts\">");
+    for (n, (stage, title, unit, keys, log_y)) in charts.iter().enumerate() {
+        let Some(st) = log.stages.get(*stage) else { continue };
+        let svg = if keys.is_empty() {
+            // Stage 2's emissions, one curve per emitter (luminance of L[k]).
+            let series: Vec<Series> = st
+                .emission
+                .iter()
+                .enumerate()
+                .map(|(k, p)| Series {
+                    name: format!("emitter {k}"),
+                    points: p,
+                })
+                .collect();
+            line_chart("stage 2 emissions L[k] (luminance)", "image units", &series, false)?
+        } else {
+            let series: Vec<Series> = keys
+                .iter()
+                .filter_map(|k| {
+                    st.series.get(*k).map(|p| Series {
+                        name: k.to_string(),
+                        points: p,
+                    })
+                })
+                .collect();
+            line_chart(title, unit, &series, *log_y)?
+        };
+        if let Some(svg) = svg {
+            let src = assets.text(&format!("chart_{n}.svg"), &svg)?;
+            let _ = write!(s, "<img src=\"{}\" alt=\"{}\">", esc(&src), esc(title));
+            any = true;
+        }
+    }
+    s.push_str("</div>");
+    for stage in ["stage1", "stage2"] {
+        if !log.stages.contains_key(stage) {
+            let _ = write!(s, "<p class=\"muted\">No {stage} lines in RUN/log.jsonl.</p>");
+        }
+    }
+    if !any {
+        s.push_str("<p class=\"muted\">Nothing to plot.</p>");
+    }
+    Ok(s)
+}
+
+/// The emitters on a top view and in a table.
+fn emitters_section(assets: &mut Assets, input: &RunInputs, vertices: &[[f32; 3]]) -> Result<String, DataError> {
+    let mut s = String::from("<h2 id=\"emitters\">Emitters</h2>");
+    let table = input.fields.map(|f| &f.emitters);
+    let recovered: Vec<([f64; 3], String)> = table
+        .map(|t| {
+            t.emitters
+                .iter()
+                .enumerate()
+                .map(|(k, e)| (e.centre, format!("#{k}")))
+                .collect()
+        })
+        .unwrap_or_default();
+    let gt: Vec<([f64; 3], [f64; 3], String)> = input
+        .dataset
+        .emitters
+        .iter()
+        .map(|e| (e.bounds_min, e.bounds_max, e.name.clone()))
+        .collect();
+    let svg = top_view(&TopView {
+        vertices,
+        recovered: &recovered,
+        gt_boxes: &gt,
+    })?;
+    let src = assets.text("emitters_top.svg", &svg)?;
+    let _ = write!(
+        s,
+        "<p>Looking down onto the x–z plane: the recovered surface's vertices (grey), {} recovered \
+         emitter centre(s) (RUN/emitters.json, blue), {} ground-truth emitter box(es) (red).</p>\
+         <img class=\"wide\" src=\"{}\" alt=\"emitters, top view\">",
+        recovered.len(),
+        if gt.is_empty() {
+            "no".to_string()
+        } else {
+            gt.len().to_string()
+        },
+        esc(&src)
+    );
+    match table {
+        Some(t) if !t.is_empty() => {
+            s.push_str("<table><tr><th>#</th><th>centre (world)</th><th>extent</th><th>points</th><th>emission L[k] (RGB, image units)</th></tr>");
+            for (k, e) in t.emitters.iter().enumerate() {
+                let v = |a: [f64; 3]| a.map(format_sig).join(", ");
+                let l = t.emission(k);
+                let _ = write!(
+                    s,
+                    "<tr><td>{k}</td><td>{}</td><td>{}</td><td class=\"num\">{}</td><td>{}</td></tr>",
+                    v(e.centre),
+                    v(e.extent),
+                    e.points,
+                    v([l.x as f64, l.y as f64, l.z as f64])
+                );
+            }
+            s.push_str("</table>");
+        }
+        Some(_) => s.push_str("<p class=\"muted\">Stage 2 found no emitters.</p>"),
+        None => s.push_str("<p class=\"muted\">No stage 2: emitters are clustered there.</p>"),
+    }
+    Ok(s)
+}
+
+fn resources_section(input: &RunInputs, timings: &[(String, f64)], total: f64) -> String {
+    let mut s = String::from("<h2 id=\"resources\">Timings and memory</h2><table><tr><th>what</th><th>value</th></tr>");
+    let mut row = |k: &str, v: String| {
+        let _ = write!(s, "<tr><td>{}</td><td class=\"num\">{}</td></tr>", esc(k), esc(&v));
+    };
+    row(
+        "training, stage 1 (run.json)",
+        format!("{} s", format_sig(input.info.stage1.seconds)),
+    );
+    if let Some(p) = &input.info.stage2 {
+        row("training, stage 2 (run.json)", format!("{} s", format_sig(p.seconds)));
+    }
+    if let Some((_, m)) = input.metrics {
+        for (k, v) in metrics::metrics_resources(m) {
+            row(&format!("eval JSON: {k}"), format_sig(v));
+        }
+    }
+    for (k, v) in timings {
+        row(&format!("report: {k}"), format!("{} s", format_sig(*v)));
+    }
+    row("report: total", format!("{} s", format_sig(total)));
+    if let Some(b) = peak_rss() {
+        row(
+            "report: peak resident memory (VmHWM)",
+            format!("{} MiB", format_sig(b as f64 / (1u64 << 20) as f64)),
+        );
+    }
+    s.push_str("</table>");
+    s
+}
