@@ -622,3 +622,67 @@ fn eval_scores_the_relit_sets() {
     assert!(r["sets"]["mirror"]["psnr_unedited"].is_null());
     assert_eq!(r["unedited"]["frames"], tests.len());
 }
+
+/// `render --path` and `edit --path`: the path's frames, the looping GIF, and bad path
+/// arguments exit 2 naming the flag.
+#[test]
+fn camera_paths_render_frames_and_an_animation() {
+    let (_, _, run) = trained();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("orbit");
+    let render = |extra: &[&str]| {
+        let mut a = vec!["render", "--run", s(run), "--out", s(&out), "--what", "rgb"];
+        a.extend_from_slice(extra);
+        i2sdf(&a)
+    };
+    for (extra, needle) in [
+        (&["--path", "spiral"][..], "--path"),
+        (&["--path", "orbit", "--frames", "0"], "--frames 0"),
+        (&["--path", "interpolate", "--keyframes", "0,99"], "--keyframes"),
+        (&["--path", "interpolate", "--keyframes", "0"], "at least two cameras"),
+        (&["--path", "orbit", "--fps", "0"], "--fps 0"),
+    ] {
+        expect(render(extra), 2, &[needle]);
+        assert!(!out.exists());
+    }
+    let o = render(&["--path", "orbit", "--frames", "3"]);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    for i in 0..3 {
+        assert!(out.join(format!("rgb/frame_{i:04}.png")).is_file());
+    }
+    let gif = std::fs::read(out.join("rgb.gif")).unwrap();
+    assert!(gif.starts_with(b"GIF89a"));
+    let o = render(&["--path", "interpolate", "--keyframes", "0,1", "--frames", "2"]);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+
+    let (_, run2) = trained_stage2();
+    let spec = dir.path().join("empty.toml");
+    std::fs::write(&spec, "").unwrap();
+    let edited = dir.path().join("edited");
+    let o = i2sdf(&[
+        "edit",
+        "--run",
+        s(run2),
+        "--spec",
+        s(&spec),
+        "--out",
+        s(&edited),
+        "--spp",
+        "1",
+        "--bounces",
+        "1",
+        "--mesh-resolution",
+        "32",
+        "--width",
+        "8",
+        "--height",
+        "6",
+        "--path",
+        "orbit",
+        "--frames",
+        "2",
+    ]);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    assert!(edited.join("frame_0001.png").is_file() && edited.join("frame_0001.exr").is_file());
+    assert!(std::fs::read(edited.join("edit.gif")).unwrap().starts_with(b"GIF89a"));
+}

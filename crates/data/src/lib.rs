@@ -2,7 +2,9 @@
 //! internal scene (OpenCV cameras, world-space normals, z-depth, a normalization into the unit
 //! sphere), with every file validated on load. Also the image/array I/O every other crate uses.
 
+pub mod animation;
 pub mod camera;
+pub mod camera_path;
 pub mod dataset;
 pub mod edit_assets;
 pub mod edit_spec;
@@ -16,6 +18,7 @@ pub mod ply;
 pub mod summary;
 
 pub use camera::Camera;
+pub use camera_path::{camera_path, PathKind};
 pub use dataset::{load, Bounds, Dataset, Format, Frame, GtEmitter, Normalization, RelightSet, Split};
 pub use edit_assets::EditAssets;
 pub use edit_spec::{EditOp, EditSpec};

@@ -112,6 +112,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         what: "rgb,depth,normal,emitter,albedo,specular,roughness,emission,rerender".into(),
         data: Some(scene.clone()),
         spp: if args.quick { 16 } else { 64 },
+        path: Default::default(),
     })?;
     eprintln!("== 6/6 evaluate");
     eval::run(eval::Args {

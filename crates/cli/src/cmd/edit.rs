@@ -55,6 +55,10 @@ pub struct Args {
     /// only relights).
     #[arg(long, default_value = "path-traced")]
     pub composite: String,
+    /// A camera path instead of the split's views (as `render --path`): frames plus `NAME.gif`
+    /// (and `.mp4` with ffmpeg) of the edited scene.
+    #[command(flatten)]
+    pub path: super::render::PathArgs,
 }
 
 /// Largest output side, spp and bounce count accepted.
@@ -95,6 +99,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let data = args.data.clone().unwrap_or_else(|| PathBuf::from(&info.data));
     let dataset = i2sdf_data::load(&data)?;
     let frames: Vec<_> = dataset.split(split).collect();
+    if args.path.path.is_some() && args.view.is_some() {
+        return Err(DataError::invalid("--view and --path: choose one").into());
+    }
     let views: Vec<usize> = match args.view {
         Some(v) if v < frames.len() => vec![v],
         Some(v) => {
@@ -110,6 +117,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             return Err(DataError::invalid(format!("the {} split has no views", split.name())).into())
         }
         None => (0..frames.len()).collect(),
+    };
+    // (name, camera, view index for the sampler) of every image to render.
+    let shots: Vec<(String, Camera, u32)> = match &args.path.path {
+        None => views
+            .iter()
+            .map(|&v| (frames[v].name.clone(), resized(&frames[v].camera, size), v as u32))
+            .collect(),
+        Some(_) => args
+            .path
+            .views(&frames, &dataset.bounds)?
+            .into_iter()
+            .enumerate()
+            .map(|(i, (name, cam))| (name, resized(&cam, size), i as u32))
+            .collect(),
     };
     let threshold = super::run_emitter_threshold(&args.run)?;
     let spec_text = std::fs::read(&args.spec).map_err(|e| DataError::file(&args.spec, e.to_string()))?;
@@ -140,32 +161,44 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     std::fs::create_dir_all(&args.out).map_err(|e| DataError::io(&args.out, e.to_string()))?;
     imageio::write_bytes_atomic(&args.out.join("edit.toml"), &spec_text)?;
-    let cameras: Vec<Camera> = views.iter().map(|&v| resized(&frames[v].camera, size)).collect();
-    let rows: usize = cameras.iter().map(|c| c.height).sum();
+    let rows: usize = shots.iter().map(|(_, c, _)| c.height).sum();
     let passes = if unedited.is_some() { 2 } else { 1 };
     let bar = ProgressBar::new((rows * passes) as u64);
     let rm = &recovered.radiometry;
-    for (&v, cam) in views.iter().zip(&cameras) {
-        let render = recovered.render(&edited, cam, &settings, v as u32, &|| bar.inc(1));
+    let mut anim = Vec::new();
+    for (name, cam, v) in &shots {
+        let render = recovered.render(&edited, cam, &settings, *v, &|| bar.inc(1));
         let (hdr, ldr) = match composite {
             Composite::PathTraced => edit_images(&render, &gains, rm),
             Composite::Differential => {
                 let base = unedited
                     .as_ref()
-                    .map(|u| recovered.render(u, cam, &settings, v as u32, &|| bar.inc(1)));
+                    .map(|u| recovered.render(u, cam, &settings, *v, &|| bar.inc(1)));
                 let captured = recovered.captured(cam, &volume);
                 let d = differential_hdr(&captured, &render, &gains, base.as_ref().unwrap_or(&render), rm);
                 hdr_ldr_images(&d, render.width, render.height, rm)
             }
         };
-        let name = &frames[v].name;
         imageio::write_exr(&args.out.join(format!("{name}.exr")), &hdr)?;
         imageio::write_png(&args.out.join(format!("{name}.png")), &ldr)?;
+        if args.path.path.is_some() {
+            anim.push(ldr);
+        }
     }
     bar.finish();
+    if args.path.path.is_some() {
+        // The frames sit in DIR itself: the animation is DIR/edit.gif (and edit.mp4).
+        let gif = args.out.join("edit.gif");
+        i2sdf_data::animation::write_gif(&gif, &anim, args.path.fps)?;
+        println!("wrote {}", gif.display());
+        let mp4 = args.out.join("edit.mp4");
+        if i2sdf_data::animation::write_mp4(&args.out.join("frame_%04d.png"), &mp4, args.path.fps)? {
+            println!("wrote {}", mp4.display());
+        }
+    }
     println!(
         "rendered {} edited {} view(s) ({} op(s), {} light(s), {}) into {}",
-        views.len(),
+        shots.len(),
         split.name(),
         spec.ops.len(),
         edited.lights(),

@@ -8,9 +8,14 @@
 //! image units) with a `.png` tone-mapped as the dataset's images, `rerender/NAME.exr` (linear
 //! HDR, image units) with `rerender/NAME.png` in the dataset's tone mapping (compares with its
 //! PNGs).
+//!
+//! `--path orbit|interpolate --frames N` renders a camera path instead of the dataset's views
+//! (an orbit inside the room, or through the split's views — or `--keyframes` of them — like the
+//! paper's view-interpolation videos): `MAP/frame_NNNN.*` as above, plus `MAP.gif` (animated,
+//! looping) and `MAP.mp4` when `ffmpeg` is on the PATH.
 
 use clap::Args as ClapArgs;
-use i2sdf_data::{imageio, DataError, ImageF32, Split};
+use i2sdf_data::{animation, camera_path, imageio, Camera, DataError, ImageF32, PathKind, Split};
 use i2sdf_eval::intrinsic::{emission_map, encode_image, frozen_scene, rerender_hdr, rgb_map};
 use i2sdf_model::images::render_volume_view;
 use i2sdf_model::rerender_view;
@@ -36,6 +41,105 @@ pub struct Args {
     /// Dataset (defaults to the one the run was trained on).
     #[arg(long)]
     pub data: Option<PathBuf>,
+    #[command(flatten)]
+    pub path: PathArgs,
+}
+
+/// A camera path instead of the dataset's views (shared by `render` and `edit`).
+#[derive(ClapArgs, Clone, Debug)]
+pub struct PathArgs {
+    /// Render a camera path: `orbit` (a turn inside the room) or `interpolate` (through the
+    /// split's views, or --keyframes of them).
+    #[arg(long)]
+    pub path: Option<String>,
+    /// Frames of the path.
+    #[arg(long, default_value_t = 48)]
+    pub frames: usize,
+    /// Comma-separated indices (within the split) of the views to interpolate through.
+    #[arg(long)]
+    pub keyframes: Option<String>,
+    /// Frames per second of the animation.
+    #[arg(long, default_value_t = 24)]
+    pub fps: u32,
+}
+
+impl Default for PathArgs {
+    /// No path (the dataset's views); the flags' defaults otherwise.
+    fn default() -> Self {
+        PathArgs {
+            path: None,
+            frames: 48,
+            keyframes: None,
+            fps: 24,
+        }
+    }
+}
+
+/// Longest path accepted (a day of video at 24 fps is far beyond any use).
+const MAX_FRAMES: usize = 100_000;
+
+impl PathArgs {
+    /// The views to render, named: the split's frames as they are, or the path's frames.
+    pub fn views(
+        &self,
+        frames: &[&i2sdf_data::Frame],
+        bounds: &i2sdf_data::Bounds,
+    ) -> Result<Vec<(String, Camera)>, DataError> {
+        let Some(kind) = &self.path else {
+            return Ok(frames.iter().map(|f| (f.name.clone(), f.camera.clone())).collect());
+        };
+        let kind = PathKind::from_name(kind).map_err(|e| DataError::invalid(format!("--path {e}")))?;
+        if !(1..=MAX_FRAMES).contains(&self.frames) {
+            return Err(DataError::invalid(format!(
+                "--frames {}: must be in [1, {MAX_FRAMES}]",
+                self.frames
+            )));
+        }
+        if !(1..=240).contains(&self.fps) {
+            return Err(DataError::invalid(format!("--fps {}: must be in [1, 240]", self.fps)));
+        }
+        let keys: Vec<Camera> = match &self.keyframes {
+            None => frames.iter().map(|f| f.camera.clone()).collect(),
+            Some(list) => list
+                .split(',')
+                .map(|k| {
+                    k.trim()
+                        .parse::<usize>()
+                        .ok()
+                        .and_then(|i| frames.get(i))
+                        .map(|f| f.camera.clone())
+                        .ok_or_else(|| {
+                            DataError::invalid(format!(
+                                "--keyframes {list}: {k:?} is not a view index of the split (0 to {})",
+                                frames.len().saturating_sub(1)
+                            ))
+                        })
+                })
+                .collect::<Result<_, _>>()?,
+        };
+        let path = camera_path(kind, &keys, bounds, self.frames)?;
+        Ok(path
+            .into_iter()
+            .enumerate()
+            .map(|(i, c)| (format!("frame_{i:04}"), c))
+            .collect())
+    }
+
+    /// After a path's frames are written: `DIR/MAP.gif` of each map's PNG frames and, with
+    /// ffmpeg, `DIR/MAP.mp4`. Returns what was written.
+    pub fn animate(&self, out: &std::path::Path, maps: &[(String, Vec<ImageF32>)]) -> Result<Vec<PathBuf>, DataError> {
+        let mut written = Vec::new();
+        for (m, frames) in maps {
+            let gif = out.join(format!("{m}.gif"));
+            animation::write_gif(&gif, frames, self.fps)?;
+            written.push(gif);
+            let mp4 = out.join(format!("{m}.mp4"));
+            if animation::write_mp4(&out.join(m).join("frame_%04d.png"), &mp4, self.fps)? {
+                written.push(mp4);
+            }
+        }
+        Ok(written)
+    }
 }
 
 /// Maps of stage 1 (the volume renderer) and of stage 2 (one re-render per view).
@@ -85,34 +189,48 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             fr.observe(&train);
         }
     }
-    let rows: usize = frames.iter().map(|f| f.camera.height).sum();
+    let views = args.path.views(&frames, &dataset.bounds)?;
+    let animated = args.path.path.is_some();
+    let rows: usize = views.iter().map(|(_, c)| c.height).sum();
     let passes = stage1 as usize + stage2 as usize;
     let bar = ProgressBar::new((rows * passes) as u64);
     let wants = |m: &str| what.contains(&m);
     let file = |m: &str, name: &str, ext: &str| args.out.join(m).join(format!("{name}.{ext}"));
-    for (view, f) in frames.iter().enumerate() {
+    // Each map's PNG frames of a path, for its animation.
+    let mut anim: Vec<(String, Vec<ImageF32>)> = Vec::new();
+    let mut png = |m: &str, name: &str, img: &ImageF32| -> Result<(), DataError> {
+        imageio::write_png(&file(m, name, "png"), img)?;
+        if animated {
+            match anim.iter_mut().find(|(k, _)| k == m) {
+                Some((_, v)) => v.push(img.clone()),
+                None => anim.push((m.to_string(), vec![img.clone()])),
+            }
+        }
+        Ok(())
+    };
+    for (view, (name, camera)) in views.iter().enumerate() {
         if stage1 {
-            let v = render_volume_view(&scene, &settings, &f.camera);
+            let v = render_volume_view(&scene, &settings, camera);
             if wants("rgb") {
-                imageio::write_png(&file("rgb", &f.name, "png"), &v.rgb)?;
+                png("rgb", name, &v.rgb)?;
             }
             if wants("depth") {
-                imageio::write_exr(&file("depth", &f.name, "exr"), &v.depth)?;
-                imageio::write_png(&file("depth", &f.name, "png"), &depth_preview(&v.depth))?;
+                imageio::write_exr(&file("depth", name, "exr"), &v.depth)?;
+                png("depth", name, &depth_preview(&v.depth))?;
             }
             if wants("normal") {
-                imageio::write_exr(&file("normal", &f.name, "exr"), &v.normal)?;
+                imageio::write_exr(&file("normal", name, "exr"), &v.normal)?;
                 let mut vis = v.normal.clone();
                 vis.data.iter_mut().for_each(|x| *x = 0.5 * (*x + 1.0));
-                imageio::write_png(&file("normal", &f.name, "png"), &vis)?;
+                png("normal", name, &vis)?;
             }
             if wants("emitter") {
-                imageio::write_png(&file("emitter", &f.name, "png"), &v.emitter)?;
+                png("emitter", name, &v.emitter)?;
             }
-            bar.inc(f.camera.height as u64);
+            bar.inc(camera.height as u64);
         }
         if let (Some(frozen), Some(fields)) = (&frozen, &fields) {
-            let v = rerender_view(frozen, &fields.material, &f.camera, args.spp, 0, view as u32, &|| {
+            let v = rerender_view(frozen, &fields.material, camera, args.spp, 0, view as u32, &|| {
                 bar.inc(1)
             });
             let radiometry = &fields.radiometry;
@@ -124,31 +242,38 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             for (m, values) in [("albedo", &v.kd), ("specular", &v.ks)] {
                 if wants(m) {
                     let img = rgb_map(v.width, v.height, values);
-                    imageio::write_exr(&file(m, &f.name, "exr"), &img)?;
-                    imageio::write_png(&file(m, &f.name, "png"), &srgb(&img))?;
+                    imageio::write_exr(&file(m, name, "exr"), &img)?;
+                    png(m, name, &srgb(&img))?;
                 }
             }
             if wants("roughness") {
                 let img = ImageF32::from_data(v.width, v.height, 1, v.roughness.clone());
-                imageio::write_exr(&file("roughness", &f.name, "exr"), &img)?;
-                imageio::write_png(&file("roughness", &f.name, "png"), &img)?;
+                imageio::write_exr(&file("roughness", name, "exr"), &img)?;
+                png("roughness", name, &img)?;
             }
             if wants("emission") {
-                let img = emission_map(&v, &f.camera, &fields.emitters, frozen.index_margin);
-                imageio::write_exr(&file("emission", &f.name, "exr"), &img)?;
-                imageio::write_png(&file("emission", &f.name, "png"), &encode_image(&img, radiometry))?;
+                let img = emission_map(&v, camera, &fields.emitters, frozen.index_margin);
+                imageio::write_exr(&file("emission", name, "exr"), &img)?;
+                png("emission", name, &encode_image(&img, radiometry))?;
             }
             if wants("rerender") {
                 let img = rerender_hdr(&v);
-                imageio::write_exr(&file("rerender", &f.name, "exr"), &img)?;
-                imageio::write_png(&file("rerender", &f.name, "png"), &encode_image(&img, radiometry))?;
+                imageio::write_exr(&file("rerender", name, "exr"), &img)?;
+                png("rerender", name, &encode_image(&img, radiometry))?;
             }
         }
     }
     bar.finish();
+    if animated {
+        for p in args.path.animate(&args.out, &anim)? {
+            println!("wrote {}", p.display());
+        }
+        println!("rendered a {}-frame path into {}", views.len(), args.out.display());
+        return Ok(());
+    }
     println!(
         "rendered {} {} views into {}",
-        frames.len(),
+        views.len(),
         split.name(),
         args.out.display()
     );
