@@ -96,16 +96,55 @@ fn ensure_exists(path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// The largest image the readers accept, in pixels (8192 × 8192, far above any indoor dataset):
+/// a header is checked against it before anything is decoded, so a corrupt or hostile file that
+/// claims 10⁹ × 10⁹ pixels is refused instead of allocating.
+pub const MAX_PIXELS: u64 = 1 << 26;
+
+/// The most values (pixels × channels) one float map may hold: 1 GiB of f32.
+pub const MAX_SAMPLES: u64 = 1 << 28;
+
+fn read_all(path: &Path) -> Result<Vec<u8>> {
+    ensure_exists(path)?;
+    std::fs::read(path).map_err(|e| DataError::file(path, format!("cannot read: {e}")))
+}
+
 /// Reads a colour or grey image: PNG (8 or 16 bit, scaled to [0,1], values as stored, no transfer
 /// function applied) or EXR (linear floats). Grey PNGs give 1 channel, grey+alpha 2, RGB 3, RGBA 4.
 pub fn read_image(path: &Path) -> Result<ImageF32> {
     ensure_exists(path)?;
+    image_format(path)?;
+    read_image_bytes(path, &read_all(path)?)
+}
+
+/// [`read_image`] of a file's bytes already in memory; `path` picks the format by its extension
+/// and names the file in errors.
+pub fn read_image_bytes(path: &Path, bytes: &[u8]) -> Result<ImageF32> {
+    match image_format(path)? {
+        "exr" => read_exr(path, bytes),
+        _ => read_png(path, bytes),
+    }
+}
+
+fn image_format(path: &Path) -> Result<&'static str> {
     match extension(path).as_str() {
-        "png" | "jpg" | "jpeg" => read_png(path),
-        "exr" => read_exr(path),
+        "png" | "jpg" | "jpeg" => Ok("png"),
+        "exr" => Ok("exr"),
         other => Err(DataError::file(
             path,
             format!("unsupported image format '.{other}' (expected .png or .exr)"),
+        )),
+    }
+}
+
+fn float_map_format(path: &Path) -> Result<&'static str> {
+    match extension(path).as_str() {
+        "npy" => Ok("npy"),
+        "exr" => Ok("exr"),
+        "png" => Ok("png"),
+        other => Err(DataError::file(
+            path,
+            format!("unsupported float map format '.{other}' (expected .exr, .npy or .png)"),
         )),
     }
 }
@@ -114,24 +153,62 @@ pub fn read_image(path: &Path) -> Result<ImageF32> {
 /// H×W×C), or a PNG read as [0,1] values.
 pub fn read_float_map(path: &Path) -> Result<ImageF32> {
     ensure_exists(path)?;
-    match extension(path).as_str() {
-        "npy" => read_npy(path),
-        "exr" => read_exr(path),
-        "png" => read_png(path),
-        other => Err(DataError::file(
+    float_map_format(path)?;
+    read_float_map_bytes(path, &read_all(path)?)
+}
+
+/// [`read_float_map`] of a file's bytes already in memory (`path` picks the format and names
+/// the file in errors).
+pub fn read_float_map_bytes(path: &Path, bytes: &[u8]) -> Result<ImageF32> {
+    match float_map_format(path)? {
+        "npy" => read_npy(path, bytes),
+        "exr" => read_exr(path, bytes),
+        _ => read_png(path, bytes),
+    }
+}
+
+/// Refuses an image size beyond [`MAX_PIXELS`] (or an empty one) before it is allocated.
+fn check_dimensions(path: &Path, width: u64, height: u64, channels: u64) -> Result<()> {
+    let pixels = width.checked_mul(height);
+    if width == 0 || height == 0 {
+        return Err(DataError::file(path, format!("image size {width}×{height} is empty")));
+    }
+    match pixels {
+        Some(p) if p <= MAX_PIXELS && p.saturating_mul(channels) <= MAX_SAMPLES => Ok(()),
+        _ => Err(DataError::file(
             path,
-            format!("unsupported float map format '.{other}' (expected .exr, .npy or .png)"),
+            format!(
+                "image size {width}×{height}×{channels} is larger than this reader accepts \
+                 ({MAX_PIXELS} pixels, {MAX_SAMPLES} values): a corrupt header?"
+            ),
         )),
     }
 }
 
-fn read_png(path: &Path) -> Result<ImageF32> {
-    let img = image::ImageReader::open(path)
-        .map_err(|e| DataError::file(path, format!("cannot open: {e}")))?
+/// Decodes a PNG held in memory, with the header's size checked before the pixels are.
+fn decode_png(path: &Path, bytes: &[u8]) -> Result<image::DynamicImage> {
+    let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
         .with_guessed_format()
-        .map_err(|e| DataError::file(path, format!("cannot read: {e}")))?
-        .decode()
+        .map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(1 << 16);
+    limits.max_image_height = Some(1 << 16);
+    reader.limits(limits.clone());
+    let (w, h) = reader
+        .into_dimensions()
         .map_err(|e| DataError::file(path, format!("cannot decode image: {e}")))?;
+    check_dimensions(path, w as u64, h as u64, 4)?;
+    let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
+    reader.limits(limits);
+    reader
+        .decode()
+        .map_err(|e| DataError::file(path, format!("cannot decode image: {e}")))
+}
+
+fn read_png(path: &Path, bytes: &[u8]) -> Result<ImageF32> {
+    let img = decode_png(path, bytes)?;
     let (w, h) = (img.width() as usize, img.height() as usize);
     let channels = img.color().channel_count() as usize;
     let data: Vec<f32> = match channels {
@@ -147,13 +224,12 @@ fn read_png(path: &Path) -> Result<ImageF32> {
 /// Reads a 16-bit (or 8-bit) grey PNG as raw integer values (for depth PNGs scaled by
 /// `depth_unit_scale_factor`).
 pub fn read_png_raw_gray(path: &Path) -> Result<ImageF32> {
-    ensure_exists(path)?;
-    let img = image::ImageReader::open(path)
-        .map_err(|e| DataError::file(path, format!("cannot open: {e}")))?
-        .with_guessed_format()
-        .map_err(|e| DataError::file(path, format!("cannot read: {e}")))?
-        .decode()
-        .map_err(|e| DataError::file(path, format!("cannot decode image: {e}")))?;
+    read_png_raw_gray_bytes(path, &read_all(path)?)
+}
+
+/// [`read_png_raw_gray`] of a file's bytes already in memory.
+pub fn read_png_raw_gray_bytes(path: &Path, bytes: &[u8]) -> Result<ImageF32> {
+    let img = decode_png(path, bytes)?;
     if img.color().channel_count() != 1 {
         return Err(DataError::file(
             path,
@@ -171,12 +247,36 @@ pub fn read_png_raw_gray(path: &Path) -> Result<ImageF32> {
 /// Channel order used when reading EXRs: colour first, then the usual single-channel names.
 const EXR_ORDER: [&str; 8] = ["R", "G", "B", "A", "X", "Y", "Z", "D"];
 
-fn read_exr(path: &Path) -> Result<ImageF32> {
+/// The most channels an EXR layer may have (ours have at most 4; AOV files a few dozen).
+const MAX_EXR_CHANNELS: usize = 64;
+
+fn read_exr(path: &Path, bytes: &[u8]) -> Result<ImageF32> {
     use exr::prelude::*;
-    let image =
-        read_first_flat_layer_from_file(path).map_err(|e| DataError::file(path, format!("cannot read EXR: {e}")))?;
+    let bad = |e: exr::error::Error| DataError::file(path, format!("cannot read EXR: {e}"));
+    // The headers first: every layer's size is checked before the reader allocates its pixels.
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false).map_err(bad)?;
+    for header in &meta.headers {
+        let size = header.layer_size;
+        let channels = header.channels.list.len();
+        if channels > MAX_EXR_CHANNELS {
+            return Err(DataError::file(
+                path,
+                format!("EXR layer has {channels} channels (at most {MAX_EXR_CHANNELS} are read)"),
+            ));
+        }
+        check_dimensions(path, size.width() as u64, size.height() as u64, channels.max(1) as u64)?;
+    }
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(std::io::Cursor::new(bytes))
+        .map_err(bad)?;
     let layer = &image.layer_data;
     let (w, h) = (layer.size.width(), layer.size.height());
+    check_dimensions(path, w as u64, h as u64, layer.channel_data.list.len().max(1) as u64)?;
     // exr sorts channels alphabetically; reorder so RGB(A) / XYZ come out in their natural order.
     let mut chans: Vec<(String, Vec<f32>)> = layer
         .channel_data
@@ -205,11 +305,37 @@ fn read_exr(path: &Path) -> Result<ImageF32> {
     Ok(ImageF32::from_data(w, h, c, data))
 }
 
-fn read_npy(path: &Path) -> Result<ImageF32> {
-    let bytes = std::fs::read(path).map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
-    let npy =
-        npyz::NpyFile::new(&bytes[..]).map_err(|e| DataError::file(path, format!("not a valid .npy file: {e}")))?;
-    npy_to_image(path, npy)
+fn read_npy(path: &Path, bytes: &[u8]) -> Result<ImageF32> {
+    npy_to_image(path, npy_file(path, bytes)?)
+}
+
+/// Opens a `.npy` array held in memory. The header's length field is checked against the bytes
+/// first: npyz allocates whatever length the field claims (up to 4 GiB in a version-2/3 file)
+/// before reading the header.
+pub fn npy_file<'a>(path: &Path, bytes: &'a [u8]) -> Result<npyz::NpyFile<&'a [u8]>> {
+    let bad = |msg: String| DataError::file(path, format!("not a valid .npy file: {msg}"));
+    if bytes.len() >= 10 && bytes.starts_with(b"\x93NUMPY") {
+        let (start, len) = match bytes[6] {
+            1 => (10, u16::from_le_bytes([bytes[8], bytes[9]]) as usize),
+            _ if bytes.len() >= 12 => (
+                12,
+                u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+            ),
+            _ => return Err(bad("truncated header".into())),
+        };
+        if start + len > bytes.len() {
+            return Err(bad(format!(
+                "the header claims {len} bytes, the file has {} after it",
+                bytes.len() - start
+            )));
+        }
+    }
+    npyz::NpyFile::new(bytes).map_err(|e| bad(e.to_string()))
+}
+
+/// Reads one `.npy` array held in memory as an image (see [`npy_to_image`]).
+pub fn read_npy_bytes(path: &Path, bytes: &[u8]) -> Result<ImageF32> {
+    read_npy(path, bytes)
 }
 
 /// Converts one `.npy` array (from a file or an npz member) of shape H×W or H×W×C to an image.
@@ -226,6 +352,7 @@ pub fn npy_to_image<R: std::io::Read>(path: &Path, npy: npyz::NpyFile<R>) -> Res
             ))
         }
     };
+    check_dimensions(path, w as u64, h as u64, c as u64)?;
     if npy.order() == npyz::Order::Fortran {
         return Err(DataError::file(
             path,
@@ -239,6 +366,7 @@ pub fn npy_to_image<R: std::io::Read>(path: &Path, npy: npyz::NpyFile<R>) -> Res
 /// All values of a numeric `.npy` array as f32 (float32, float64 and integer arrays accepted).
 pub fn read_npy_values<R: std::io::Read>(path: &Path, npy: npyz::NpyFile<R>) -> Result<Vec<f32>> {
     let type_str = npy_type(path, &npy)?;
+    check_npy_len(path, &npy)?;
     if type_str == "f4" {
         // The common case, without a round trip through f64.
         return npy
@@ -246,6 +374,22 @@ pub fn read_npy_values<R: std::io::Read>(path: &Path, npy: npyz::NpyFile<R>) -> 
             .map_err(|e| DataError::file(path, format!("cannot read array data: {e}")));
     }
     Ok(read_npy_f64(path, npy)?.into_iter().map(|v| v as f32).collect())
+}
+
+/// Refuses an array whose shape claims more than [`MAX_SAMPLES`] values (or whose element count
+/// overflows) before its data is read.
+fn check_npy_len<R: std::io::Read>(path: &Path, npy: &npyz::NpyFile<R>) -> Result<()> {
+    let len = npy.shape().iter().try_fold(1u64, |n, &s| n.checked_mul(s));
+    match len {
+        Some(n) if n <= MAX_SAMPLES => Ok(()),
+        _ => Err(DataError::file(
+            path,
+            format!(
+                "array shape {:?} holds more than {MAX_SAMPLES} values: a corrupt header?",
+                npy.shape()
+            ),
+        )),
+    }
 }
 
 fn npy_type<R: std::io::Read>(path: &Path, npy: &npyz::NpyFile<R>) -> Result<String> {
@@ -259,6 +403,7 @@ fn npy_type<R: std::io::Read>(path: &Path, npy: &npyz::NpyFile<R>) -> Result<Str
 /// (camera matrices).
 pub fn read_npy_f64<R: std::io::Read>(path: &Path, npy: npyz::NpyFile<R>) -> Result<Vec<f64>> {
     let type_str = npy_type(path, &npy)?;
+    check_npy_len(path, &npy)?;
     let err = |e: std::io::Error| DataError::file(path, format!("cannot read array data: {e}"));
     Ok(match type_str.as_str() {
         "f8" => npy.into_vec::<f64>().map_err(err)?,

@@ -201,8 +201,15 @@ pub fn load(root: &Path) -> Result<Dataset> {
     let json_path = root.join("transforms.json");
     let text =
         std::fs::read_to_string(&json_path).map_err(|e| DataError::file(&json_path, format!("cannot read: {e}")))?;
+    load_from_str(root, &text)
+}
+
+/// [`load`] with the text of `root/transforms.json` already in memory (the files it names are
+/// read from `root`).
+pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
+    let json_path = root.join("transforms.json");
     let value: Value =
-        serde_json::from_str(&text).map_err(|e| DataError::file(&json_path, format!("invalid JSON: {e}")))?;
+        serde_json::from_str(text).map_err(|e| DataError::file(&json_path, format!("invalid JSON: {e}")))?;
     let top = value
         .as_object()
         .ok_or_else(|| DataError::file(&json_path, "the top level is not a JSON object"))?;

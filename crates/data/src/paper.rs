@@ -43,17 +43,36 @@ fn list_dir(dir: &Path, exts: &[&str]) -> Result<Option<Vec<PathBuf>>> {
     Ok(Some(files))
 }
 
-fn read_matrix(
-    npz: &mut npyz::npz::NpzArchive<std::io::BufReader<std::fs::File>>,
+/// A 4×4 float64 matrix is 128 bytes of data after a header of at most a few hundred: anything
+/// much longer is not a camera matrix (and is not read further).
+const MAX_MATRIX_BYTES: u64 = 1 << 16;
+
+fn read_matrix<R: std::io::Read + std::io::Seek>(
+    npz: &mut npyz::npz::NpzArchive<R>,
     path: &Path,
     name: &str,
 ) -> Result<[[f64; 4]; 4]> {
-    let npy = npz
-        .by_name(name)
-        .map_err(|e| DataError::field(path, name, format!("cannot read: {e}")))?
-        .ok_or_else(|| DataError::field(path, name, "missing"))?;
+    // The member's bytes, at most what a matrix can need, are read first and parsed in memory:
+    // npyz would trust the lengths in the member's header (see `imageio::npy_file`).
+    let file_name = npyz::npz::file_name_from_array_name(name);
+    let zip = npz.zip_archive();
+    if !zip.file_names().any(|n| n == file_name) {
+        return Err(DataError::field(path, name, "missing"));
+    }
+    let mut bytes = Vec::new();
+    {
+        use std::io::Read;
+        let member = zip
+            .by_name(&file_name)
+            .map_err(|e| DataError::field(path, name, format!("cannot read: {e}")))?;
+        member
+            .take(MAX_MATRIX_BYTES)
+            .read_to_end(&mut bytes)
+            .map_err(|e| DataError::field(path, name, format!("cannot read: {e}")))?;
+    }
+    let npy = imageio::npy_file(path, &bytes).map_err(|e| DataError::field(path, name, e.to_string()))?;
     let shape: Vec<u64> = npy.shape().to_vec();
-    let values = imageio::read_npy_f64(path, npy).map_err(|e| DataError::field(path, name, e.to_string()))?;
+    // The shape first: a matrix is 16 values, whatever size the header claims.
     let rows = match shape.as_slice() {
         [4, 4] => 4,
         [3, 4] => 3,
@@ -65,6 +84,14 @@ fn read_matrix(
             ))
         }
     };
+    let values = imageio::read_npy_f64(path, npy).map_err(|e| DataError::field(path, name, e.to_string()))?;
+    if values.len() != rows * 4 {
+        return Err(DataError::field(
+            path,
+            name,
+            format!("holds {} values, its shape {shape:?} says {}", values.len(), rows * 4),
+        ));
+    }
     let mut m = [[0.0; 4]; 4];
     m[3] = [0.0, 0.0, 0.0, 1.0];
     for i in 0..rows {
@@ -111,9 +138,18 @@ pub fn load(root: &Path) -> Result<Dataset> {
         .into_iter()
         .find(|p| p.is_file())
         .ok_or_else(|| DataError::file(root.join("cameras_normalize.npz"), "file not found"))?;
-    let mut npz = npyz::npz::NpzArchive::open(&npz_path)
+    let npz = npyz::npz::NpzArchive::open(&npz_path)
         .map_err(|e| DataError::file(&npz_path, format!("not a valid .npz archive: {e}")))?;
+    load_with_npz(root, &npz_path, npz)
+}
 
+/// [`load`] with the camera archive already open (from a file or from bytes in memory: see
+/// [`load_with_npz_bytes`]); `npz_path` names it in errors. The images are read from `root`.
+pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
+    root: &Path,
+    npz_path: &Path,
+    mut npz: npyz::npz::NpzArchive<R>,
+) -> Result<Dataset> {
     let image_dir = root.join("image");
     let images = list_dir(&image_dir, &["png", "jpg", "exr"])?
         .ok_or_else(|| DataError::file(&image_dir, "directory not found"))?;
@@ -146,6 +182,7 @@ pub fn load(root: &Path) -> Result<Dataset> {
     let light_masks = matched("light_mask", &["png", "exr"])?;
     let hdrs = matched("hdr", &["exr"])?;
 
+    let npz_path = npz_path.to_path_buf();
     let (w, h) = image_size(&images[0])?;
     let mut cameras = Vec::new();
     for i in 0..images.len() {
@@ -266,4 +303,11 @@ pub fn load(root: &Path) -> Result<Dataset> {
         bounds_source,
         normalization,
     })
+}
+
+/// [`load`] with the bytes of `cameras_normalize.npz` already in memory.
+pub fn load_with_npz_bytes(root: &Path, npz_path: &Path, bytes: &[u8]) -> Result<Dataset> {
+    let npz = npyz::npz::NpzArchive::new(std::io::Cursor::new(bytes))
+        .map_err(|e| DataError::file(npz_path, format!("not a valid .npz archive: {e}")))?;
+    load_with_npz(root, npz_path, npz)
 }

@@ -206,7 +206,38 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<(Encoding, Vec<Element>, us
 pub fn read_ply(path: impl AsRef<Path>) -> Result<TriangleMesh, DataError> {
     let path = path.as_ref();
     let bytes = std::fs::read(path).map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
-    let (encoding, elements, body_start) = parse_header(path, &bytes)?;
+    parse_ply(path, &bytes)
+}
+
+/// [`read_ply`] of a file's bytes already in memory (`path` names the file in errors).
+pub fn parse_ply(path: &Path, bytes: &[u8]) -> Result<TriangleMesh, DataError> {
+    let (encoding, elements, body_start) = parse_header(path, bytes)?;
+    // Every value takes at least one byte of the body (a digit and a separator in ASCII), so an
+    // element count the body cannot hold is refused here, before anything is reserved or looped
+    // over: a header that claims 10¹² vertices costs nothing.
+    let body_len = (bytes.len() - body_start) as u128;
+    let mut needed = 0u128;
+    for element in &elements {
+        let min_bytes: u128 = element
+            .properties
+            .iter()
+            .map(|p| match (encoding, p.list_count) {
+                (Encoding::Ascii, _) => 2,
+                (_, Some(count)) => count.size() as u128,
+                (_, None) => p.value.size() as u128,
+            })
+            .sum();
+        needed += element.count as u128 * min_bytes;
+    }
+    // The last ASCII value may end the file without a separator.
+    if needed > body_len + 1 {
+        return Err(DataError::file(
+            path,
+            format!(
+                "PLY body is truncated: the header declares at least {needed} bytes of values, the body has {body_len}"
+            ),
+        ));
+    }
     let mut body = BodyReader {
         encoding,
         bytes: &bytes[body_start..],
@@ -312,6 +343,8 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<TriangleMesh, DataError> {
                     }
                 }
             }
+            // An element without properties holds no data: a huge count of it would only spin.
+            _ if element.properties.is_empty() => {}
             _ => {
                 for _ in 0..element.count {
                     for prop in &element.properties {

@@ -6,9 +6,9 @@
 
 use crate::emitters::{Emitter, EmitterTable};
 use crate::intrinsic::{Radiometry, Transfer};
-use crate::material_field::{MaterialConfig, MaterialField};
+use crate::material_field::{MaterialBackbone, MaterialConfig, MaterialField};
 use crate::run_dir::RunDir;
-use crate::scene::{checkpoint_metadata, param_error, NeuralScene, OPTIMIZER_PREFIX};
+use crate::scene::{check_table_fits, checkpoint_header, param_error, NeuralScene, OPTIMIZER_PREFIX};
 use i2sdf_data::DataError;
 use i2sdf_nn::params::{load_modules, ModuleSlot};
 use i2sdf_nn::{save_safetensors, Parameters};
@@ -77,7 +77,7 @@ impl IntrinsicFields {
         feature_dim: usize,
         extra: &mut [ModuleSlot],
     ) -> Result<(IntrinsicFields, HashMap<String, String>), DataError> {
-        let meta = checkpoint_metadata(path)?;
+        let (meta, tensor_bytes) = checkpoint_header(path)?;
         let get = |k: &str| {
             meta.get(k)
                 .ok_or_else(|| DataError::field(path, k, "missing from the metadata"))
@@ -87,6 +87,16 @@ impl IntrinsicFields {
         config
             .check()
             .map_err(|m| DataError::field(path, "material_config", m))?;
+        if config.backbone == MaterialBackbone::HashGrid {
+            let grid = (
+                config.hash_levels,
+                2,
+                config.hash_log2_table,
+                config.hash_base_resolution,
+                config.hash_finest_resolution,
+            );
+            check_table_fits(path, "material_config", tensor_bytes, grid)?;
+        }
         let emitters: Vec<Emitter> =
             serde_json::from_str(get("emitters")?).map_err(|e| DataError::field(path, "emitters", e.to_string()))?;
         let exposure: Option<f64> =

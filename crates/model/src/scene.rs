@@ -400,17 +400,44 @@ impl NeuralScene {
     /// checkpoint's metadata (parameters not loaded yet: see [`NeuralScene::load_params`]).
     pub fn load_config(path: &Path) -> Result<(NeuralScene, HashMap<String, String>), DataError> {
         let bytes = std::fs::read(path).map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
-        let header = safetensors_header(&bytes).map_err(|m| DataError::file(path, m))?;
+        let (header, tensor_bytes) = safetensors_header(&bytes).map_err(|m| DataError::file(path, m))?;
         let config: ModelConfig = header
             .get("model_config")
             .ok_or_else(|| DataError::field(path, "model_config", "missing from the metadata"))
             .and_then(|s| serde_json::from_str(s).map_err(|e| DataError::field(path, "model_config", e.to_string())))?;
+        // The configuration sizes the fields allocated below: out-of-range values would panic in
+        // the engine, and a table larger than the file's tensors cannot be this file's.
+        config
+            .validate()
+            .map_err(|m| DataError::field(path, "model_config", m))?;
+        if config.backbone == Backbone::HashGrid {
+            let grid = (
+                config.hash_levels,
+                config.hash_features,
+                config.hash_log2_table,
+                config.hash_base_resolution,
+                config.hash_finest_resolution,
+            );
+            check_table_fits(path, "model_config", tensor_bytes, grid)?;
+        }
         let normalization: Normalization = header
             .get("normalization")
             .ok_or_else(|| DataError::field(path, "normalization", "missing from the metadata"))
             .and_then(|s| {
                 serde_json::from_str(s).map_err(|e| DataError::field(path, "normalization", e.to_string()))
             })?;
+        if !(normalization.scale.is_finite() && normalization.scale > 0.0)
+            || normalization.center.iter().any(|c| !c.is_finite())
+        {
+            return Err(DataError::field(
+                path,
+                "normalization",
+                format!(
+                    "scale {} and center {:?} must be finite, the scale positive",
+                    normalization.scale, normalization.center
+                ),
+            ));
+        }
         Ok((NeuralScene::new(&config, normalization, 0), header))
     }
 
@@ -496,14 +523,51 @@ impl Parameters for AsParamsMut<'_> {
 /// The metadata of a safetensors file without loading its tensors.
 /// The metadata of a checkpoint file (without reading its tensors into modules).
 pub fn checkpoint_metadata(path: &Path) -> Result<HashMap<String, String>, DataError> {
+    checkpoint_header(path).map(|(meta, _)| meta)
+}
+
+/// The metadata of a checkpoint file and the number of bytes its tensors hold.
+pub fn checkpoint_header(path: &Path) -> Result<(HashMap<String, String>, u64), DataError> {
     let bytes = std::fs::read(path).map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
     safetensors_header(&bytes).map_err(|m| DataError::file(path, m))
 }
 
-fn safetensors_header(bytes: &[u8]) -> Result<HashMap<String, String>, String> {
-    let (_, meta) =
+fn safetensors_header(bytes: &[u8]) -> Result<(HashMap<String, String>, u64), String> {
+    let (n, meta) =
         safetensors::SafeTensors::read_metadata(bytes).map_err(|e| format!("not a safetensors file: {e}"))?;
-    Ok(meta.metadata().clone().unwrap_or_default())
+    // 8 bytes of header length, the JSON header, then the tensors' data.
+    let tensor_bytes = (bytes.len() as u64).saturating_sub(8 + n as u64);
+    Ok((meta.metadata().clone().unwrap_or_default(), tensor_bytes))
+}
+
+/// Refuses a checkpoint whose configuration describes a hash grid (`levels`, `features`,
+/// `log2_table`, `base`, `finest` resolution) larger than the tensors the file holds, before the
+/// grid is allocated: a few bytes of metadata must not make a loader allocate gigabytes. The
+/// bound is a lower one on the engine's table (each level holds min((res + 1)³, 2^log2)
+/// entries, its resolution at least `base`, the finest at least `finest` − 1), so it never
+/// refuses a checkpoint that holds its grid.
+pub fn check_table_fits(
+    path: &Path,
+    field: &str,
+    tensor_bytes: u64,
+    (levels, features, log2_table, base, finest): (usize, usize, u32, u32, u32),
+) -> Result<(), DataError> {
+    let table = 1u64.checked_shl(log2_table).unwrap_or(u64::MAX);
+    let level = |res: u64| res.saturating_add(1).saturating_pow(3).min(table);
+    let last = if levels > 1 { finest.max(1) - 1 } else { base };
+    let entries = level(last as u64).saturating_add((levels.max(1) as u64 - 1).saturating_mul(level(base as u64)));
+    let needed = entries.saturating_mul(features as u64).saturating_mul(4);
+    if needed > tensor_bytes {
+        return Err(DataError::field(
+            path,
+            field,
+            format!(
+                "describes a hash grid of at least {needed} bytes, but the file's tensors hold {tensor_bytes}: \
+                 the metadata does not belong to these tensors"
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// The small scene the model's unit tests share: a 4-level hash grid, inverted sphere of radius
