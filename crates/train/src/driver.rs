@@ -6,6 +6,7 @@
 //! time in `run.json`; progress events for the CLI. The CLI only displays them.
 
 use crate::config::TrainConfig;
+use crate::resume::{append_record, check_config, check_dataset, repair};
 use crate::stage1::{Stage1, StepStats};
 use crate::stage2::{radiometry, target_views, Stage2, Stage2Stats};
 use i2sdf_data::{DataError, Dataset};
@@ -173,7 +174,7 @@ pub fn drive<S: TrainStage>(
                     (base_seconds + session_start.elapsed().as_secs_f64()).into(),
                 );
             }
-            run.append_log(&record)?;
+            append_record(&run.log_path(), &record)?;
         }
         on_event(Event::Step {
             iteration: it,
@@ -189,6 +190,43 @@ pub fn drive<S: TrainStage>(
             progress.done = trainer.done();
             run.write_info(info)?;
             on_event(Event::Checkpoint { iteration: now });
+        }
+    }
+    // A session killed between its final checkpoint and `run.json` left the stage unfinished on
+    // record: the checkpoint holds the last iteration, so the record follows it (and a finished
+    // run resumed writes nothing).
+    let now = trainer.stage.iteration();
+    let progress = info.stage_mut(key)?;
+    if progress.iterations != now || !progress.done {
+        progress.iterations = now;
+        progress.done = true;
+        run.write_info(info)?;
+    }
+    Ok(())
+}
+
+/// Writes `text` to `path` atomically unless it holds exactly that already (a finished run
+/// resumed rewrites nothing).
+fn write_if_changed(path: &Path, text: &str) -> Result<(), DataError> {
+    if std::fs::read_to_string(path).is_ok_and(|t| t == text) {
+        return Ok(());
+    }
+    i2sdf_data::imageio::write_bytes_atomic(path, text.as_bytes())
+}
+
+/// The run's data is `dataset`: the stage-1 checkpoint's fingerprint of the data (and the
+/// normalization `run.json` records) agree with it.
+fn check_same_dataset(run: &RunDir, info: &RunInfo, data_arg: &str, dataset: &Dataset) -> Result<(), DataError> {
+    if run.checkpoint_path().is_file() {
+        check_dataset(&run.checkpoint_path(), &info.data, data_arg, dataset)?;
+    }
+    if let Some(n) = info.normalization {
+        if !n.same_as(&dataset.normalization) {
+            return Err(DataError::invalid(format!(
+                "--data {data_arg}: the dataset's normalization differs from the run's ({}, as {} records): is this the same dataset?",
+                info.data,
+                run.info_path().display()
+            )));
         }
     }
     Ok(())
@@ -218,22 +256,23 @@ pub fn open_run(
     resume: bool,
 ) -> Result<(TrainConfig, RunInfo), DataError> {
     let (config, info) = if resume {
-        if !run.checkpoint_path().is_file() {
+        // A run killed before its first checkpoint resumes from iteration 0: its initial state,
+        // which a fresh stage 1 with the run's seed rebuilds exactly.
+        let unstarted = run.exists() && run.read_info().is_ok_and(|i| i.stage1.iterations == 0);
+        if !run.checkpoint_path().is_file() && !unstarted {
             return Err(DataError::file(run.checkpoint_path(), "no checkpoint to resume from"));
         }
-        let config = match config {
-            Some(c) => c,
-            None => read_run_config(run)?,
-        };
         let info = run.read_info()?;
-        if let Some(n) = info.normalization {
-            if !n.same_as(&dataset.normalization) {
-                return Err(DataError::invalid(format!(
-                    "{}: the dataset's normalization differs from the run's: is this the same dataset?",
-                    run.info_path().display()
-                )));
+        check_same_dataset(run, &info, data_arg, dataset)?;
+        let own = read_run_config(run)?;
+        let config = match config {
+            Some(c) => {
+                check_config(&run.config_path(), &own, &c, run.stage2_checkpoint_path().is_file())?;
+                c
             }
-        }
+            None => own,
+        };
+        repair(&run.root, &run.log_path())?;
         (config, info)
     } else {
         if run.exists() || run.checkpoint_path().exists() {
@@ -251,8 +290,10 @@ pub fn open_run(
         };
         (config.unwrap_or_default(), info)
     };
-    run.write_config_toml(&config.to_toml())?;
-    run.write_info(&info)?;
+    write_if_changed(&run.config_path(), &config.to_toml())?;
+    if run.read_info().ok().as_ref() != Some(&info) {
+        run.write_info(&info)?;
+    }
     Ok((config, info))
 }
 
@@ -271,7 +312,7 @@ pub fn train_geometry(
         checkpoint_every: config.train.checkpoint_every,
         log_every: config.train.log_every,
     };
-    let stage = if resume {
+    let stage = if resume && run.checkpoint_path().is_file() {
         Stage1::resume(dataset, config, &run.checkpoint_path())?
     } else {
         Stage1::new(dataset, config)
@@ -283,17 +324,21 @@ pub fn train_geometry(
 
 /// Runs (or resumes) stage 2 on a run whose stage 1 has finished: the frozen fields come from
 /// its checkpoint, the configuration is the run's own unless `config` is given (the CLI applies
-/// `--set` overrides on top of it). Refused, as bad input, when stage 1 has not finished, or
-/// when stage 2 has a checkpoint already and `resume` is not set. Writes `RUN/emitters.json`
-/// once the emitters are clustered and again at the end. `progress` hears the slow setup steps.
+/// `--set` overrides on top of it; it may change only stage 2's sections, and those only until
+/// stage 2 has a checkpoint). Refused, as bad input, when stage 1 has not finished, when the
+/// data or the configuration is not the run's, or when stage 2 has a checkpoint already and
+/// `resume` is not set. Writes `RUN/emitters.json` once the emitters are clustered and again at
+/// the end. `progress` hears the slow setup steps. `None`: stage 2 had finished already (with
+/// `resume`; nothing is written).
 pub fn train_materials(
     run: &RunDir,
     dataset: &Dataset,
+    data_arg: &str,
     config: Option<TrainConfig>,
     resume: bool,
     progress: &dyn Fn(&str),
     on_event: impl FnMut(Event<Stage2Stats>),
-) -> Result<Stage2, DataError> {
+) -> Result<Option<Stage2>, DataError> {
     if !run.exists() || !run.checkpoint_path().is_file() {
         return Err(DataError::file(
             &run.root,
@@ -307,14 +352,7 @@ pub fn train_materials(
             "stage 1 has not finished: resume it with train --stage geometry --resume first",
         ));
     }
-    if let Some(n) = info.normalization {
-        if !n.same_as(&dataset.normalization) {
-            return Err(DataError::invalid(format!(
-                "{}: the dataset's normalization differs from the run's: is this the same dataset?",
-                run.info_path().display()
-            )));
-        }
-    }
+    check_same_dataset(run, &info, data_arg, dataset)?;
     let ckpt = run.stage2_checkpoint_path();
     if ckpt.is_file() && !resume {
         return Err(DataError::file(
@@ -325,11 +363,22 @@ pub fn train_materials(
     if resume && !ckpt.is_file() && info.stage("stage2").is_some_and(|s| s.iterations > 0) {
         return Err(DataError::file(&ckpt, "missing: no stage-2 checkpoint to resume from"));
     }
+    let own = read_run_config(run)?;
     let config = match config {
-        Some(c) => c,
-        None => read_run_config(run)?,
+        Some(c) => {
+            check_config(&run.config_path(), &own, &c, ckpt.is_file())?;
+            c
+        }
+        None => own,
     };
-    run.write_config_toml(&config.to_toml())?;
+    let finished = info
+        .stage("stage2")
+        .is_some_and(|s| s.done && s.iterations == config.stage2.iterations);
+    if resume && ckpt.is_file() && finished {
+        return Ok(None);
+    }
+    repair(&run.root, &run.log_path())?;
+    write_if_changed(&run.config_path(), &config.to_toml())?;
     let (scene, _) = i2sdf_model::NeuralScene::load(&run.checkpoint_path())?;
     let views = target_views(dataset, config.stage2.use_hdr);
     let rm = radiometry(dataset);
@@ -350,7 +399,7 @@ pub fn train_materials(
         .fields
         .emitters
         .write_json(&run.emitters_path(), rm.exposure)?;
-    Ok(trainer.stage)
+    Ok(Some(trainer.stage))
 }
 
 #[cfg(test)]
@@ -366,6 +415,8 @@ mod tests {
         total: u64,
         /// Iterations from which every step is non-finite.
         poison_from: u64,
+        /// Iterations from which the disk is full: a checkpoint write fails half-way with ENOSPC.
+        full_disk_from: u64,
     }
 
     impl TrainStage for Toy {
@@ -404,6 +455,14 @@ mod tests {
         }
         fn write_checkpoint(&self, path: &Path) -> Result<(), DataError> {
             let text = serde_json::json!({ "x": self.x, "iteration": self.iteration }).to_string();
+            if self.iteration >= self.full_disk_from {
+                // Half the file lands, then the device is full: /dev/full answers every write
+                // with ENOSPC, the error a filled disk gives.
+                return i2sdf_data::imageio::write_atomic(path, |tmp| {
+                    std::fs::write(tmp, &text.as_bytes()[..text.len() / 2]).map_err(|e| e.to_string())?;
+                    std::fs::write("/dev/full", text.as_bytes()).map_err(|e| e.to_string())
+                });
+            }
             i2sdf_data::imageio::write_bytes_atomic(path, text.as_bytes())
         }
     }
@@ -414,6 +473,7 @@ mod tests {
             iteration: 0,
             total,
             poison_from: u64::MAX,
+            full_disk_from: u64::MAX,
         }
     }
 
@@ -424,6 +484,7 @@ mod tests {
             iteration: v["iteration"].as_u64().unwrap(),
             total,
             poison_from: u64::MAX,
+            full_disk_from: u64::MAX,
         }
     }
 
@@ -496,5 +557,73 @@ mod tests {
         let e = t.save(&run.stage2_checkpoint_path()).unwrap_err();
         assert!(e.to_string().contains("non-finite"));
         assert_eq!(resume(&run.stage2_checkpoint_path(), 100).x, saved.x);
+    }
+
+    /// A checkpoint write that fails for a full disk stops the run as a failure (exit 1, not bad
+    /// input) naming the file and the OS error; the last good checkpoint, `run.json` and the
+    /// directory stay as they were (no temporary left), and the run resumes from them.
+    #[test]
+    fn a_full_disk_stops_the_run_and_keeps_the_last_checkpoint() {
+        if !Path::new("/dev/full").exists() {
+            eprintln!("SKIPPED a_full_disk_stops_the_run_and_keeps_the_last_checkpoint: no /dev/full");
+            return;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::new(dir.path());
+        let mut info = RunInfo::default();
+        let mut t = Trainer::new(Toy {
+            full_disk_from: 25,
+            ..toy(40)
+        });
+        let e = drive(&run, &mut info, &mut t, OPTIONS, |_| {}).unwrap_err();
+        let msg = e.to_string();
+        assert!(!e.is_bad_input() && msg.contains("stage2.safetensors"), "{msg}");
+        assert!(msg.contains("No space left on device"), "{msg}");
+        let saved = resume(&run.stage2_checkpoint_path(), 40);
+        assert_eq!(saved.iteration, 20);
+        let on_record = run.read_info().unwrap().stage2.unwrap();
+        assert!(on_record.iterations == 20 && !on_record.done);
+        let mut names: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["log.jsonl", "run.json", "stage2.safetensors"]);
+        // Space again: the run resumes from the kept checkpoint to the uninterrupted result.
+        let mut full = Trainer::new(toy(40));
+        let other = tempfile::tempdir().unwrap();
+        drive(
+            &RunDir::new(other.path()),
+            &mut RunInfo::default(),
+            &mut full,
+            OPTIONS,
+            |_| {},
+        )
+        .unwrap();
+        let mut b = Trainer::new(saved);
+        drive(&run, &mut run.read_info().unwrap(), &mut b, OPTIONS, |_| {}).unwrap();
+        assert_eq!(b.stage.x, full.stage.x);
+    }
+
+    /// A session killed after its final checkpoint but before `run.json` said so: resuming
+    /// records the stage as finished without a step.
+    #[test]
+    fn a_final_checkpoint_not_yet_on_record_finishes_the_stage() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::new(dir.path());
+        let mut t = Trainer::new(toy(30));
+        drive(&run, &mut RunInfo::default(), &mut t, OPTIONS, |_| {}).unwrap();
+        let mut info = run.read_info().unwrap();
+        let p = info.stage_mut("stage2").unwrap();
+        (p.iterations, p.done) = (20, false);
+        run.write_info(&info).unwrap();
+        let mut b = Trainer::new(resume(&run.stage2_checkpoint_path(), 30));
+        let mut steps = 0;
+        drive(&run, &mut info, &mut b, OPTIONS, |e| {
+            steps += usize::from(matches!(e, Event::Step { .. }))
+        })
+        .unwrap();
+        let p = run.read_info().unwrap().stage2.unwrap();
+        assert!(steps == 0 && p.iterations == 30 && p.done);
     }
 }

@@ -9,6 +9,7 @@ pub mod losses;
 pub mod memory;
 pub mod pdf_map;
 pub mod rays;
+pub mod resume;
 pub mod schedule;
 pub mod shading;
 pub mod stage1;

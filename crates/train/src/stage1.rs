@@ -14,6 +14,7 @@ use crate::driver::{render_settings, StepOutcome, TrainStage};
 use crate::losses;
 use crate::pdf_map::{PdfMaps, PixelRef};
 use crate::rays::{train_images, RayBatch, TrainImage};
+use crate::resume::{DatasetFingerprint, DATASET_META};
 use crate::schedule::Phase;
 use i2sdf_data::{DataError, Dataset};
 use i2sdf_model::renderer::{self, RayGrads, RenderSettings, RenderWorkspace};
@@ -74,6 +75,24 @@ impl Parameters for AdamGroupStateMut<'_> {
     }
 }
 
+/// The PDF maps' per-pixel values as one checkpoint tensor (`adam.pdf_maps.value`): trainer state
+/// like the optimizer's, so under its prefix, which inference loads skip.
+struct PdfValues(Vec<f32>);
+
+impl Parameters for PdfValues {
+    fn visit(&self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &[f32])) {
+        f(format!("{prefix}.value"), vec![self.0.len()], &self.0);
+    }
+    fn visit_mut(&mut self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &mut [f32])) {
+        let len = self.0.len();
+        f(format!("{prefix}.value"), vec![len], &mut self.0);
+    }
+}
+
+/// The checkpoint's prefix of the PDF maps, and its metadata key saying they are there.
+const PDF_PREFIX: &str = "adam.pdf_maps";
+const PDF_META: &str = "pdf_maps";
+
 pub struct Stage1 {
     pub config: TrainConfig,
     pub scene: NeuralScene,
@@ -88,6 +107,9 @@ pub struct Stage1 {
     pdf: Option<PdfMaps>,
     batch: RayBatch,
     extra: Vec<f32>,
+    /// The training data's fingerprint (JSON), kept in every checkpoint so that a resume or a
+    /// stage 2 against other data is refused.
+    dataset: String,
 }
 
 impl Stage1 {
@@ -119,7 +141,9 @@ impl Stage1 {
         }
         let settings = render_settings(&config);
         let grads = SceneGrads::new(&scene);
+        let fingerprint = serde_json::to_string(&DatasetFingerprint::of(dataset)).expect("serializes");
         Stage1 {
+            dataset: fingerprint,
             images: train_images(dataset),
             adam,
             specs,
@@ -140,6 +164,10 @@ impl Stage1 {
     pub fn resume(dataset: &Dataset, config: TrainConfig, checkpoint: &Path) -> Result<Self, DataError> {
         let (scene, meta) = NeuralScene::load_config(checkpoint)?;
         let mut s = Self::with_scene(dataset, config, scene);
+        // The PDF maps of the bubble step: they learn from every batch, so a run resumed inside
+        // the step continues with the maps it had, not ones re-initialised from its fields.
+        let has_pdf = meta.get(PDF_META).is_some_and(|v| v == "1");
+        let mut pdf_values = PdfValues(vec![0.0; s.images.iter().map(|i| i.pixels()).sum()]);
         {
             let Stage1 { scene, adam, specs, .. } = &mut s;
             let prefixes: Vec<String> = specs.iter().map(|g| format!("{OPTIMIZER_PREFIX}{}", g.name)).collect();
@@ -161,7 +189,17 @@ impl Stage1 {
                     required: spec.required,
                 })
                 .collect();
+            if has_pdf {
+                slots.push(ModuleSlot {
+                    prefix: PDF_PREFIX,
+                    module: &mut pdf_values,
+                    required: true,
+                });
+            }
             scene.load_params(checkpoint, &mut slots)?;
+        }
+        if has_pdf {
+            s.pdf = Some(s.restore_pdf(&pdf_values.0));
         }
         let get = |k: &str| -> Result<u64, DataError> {
             meta.get(k)
@@ -187,16 +225,51 @@ impl Stage1 {
         self.config.schedule.phase(self.iteration, self.config.train.iterations)
     }
 
-    /// Error maps at the end of warm-up (paper Sec. 4.1.2): each training image's depth error,
-    /// rendered on a grid of stride s (≤ ~200k rays in all) and spread over the s×s block.
-    pub fn init_pdf(&mut self) {
+    /// All-zero maps over the pixels with depth.
+    fn empty_pdf(&self) -> PdfMaps {
         let c = &self.config.adaptive;
         let valid: Vec<Vec<bool>> = self
             .images
             .iter()
             .map(|im| im.depth.iter().map(|d| *d > 0.0).collect())
             .collect();
-        let mut pdf = PdfMaps::new(valid, c.p_min, c.p_max);
+        PdfMaps::new(valid, c.p_min, c.p_max)
+    }
+
+    /// Every pixel's map value, image after image (what the checkpoint keeps).
+    fn pdf_values(&self, pdf: &PdfMaps) -> Vec<f32> {
+        let mut out = Vec::with_capacity(self.images.iter().map(|i| i.pixels()).sum());
+        for (k, im) in self.images.iter().enumerate() {
+            out.extend((0..im.pixels()).map(|p| {
+                pdf.value(PixelRef {
+                    image: k as u32,
+                    pixel: p as u32,
+                })
+            }));
+        }
+        out
+    }
+
+    /// Maps holding `values` (from [`Stage1::pdf_values`]). The f64 block sums are rebuilt by
+    /// adding the values in order where the uninterrupted run added its deltas as they came; they
+    /// agree exactly: every value is 0 or an f32 in [p_min, p_max], so every sum and delta is an
+    /// integer multiple of ulp(p_min) and exact while below 2⁵³ of them (16.7 M pixels at the
+    /// defaults p_min = 0.02, p_max = 1; beyond, a block sum may differ in its last bit).
+    fn restore_pdf(&self, values: &[f32]) -> PdfMaps {
+        let mut pdf = self.empty_pdf();
+        let mut at = 0;
+        for (k, im) in self.images.iter().enumerate() {
+            pdf.set_image(k, &values[at..at + im.pixels()]);
+            at += im.pixels();
+        }
+        pdf
+    }
+
+    /// Error maps at the end of warm-up (paper Sec. 4.1.2): each training image's depth error,
+    /// rendered on a grid of stride s (≤ ~200k rays in all) and spread over the s×s block.
+    pub fn init_pdf(&mut self) {
+        let mut pdf = self.empty_pdf();
+        let c = &self.config.adaptive;
         if c.enabled {
             let total: usize = self.images.iter().map(|i| i.pixels()).sum();
             let stride = ((total as f64 / 200_000.0).sqrt().ceil() as usize).max(1);
@@ -460,15 +533,19 @@ impl Stage1 {
     }
 
     fn checkpoint(&self, path: &Path) -> Result<(), DataError> {
-        self.scene.save_with(
-            path,
-            &[
-                ("iteration", self.iteration.to_string()),
-                ("adam_step", self.adam.step.to_string()),
-            ],
-            // Adam's own tensors: `adam.{group}.m` / `.v`, what `resume` reads per group.
-            &[("adam", &self.adam as &dyn Parameters)],
-        )
+        let pdf = self.pdf.as_ref().map(|p| PdfValues(self.pdf_values(p)));
+        let mut meta = vec![
+            ("iteration", self.iteration.to_string()),
+            ("adam_step", self.adam.step.to_string()),
+            (DATASET_META, self.dataset.clone()),
+        ];
+        // Adam's own tensors: `adam.{group}.m` / `.v`, what `resume` reads per group.
+        let mut extra: Vec<(&str, &dyn Parameters)> = vec![("adam", &self.adam as &dyn Parameters)];
+        if let Some(p) = &pdf {
+            meta.push((PDF_META, "1".into()));
+            extra.push((PDF_PREFIX, p as &dyn Parameters));
+        }
+        self.scene.save_with(path, &meta, &extra)
     }
 }
 

@@ -99,43 +99,53 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let material = matches!(args.stage, Stage::Material | Stage::All);
     let mut config = config;
     if geometry {
-        // With --stage all --resume, a finished stage 1 is not trained again.
-        let done = args.resume
-            && run
-                .read_info()
-                .ok()
-                .and_then(|i| i.stage("stage1").map(|s| s.done))
-                .unwrap_or(false);
-        if !done {
-            let bar = bar("stage 1");
-            let start = Instant::now();
+        // A finished stage 1 resumed (--stage all --resume continuing into stage 2, or a finished
+        // run resumed) is not trained again: the driver checks it and writes nothing.
+        let bar = bar("stage 1");
+        let start = Instant::now();
+        let first = std::cell::Cell::new(None);
+        {
+            let mut show = progress_events(&bar, start, args.quiet, |s: &StepStats| {
+                format!(
+                    "{:?} loss {:.4} psnr {:.2} depth {:.4} β {:.4}",
+                    s.phase.unwrap(),
+                    s.loss,
+                    s.psnr,
+                    s.depth,
+                    s.beta
+                )
+            });
             let stage = train_geometry(
                 &run,
                 &dataset,
                 &args.data.display().to_string(),
                 config.clone(),
                 args.resume,
-                progress_events(&bar, start, args.quiet, |s: &StepStats| {
-                    format!(
-                        "{:?} loss {:.4} psnr {:.2} depth {:.4} β {:.4}",
-                        s.phase.unwrap(),
-                        s.loss,
-                        s.psnr,
-                        s.depth,
-                        s.beta
-                    )
-                }),
+                |e| {
+                    if let Event::Started { iteration, .. } = &e {
+                        first.set(Some(*iteration));
+                    }
+                    show(e)
+                },
             )?;
             bar.finish();
-            println!(
-                "stage 1 done: {} iterations in {:.1} s this session; run in {}",
-                stage.iteration,
-                start.elapsed().as_secs_f64(),
-                args.out.display()
-            );
-            // Stage 2 of the same command continues from the run as written.
-            config = None;
+            if first.get() == Some(stage.iteration) {
+                println!(
+                    "stage 1 had finished: {} iterations; run in {}",
+                    stage.iteration,
+                    args.out.display()
+                );
+            } else {
+                println!(
+                    "stage 1 done: {} iterations in {:.1} s this session; run in {}",
+                    stage.iteration,
+                    start.elapsed().as_secs_f64(),
+                    args.out.display()
+                );
+            }
         }
+        // Stage 2 of the same command continues from the run as written.
+        config = None;
     }
     if material {
         let start = Instant::now();
@@ -152,6 +162,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let stage = train_materials(
             &run,
             &dataset,
+            &args.data.display().to_string(),
             config,
             stage2_resume && run.stage2_checkpoint_path().is_file(),
             &progress,
@@ -171,6 +182,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             }),
         )?;
         bar.finish();
+        let Some(stage) = stage else {
+            println!("stage 2 had finished; run in {}", args.out.display());
+            return Ok(());
+        };
         let (surface, emitter) = stage.counts();
         println!(
             "stage 2 done: {} iterations in {:.1} s this session ({} emitters, {} surface and {} emitter pixels cached); run in {}",

@@ -1,0 +1,311 @@
+//! What makes a run safe to continue: the checks `--resume` (and stage 2 on a stage-1 run) makes
+//! before anything is written — the same dataset ([`DatasetFingerprint`], kept in the stage-1
+//! checkpoint's metadata) and a compatible configuration ([`config_changes`]) — and the repairs of
+//! what a killed process leaves: temporaries of atomic writes and a torn last log line.
+
+use crate::config::TrainConfig;
+use i2sdf_data::{DataError, Dataset, Split};
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, HashMap};
+use std::io::{Read, Write};
+use std::path::Path;
+
+/// The checkpoint metadata key of the dataset's fingerprint.
+pub const DATASET_META: &str = "dataset";
+
+/// What identifies the data a run trains on: the training views' count, resolution, cameras and
+/// every training map's values (hashed), so a resume against other data is refused whatever its
+/// path, and the same data under another path is accepted.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct DatasetFingerprint {
+    pub train_views: usize,
+    /// Width × height of the first training view.
+    pub size: [usize; 2],
+    /// FNV-1a over the cameras' intrinsics and poses (f64 bits), hex.
+    pub cameras: String,
+    /// FNV-1a over the training images, HDR images, depth, normal and emitter maps (f32 bits), hex.
+    pub images: String,
+}
+
+/// FNV-1a, one 64-bit word at a time (the fingerprint needs stability across builds and Rust
+/// versions, which std's hasher does not promise, not cryptographic strength).
+struct Fnv(u64);
+
+impl Fnv {
+    fn new() -> Self {
+        Fnv(0xcbf2_9ce4_8422_2325)
+    }
+    fn word(&mut self, w: u64) {
+        self.0 = (self.0 ^ w).wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    fn hex(&self) -> String {
+        format!("{:016x}", self.0)
+    }
+}
+
+impl DatasetFingerprint {
+    pub fn of(dataset: &Dataset) -> Self {
+        let (mut cams, mut imgs) = (Fnv::new(), Fnv::new());
+        let frames: Vec<_> = dataset.split(Split::Train).collect();
+        for f in &frames {
+            let c = &f.camera;
+            cams.word(c.width as u64);
+            cams.word(c.height as u64);
+            for v in [c.fx, c.fy, c.cx, c.cy].into_iter().chain(c.c2w.to_cols_array()) {
+                cams.word(v.to_bits());
+            }
+            let maps = [
+                Some(&f.rgb),
+                f.hdr.as_ref(),
+                f.depth.as_ref(),
+                f.normal.as_ref(),
+                f.emitter_mask.as_ref(),
+            ];
+            for (k, m) in maps.iter().enumerate() {
+                // Which maps are present is part of the data (a mask added changes training).
+                imgs.word(k as u64 + 1);
+                if let Some(m) = m {
+                    imgs.word(m.data.len() as u64);
+                    for pair in m.data.chunks(2) {
+                        let lo = pair[0].to_bits() as u64;
+                        let hi = pair.get(1).map_or(0, |v| v.to_bits() as u64);
+                        imgs.word(lo | hi << 32);
+                    }
+                }
+            }
+        }
+        let size = frames.first().map_or([0, 0], |f| [f.camera.width, f.camera.height]);
+        DatasetFingerprint {
+            train_views: frames.len(),
+            size,
+            cameras: cams.hex(),
+            images: imgs.hex(),
+        }
+    }
+
+    /// What differs from `other` (the run's), in words; empty when nothing does.
+    pub fn differences(&self, run: &Self) -> Vec<String> {
+        let mut out = Vec::new();
+        if self.train_views != run.train_views || self.size != run.size {
+            out.push(format!(
+                "training views: the run's {} of {}×{}, this dataset's {} of {}×{}",
+                run.train_views, run.size[0], run.size[1], self.train_views, self.size[0], self.size[1]
+            ));
+        }
+        if self.cameras != run.cameras {
+            out.push(format!("cameras: fingerprint {} → {}", run.cameras, self.cameras));
+        }
+        if self.images != run.images {
+            out.push(format!("images: fingerprint {} → {}", run.images, self.images));
+        }
+        out
+    }
+}
+
+/// The metadata of a safetensors file, reading only its header.
+pub fn checkpoint_metadata(path: &Path) -> Result<HashMap<String, String>, DataError> {
+    let bad = |m: String| DataError::file(path, m);
+    let mut f = std::fs::File::open(path).map_err(|e| bad(format!("cannot read: {e}")))?;
+    let mut len = [0u8; 8];
+    f.read_exact(&mut len)
+        .map_err(|e| bad(format!("not a checkpoint: {e}")))?;
+    let len = u64::from_le_bytes(len);
+    let size = f.metadata().map(|m| m.len()).unwrap_or(0);
+    if len > size.saturating_sub(8) || len > 100 << 20 {
+        return Err(bad(format!("not a checkpoint: a header of {len} bytes")));
+    }
+    let mut header = vec![0u8; len as usize];
+    f.read_exact(&mut header)
+        .map_err(|e| bad(format!("not a checkpoint: {e}")))?;
+    #[derive(Deserialize)]
+    struct Header {
+        #[serde(rename = "__metadata__", default)]
+        metadata: HashMap<String, String>,
+    }
+    let h: Header = serde_json::from_slice(&header).map_err(|e| bad(format!("not a checkpoint: {e}")))?;
+    Ok(h.metadata)
+}
+
+/// Refuses `dataset` as bad input when the stage-1 checkpoint at `checkpoint` was trained on
+/// other data: names both datasets (`run_data` as the run recorded it) and what differs.
+/// Checkpoints written before fingerprints were kept are not checked here (the caller still
+/// compares the normalization).
+pub fn check_dataset(checkpoint: &Path, run_data: &str, data_arg: &str, dataset: &Dataset) -> Result<(), DataError> {
+    let meta = checkpoint_metadata(checkpoint)?;
+    let Some(text) = meta.get(DATASET_META) else {
+        return Ok(());
+    };
+    let run: DatasetFingerprint = serde_json::from_str(text)
+        .map_err(|e| DataError::field(checkpoint, DATASET_META, format!("invalid fingerprint: {e}")))?;
+    let diff = DatasetFingerprint::of(dataset).differences(&run);
+    if diff.is_empty() {
+        return Ok(());
+    }
+    Err(DataError::invalid(format!(
+        "--data {data_arg}: not the dataset the run was trained on ({run_data}, as {} records): {}",
+        checkpoint.display(),
+        diff.join("; ")
+    )))
+}
+
+/// Keys that may change on resume: how often to checkpoint and log and on how many threads
+/// (none changes what is computed), and the iteration totals (the user extends or shortens a
+/// run; the schedules follow the new total).
+const FREE_KEYS: [&str; 5] = [
+    "train.checkpoint_every",
+    "train.log_every",
+    "train.threads",
+    "train.iterations",
+    "stage2.iterations",
+];
+
+/// The sections only stage 2 reads: free to change until stage 2 has a checkpoint.
+pub const STAGE2_SECTIONS: [&str; 2] = ["stage2", "material"];
+
+/// Every leaf of a configuration as `section.key` → its TOML text.
+fn leaves(config: &TrainConfig) -> BTreeMap<String, String> {
+    fn walk(prefix: &str, v: &toml::Value, out: &mut BTreeMap<String, String>) {
+        match v {
+            toml::Value::Table(t) => {
+                for (k, v) in t {
+                    let key = if prefix.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{prefix}.{k}")
+                    };
+                    walk(&key, v, out);
+                }
+            }
+            other => {
+                out.insert(prefix.to_string(), other.to_string());
+            }
+        }
+    }
+    let mut out = BTreeMap::new();
+    // Through the file's text: its f32 values print as written (0.1, not 0.10000000149…).
+    let v: toml::Value = toml::from_str(&config.to_toml()).expect("the config's TOML parses");
+    walk("", &v, &mut out);
+    out
+}
+
+/// The keys of `new` that differ from `old` and may not, as `key: old → new`; `frozen_stage2`:
+/// stage 2 has a checkpoint, so its sections are fixed too.
+pub fn config_changes(old: &TrainConfig, new: &TrainConfig, frozen_stage2: bool) -> Vec<String> {
+    let (a, b) = (leaves(old), leaves(new));
+    let keys: std::collections::BTreeSet<&String> = a.keys().chain(b.keys()).collect();
+    let missing = "(unset)".to_string();
+    keys.into_iter()
+        .filter(|k| !FREE_KEYS.contains(&k.as_str()))
+        .filter(|k| frozen_stage2 || !STAGE2_SECTIONS.iter().any(|s| k.starts_with(&format!("{s}."))))
+        .filter_map(|k| {
+            let (x, y) = (a.get(k).unwrap_or(&missing), b.get(k).unwrap_or(&missing));
+            (x != y).then(|| format!("{k}: {x} → {y}"))
+        })
+        .collect()
+}
+
+/// Refuses, as bad input, a configuration that changes what the run's checkpoints were trained
+/// with; `what` says which run (for the message).
+pub fn check_config(
+    run_config: &Path,
+    old: &TrainConfig,
+    new: &TrainConfig,
+    frozen_stage2: bool,
+) -> Result<(), DataError> {
+    let changes = config_changes(old, new, frozen_stage2);
+    if changes.is_empty() {
+        return Ok(());
+    }
+    Err(DataError::file(
+        run_config,
+        format!(
+            "the resumed run was trained with other values (only {} may change): {}",
+            FREE_KEYS.join(", "),
+            changes.join("; ")
+        ),
+    ))
+}
+
+/// Removes what killed writers left in the run directory: the temporaries of atomic writes
+/// (`.NAME.PID.partial.EXT`, of processes other than this one; a run has one trainer at a time),
+/// and a last log line cut short (the record of a step whose checkpoint never happened anyway).
+pub fn repair(root: &Path, log: &Path) -> Result<(), DataError> {
+    let me = format!(".{}.partial.", std::process::id());
+    if let Ok(entries) = std::fs::read_dir(root) {
+        for e in entries.flatten() {
+            let name = e.file_name();
+            let name = name.to_string_lossy();
+            if name.starts_with('.') && name.contains(".partial.") && !name.contains(&me) {
+                let p = e.path();
+                std::fs::remove_file(&p)
+                    .map_err(|err| DataError::io(&p, format!("cannot remove a stale temporary: {err}")))?;
+            }
+        }
+    }
+    if let Ok(bytes) = std::fs::read(log) {
+        if !bytes.is_empty() && bytes.last() != Some(&b'\n') {
+            let keep = bytes.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+            let f = std::fs::OpenOptions::new()
+                .write(true)
+                .open(log)
+                .map_err(|e| DataError::io(log, format!("cannot open: {e}")))?;
+            f.set_len(keep as u64)
+                .map_err(|e| DataError::io(log, format!("cannot cut its torn last line: {e}")))?;
+        }
+    }
+    Ok(())
+}
+
+/// Appends one JSON record to the log in a single write, so a kill leaves whole lines or one
+/// torn last line (which [`repair`] cuts), never a line spliced from two records.
+pub fn append_record(log: &Path, record: &serde_json::Value) -> Result<(), DataError> {
+    let line = format!("{record}\n");
+    let mut f = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(log)
+        .map_err(|e| DataError::io(log, format!("cannot open: {e}")))?;
+    f.write_all(line.as_bytes())
+        .map_err(|e| DataError::io(log, format!("cannot write: {e}")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn config_changes_name_the_key_and_both_values() {
+        let old = TrainConfig::default();
+        let mut new = old.clone();
+        assert!(config_changes(&old, &new, true).is_empty());
+        new.train.log_every += 1;
+        new.train.iterations += 1;
+        new.stage2.iterations += 1;
+        assert!(config_changes(&old, &new, true).is_empty());
+        new.train.seed = 7;
+        new.stage2.pixels += 1;
+        let c = config_changes(&old, &new, false);
+        assert_eq!(c, [format!("train.seed: {} → 7", old.train.seed)]);
+        let c = config_changes(&old, &new, true);
+        assert_eq!(c.len(), 2, "{c:?}");
+        assert!(c[0].starts_with("stage2.pixels: "), "{c:?}");
+    }
+
+    #[test]
+    fn repair_removes_stale_temporaries_and_a_torn_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let stale = dir.path().join(".checkpoint.safetensors.999999999.partial.safetensors");
+        let mine = dir
+            .path()
+            .join(format!(".run.json.{}.partial.json", std::process::id()));
+        std::fs::write(&stale, b"half").unwrap();
+        std::fs::write(&mine, b"mine").unwrap();
+        let log = dir.path().join("log.jsonl");
+        std::fs::write(&log, b"{\"a\":1}\n{\"b\":").unwrap();
+        repair(dir.path(), &log).unwrap();
+        assert!(!stale.exists() && mine.exists());
+        assert_eq!(std::fs::read_to_string(&log).unwrap(), "{\"a\":1}\n");
+        append_record(&log, &serde_json::json!({"c": 2})).unwrap();
+        assert_eq!(std::fs::read_to_string(&log).unwrap(), "{\"a\":1}\n{\"c\":2}\n");
+    }
+}
