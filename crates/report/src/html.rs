@@ -157,10 +157,15 @@ pub fn format_sig(x: f64) -> String {
     let a = x.abs();
     if a == 0.0 {
         "0".to_string()
+    } else if x.fract() == 0.0 && a < 1e6 {
+        // Counts (emitters, frames) read as integers.
+        format!("{}", x as i64)
     } else if !(1e-3..1e5).contains(&a) {
         format!("{x:.3e}")
     } else if a >= 100.0 {
         format!("{x:.1}")
+    } else if a >= 10.0 {
+        format!("{x:.2}")
     } else if a >= 1.0 {
         format!("{x:.3}")
     } else {
@@ -222,6 +227,7 @@ mod tests {
         assert_eq!(format_sig(0.011059), "0.0111");
         assert_eq!(format_sig(1384.5), "1384.5");
         assert_eq!(format_sig(1e-6), "1.000e-6");
+        assert_eq!(format_sig(2.0), "2");
     }
 
     #[test]

@@ -64,7 +64,7 @@ impl Default for ReportOptions {
             view: 0,
             spp: 32,
             bounces: EditSettings::default().bounces,
-            mesh_resolution: 160,
+            mesh_resolution: 128,
         }
     }
 }
@@ -129,7 +129,14 @@ pub fn write_report(
          volume renderer with the run's sampling settings.</p>",
         esc(&frame.name)
     );
-    body.push_str(&views::stage1_grid(&mut assets, input.scene, &input.volume, frame)?);
+    let mut cache = views::RenderCache::default();
+    body.push_str(&views::stage1_grid(
+        &mut assets,
+        input.scene,
+        &input.volume,
+        frame,
+        &mut cache,
+    )?);
     mark("stage-1 maps", &mut timings);
 
     if let Some(fields) = input.fields {
@@ -230,11 +237,17 @@ pub fn write_report(
                 body.push_str("<p class=\"muted\">The dataset has no relit sets.</p>");
             } else {
                 progress("relit sets");
-                body.push_str(&views::relight_grid(&mut assets, &ctx, dataset)?);
+                body.push_str(&views::relight_grid(&mut assets, &ctx, &mut cache, dataset)?);
                 mark("relit sets", &mut timings);
             }
             progress("mirror edit");
-            body.push_str(&views::mirror_grid(&mut assets, &ctx, &dataset.bounds, frame)?);
+            body.push_str(&views::mirror_grid(
+                &mut assets,
+                &ctx,
+                &mut cache,
+                &dataset.bounds,
+                frame,
+            )?);
             mark("mirror edit", &mut timings);
         }
         None => body.push_str("<p class=\"muted\">Relighting and editing need stage 2.</p>"),

@@ -186,7 +186,11 @@ pub fn metrics_section(metrics: Option<(&Path, &Value)>, run: &Path, data: &Path
             esc(r.label),
             r.better,
             cell(ours),
-            cell(r.paper.map(|p| p.0)),
+            // As the paper prints it.
+            r.paper.map_or_else(
+                || "<td class=\"num muted\">—</td>".to_string(),
+                |p| format!("<td class=\"num\">{}</td>", p.0)
+            ),
             esc(r.paper.map_or("", |p| p.1))
         );
     }
@@ -294,6 +298,6 @@ mod tests {
         let v = read_metrics(&p).unwrap();
         assert_eq!(at(&v, "novel_view.psnr"), Some(30.5));
         let html = metrics_section(Some((&p, &v)), Path::new("r"), Path::new("d"));
-        assert!(html.contains("30.50") && html.contains("28.42"));
+        assert!(html.contains("30.50") && html.contains(">28.42<"));
     }
 }

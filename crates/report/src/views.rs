@@ -22,6 +22,46 @@ use i2sdf_render::{Geometry, Ray, ViewRender};
 use rayon::prelude::*;
 use std::fmt::Write as _;
 
+/// A camera's identity (size, intrinsics, pose bits): the relit sets' first frames are often
+/// the test camera itself, and each render of it is made once.
+fn camera_key(c: &Camera) -> Vec<u64> {
+    let mut k = vec![c.width as u64, c.height as u64];
+    k.extend([c.fx, c.fy, c.cx, c.cy].map(f64::to_bits));
+    k.extend(c.c2w.to_cols_array().map(f64::to_bits));
+    k
+}
+
+/// Renders shared between the sections: the radiance field's view of a camera (stage 1's map,
+/// the differential's captured image) and the unedited scene's path-traced render (with the
+/// view index its paths were drawn with).
+#[derive(Default)]
+pub struct RenderCache {
+    captured: Vec<(Vec<u64>, ImageF32)>,
+    bases: Vec<(Vec<u64>, ViewRender, u32)>,
+}
+
+impl RenderCache {
+    fn captured_index(&mut self, ctx: &EditContext, camera: &Camera) -> usize {
+        let key = camera_key(camera);
+        if let Some(i) = self.captured.iter().position(|(k, _)| *k == key) {
+            return i;
+        }
+        self.captured.push((key, ctx.recovered.captured(camera, ctx.volume)));
+        self.captured.len() - 1
+    }
+
+    fn base_index(&mut self, ctx: &EditContext, camera: &Camera, view: u32) -> usize {
+        let key = camera_key(camera);
+        if let Some(i) = self.bases.iter().position(|(k, _, _)| *k == key) {
+            return i;
+        }
+        let unedited = ctx.recovered.edited(&EditSpec::default(), &Default::default());
+        let r = ctx.recovered.render(&unedited, camera, &ctx.settings, view, &|| {});
+        self.bases.push((key, r, view));
+        self.bases.len() - 1
+    }
+}
+
 /// PSNR of two same-sized 3-channel images (None when it cannot be computed).
 fn psnr_of(a: &ImageF32, b: &ImageF32) -> Option<f64> {
     if (a.width, a.height, a.channels) != (b.width, b.height, b.channels) {
@@ -85,8 +125,10 @@ pub fn stage1_grid(
     scene: &NeuralScene,
     settings: &RenderSettings,
     frame: &Frame,
+    cache: &mut RenderCache,
 ) -> Result<String, DataError> {
     let v = render_volume_view(scene, settings, &frame.camera);
+    cache.captured.push((camera_key(&frame.camera), v.rgb.clone()));
     let mut s = String::new();
     s.push_str(&triple_row(
         assets,
@@ -268,27 +310,34 @@ pub struct EditContext<'a> {
     pub settings: EditSettings,
 }
 
-/// A set's first frame rendered with its spec: (path traced, differential) in the dataset's
-/// tone map. `base`: the unedited render of the same camera.
+/// A view rendered with `spec`: (path traced, differential) in the dataset's tone map. The
+/// unedited render of the camera (the differential's base, and the render itself when the spec
+/// only relights) and the captured image come from `cache`; an edit that changes more than
+/// lights is rendered with the base's paths (its view index), so their difference has no noise
+/// of its own.
 fn edited_pair(
     ctx: &EditContext,
+    cache: &mut RenderCache,
     spec: &EditSpec,
     assets: &i2sdf_data::EditAssets,
     camera: &Camera,
     view: u32,
-    base: &ViewRender,
 ) -> (ImageF32, ImageF32) {
     let r = ctx.recovered;
+    let b = cache.base_index(ctx, camera, view);
+    let c = cache.captured_index(ctx, camera);
+    let (base, base_view) = (&cache.bases[b].1, cache.bases[b].2);
     let relight_only = spec.ops.iter().all(|op| matches!(op, EditOp::Relight(_)));
     let unedited = r.edited(&EditSpec::default(), &Default::default());
     let own = (!relight_only).then(|| r.edited(spec, assets));
     let edited = own.as_ref().unwrap_or(&unedited);
     let gains = light_gains(spec, edited);
-    let own_render = own.as_ref().map(|ed| r.render(ed, camera, &ctx.settings, view, &|| {}));
+    let own_render = own
+        .as_ref()
+        .map(|ed| r.render(ed, camera, &ctx.settings, base_view, &|| {}));
     let render = own_render.as_ref().unwrap_or(base);
     let (_, traced) = edit_images(render, &gains, &r.radiometry);
-    let captured = r.captured(camera, ctx.volume);
-    let d = differential_hdr(&captured, render, &gains, base, &r.radiometry);
+    let d = differential_hdr(&cache.captured[c].1, render, &gains, base, &r.radiometry);
     let (_, diff) = hdr_ldr_images(&d, render.width, render.height, &r.radiometry);
     (traced, diff)
 }
@@ -298,23 +347,18 @@ fn psnr_caption(what: &str, img: &ImageF32, gt: &ImageF32) -> String {
 }
 
 /// The dataset's relit sets, the first frame of each: GT | path traced | differential.
-pub fn relight_grid(assets: &mut Assets, ctx: &EditContext, dataset: &Dataset) -> Result<String, DataError> {
+pub fn relight_grid(
+    assets: &mut Assets,
+    ctx: &EditContext,
+    cache: &mut RenderCache,
+    dataset: &Dataset,
+) -> Result<String, DataError> {
     let mut s = String::new();
-    let unedited = ctx.recovered.edited(&EditSpec::default(), &Default::default());
-    // Sets often share cameras: one unedited render per camera.
-    let mut bases: Vec<(Vec<u64>, ViewRender)> = Vec::new();
     for (i, set) in dataset.relight.iter().enumerate() {
         let Some(f) = set.frames.first() else { continue };
         let spec = EditSpec::read(&set.spec)?;
         let spec_assets = spec.load_assets()?;
-        let key: Vec<u64> = f.camera.c2w.to_cols_array().iter().map(|x| x.to_bits()).collect();
-        let view = 1000 + i as u32;
-        if !bases.iter().any(|(k, _)| *k == key) {
-            let r = ctx.recovered.render(&unedited, &f.camera, &ctx.settings, view, &|| {});
-            bases.push((key.clone(), r));
-        }
-        let base = &bases.iter().find(|(k, _)| *k == key).expect("rendered above").1;
-        let (traced, diff) = edited_pair(ctx, &spec, &spec_assets, &f.camera, view, base);
+        let (traced, diff) = edited_pair(ctx, cache, &spec, &spec_assets, &f.camera, 1000 + i as u32);
         let name = set
             .spec
             .file_stem()
@@ -338,7 +382,7 @@ pub fn relight_grid(assets: &mut Assets, ctx: &EditContext, dataset: &Dataset) -
             ),
         ];
         s.push_str(&grid_row(
-            &name,
+            &name.replace('_', " "),
             &cells,
             &format!("frame {} of {}", esc(&f.name), set.frames.len()),
         ));
@@ -383,18 +427,15 @@ pub fn mirror_spec(bounds: &Bounds, camera: &Camera) -> (EditSpec, String, Strin
 pub fn mirror_grid(
     assets: &mut Assets,
     ctx: &EditContext,
+    cache: &mut RenderCache,
     bounds: &Bounds,
     frame: &Frame,
 ) -> Result<String, DataError> {
     let (spec, wall, text) = mirror_spec(bounds, &frame.camera);
-    let unedited = ctx.recovered.edited(&EditSpec::default(), &Default::default());
-    let view = 2000;
-    let base = ctx
-        .recovered
-        .render(&unedited, &frame.camera, &ctx.settings, view, &|| {});
-    let ones = vec![Vec3::ONE; unedited.lights()];
-    let (_, plain) = edit_images(&base, &ones, &ctx.recovered.radiometry);
-    let (traced, diff) = edited_pair(ctx, &spec, &Default::default(), &frame.camera, view, &base);
+    let (traced, diff) = edited_pair(ctx, cache, &spec, &Default::default(), &frame.camera, 2000);
+    let b = cache.base_index(ctx, &frame.camera, 2000);
+    let base = &cache.bases[b].1;
+    let (_, plain) = edit_images(base, &vec![Vec3::ONE; base.emitters], &ctx.recovered.radiometry);
     let cells = [
         Cell::img(
             psnr_caption("unedited, path traced (vs test image)", &plain, &frame.rgb),
