@@ -190,3 +190,58 @@ fn paper_format_errors_name_the_file() {
     imageio::write_exr(&dir.path().join("normal/0002.exr"), &n).unwrap();
     assert_bad(dir.path(), &["0002.exr", "unit normals"]);
 }
+
+fn check_with(dir: &Path, extra: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_i2sdf"))
+        .args(["check", "--data"])
+        .arg(dir)
+        .args(extra)
+        .output()
+        .unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// The training memory estimate is printed (text and JSON) beside the machine's memory; a
+/// configuration that cannot fit warns, naming both figures, and still passes (exit 0).
+#[test]
+fn training_memory_is_estimated_and_warned_about() {
+    let dir = native();
+    let (code, out, err) = check_with(dir.path(), &[]);
+    assert_eq!(code, 0, "{err}");
+    for needle in [
+        "training memory (estimate): stage 1",
+        "training memory (estimate): stage 2",
+        "dataset",
+        "GiB",
+        "machine memory:",
+    ] {
+        assert!(out.contains(needle), "expected '{needle}' in:\n{out}");
+    }
+    assert!(!err.contains("warning"), "{err}");
+    // 2^20 rays × 1024 samples: terabytes of activations.
+    let huge = ["--set", "train.rays=1048576", "--set", "sampling.samples=1024"];
+    let (code, _, err) = check_with(dir.path(), &huge);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("warning: training needs about") && err.contains("of memory available (of"),
+        "{err}"
+    );
+    let (code, out, err) = check_with(dir.path(), &[&huge[..], &["--json"][..]].concat());
+    assert_eq!(code, 0, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert!(v["memory"]["stage1_bytes"].as_f64().unwrap() > 1e12, "{out}");
+    assert!(v["memory"]["stage2_bytes"].as_f64().unwrap() > 0.0);
+    assert_eq!(v["memory"]["fits"], Value::Bool(false));
+    assert!(
+        v.get("format").is_some() && v.get("train_views").is_some(),
+        "the summary is still there"
+    );
+    // The configuration is read as `train` reads it: a bad key is bad input.
+    let (code, _, err) = check_with(dir.path(), &["--set", "stage2.pixels=0"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("stage2.pixels"), "{err}");
+}

@@ -515,7 +515,11 @@ impl OpReader<'_> {
             )),
             Some(key) => Err(self.err(
                 key,
-                format!("unknown key for a \"{kind}\" op (allowed: {})", allowed.join(", ")),
+                format!(
+                    "unknown key for {} \"{kind}\" op (allowed: {})",
+                    if kind == "insert" { "an" } else { "a" },
+                    allowed.join(", ")
+                ),
             )),
             None => Ok(()),
         }
@@ -562,8 +566,11 @@ impl OpReader<'_> {
     fn file(&self, key: &str, rel: &str) -> Result<PathBuf> {
         let resolved = self.base.join(rel);
         let ok = resolved.is_file();
-        self.ensure(ok, key, || format!("file not found: {}", resolved.display()))
-            .map(|_| resolved)
+        self.ensure(ok, key, || match resolved.exists() {
+            true => format!("not a file: {}", resolved.display()),
+            false => format!("file not found: {}", resolved.display()),
+        })
+        .map(|_| resolved)
     }
 
     /// Exactly one of `keys` present: its name.

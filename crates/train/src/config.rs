@@ -246,10 +246,7 @@ impl TrainConfig {
                 // Deserializing the text (not the parsed table) keeps the line and key of a value
                 // of the wrong type in the message.
                 if let Err(e) = toml::from_str::<TrainConfig>(&text) {
-                    return Err(DataError::file(
-                        p,
-                        format!("invalid configuration: {}", e.to_string().trim()),
-                    ));
+                    return Err(file_error(p, &text, &e));
                 }
                 text.parse()
                     .map_err(|e| DataError::file(p, format!("invalid TOML: {e}")))?
@@ -370,6 +367,41 @@ impl TrainConfig {
     }
 }
 
+/// A configuration file's parse or type error with the dotted key and line in front (the first
+/// line of the message names what is wrong), then toml's own report with the source line.
+fn file_error(path: &Path, text: &str, e: &toml::de::Error) -> DataError {
+    let report = e.to_string();
+    let Some(span) = e.span() else {
+        return DataError::file(path, format!("invalid configuration: {}", report.trim()));
+    };
+    let start = span.start.min(text.len());
+    let line_start = text[..start].rfind('\n').map_or(0, |i| i + 1);
+    let line_no = text[..line_start].matches('\n').count() + 1;
+    let line = text[line_start..].split('\n').next().unwrap_or("");
+    // The section is the last `[name]` header above the line; the key what precedes `=`.
+    let section = text[..line_start].lines().rev().find_map(|l| {
+        l.trim()
+            .strip_prefix('[')?
+            .split(']')
+            .next()
+            .map(|s| s.trim().to_string())
+    });
+    let key = line.split_once('=').map(|(k, _)| k.trim().to_string());
+    let what = match (section, key) {
+        (Some(s), Some(k)) => format!("{s}.{k} (line {line_no})"),
+        (None, Some(k)) => format!("{k} (line {line_no})"),
+        _ => format!("line {line_no}"),
+    };
+    DataError::file(
+        path,
+        format!(
+            "invalid configuration: {what}: {}\n{}",
+            e.message().trim(),
+            report.trim()
+        ),
+    )
+}
+
 fn apply_override(table: &mut toml::Table, o: &str) -> Result<(), DataError> {
     let (key, value) = o
         .split_once('=')
@@ -484,6 +516,13 @@ mod tests {
         assert!(TrainConfig::load(None, &["model.backbone=transformer".into()]).is_err());
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("bad.toml");
+        std::fs::write(&p, "[train]\nrays = 3\n[stage2]\n\npixels = \"many\"\n").unwrap();
+        let e = TrainConfig::load(Some(&p), &[]).unwrap_err().to_string();
+        let first = e.lines().next().unwrap();
+        assert!(
+            first.contains("bad.toml") && first.contains("stage2.pixels (line 5)"),
+            "{e}"
+        );
         std::fs::write(&p, "[train\n").unwrap();
         assert!(TrainConfig::load(Some(&p), &[])
             .unwrap_err()

@@ -1,6 +1,11 @@
-//! `i2sdf check --data SCENE`: validate a dataset (every file is read and checked) and summarize it.
+//! `i2sdf check --data SCENE [--config FILE] [--set KEY=VALUE]...`: validate a dataset (every
+//! file is read and checked), summarize it, and state what training it with that configuration
+//! will hold in memory (stage 1 and stage 2, `i2sdf_train::memory`) against the machine's memory,
+//! with a warning when it does not fit: better said now than by the OOM killer an hour in.
 
 use clap::Args as ClapArgs;
+use i2sdf_train::config::TrainConfig;
+use i2sdf_train::memory::{self, gib, DatasetShape, MachineMemory};
 use std::path::PathBuf;
 
 #[derive(ClapArgs)]
@@ -11,16 +16,62 @@ pub struct Args {
     /// Print the summary as one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
+    /// The training configuration the memory estimate is for (as `train --config`).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Override a configuration value (as `train --set`, repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    // The configuration first: a bad key is reported before the dataset is read.
+    let config = TrainConfig::load(args.config.as_deref(), &args.set)?;
     let dataset = i2sdf_data::load(&args.data)?;
     let summary = i2sdf_data::Summary::of(&dataset);
+    let estimate = memory::estimate(&DatasetShape::of(&dataset), &config);
+    let machine = MachineMemory::read();
+    let warning = machine.and_then(|m| {
+        let need = estimate.peak();
+        (need > m.available as f64).then(|| {
+            format!(
+                "warning: training needs about {} (stage 1 {}, stage 2 {}), more than the {} of memory available (of {} total)",
+                gib(need),
+                gib(estimate.stage1.total),
+                gib(estimate.stage2.total),
+                gib(m.available as f64),
+                gib(m.total as f64)
+            )
+        })
+    });
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&summary)?);
+        let mut v = serde_json::to_value(&summary)?;
+        v["memory"] = serde_json::json!({
+            "stage1_bytes": estimate.stage1.total,
+            "stage2_bytes": estimate.stage2.total,
+            "stage1": estimate.stage1.items,
+            "stage2": estimate.stage2.items,
+            "available_bytes": machine.map(|m| m.available),
+            "total_bytes": machine.map(|m| m.total),
+            "fits": warning.is_none(),
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         println!("{summary}");
+        println!("training memory (estimate): stage 1 {}", estimate.stage1.describe());
+        println!("training memory (estimate): stage 2 {}", estimate.stage2.describe());
+        match machine {
+            Some(m) => println!(
+                "machine memory: {} available of {}",
+                gib(m.available as f64),
+                gib(m.total as f64)
+            ),
+            None => println!("machine memory: unknown (no /proc/meminfo)"),
+        }
         println!("ok");
+    }
+    if let Some(w) = warning {
+        eprintln!("{w}");
     }
     Ok(())
 }

@@ -1,0 +1,522 @@
+//! The table of bad inputs of the stage-2 commands (issue 11, "Reliability"): every error path of
+//! the edit spec (ops, keys, regions, numbers, textures, meshes), of the stage-2 configuration
+//! (`stage2.*` and `material.*`, by `--set` and by file) and of marching cubes at a resolution
+//! that does not fit in memory. Each row runs the real binary and must exit with its code, name
+//! what is at fault in stderr, and leave the output untouched: `edit --out DIR` is not created, a
+//! refused stage 2 writes nothing into the run, a refused mesh writes no file. The test prints the
+//! table (case → exit code → first line of the message); with `BAD_INPUT_TABLE=FILE` it also
+//! writes it there as markdown.
+
+use i2sdf_data::fixture::{self, FixtureOptions};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+struct Outcome {
+    code: i32,
+    stderr: String,
+}
+
+fn i2sdf(args: &[&str]) -> Outcome {
+    let out = Command::new(env!("CARGO_BIN_EXE_i2sdf")).args(args).output().unwrap();
+    Outcome {
+        code: out.status.code().unwrap_or(-1),
+        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+    }
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Settings that make a stage-1 run of the fixture take a second or two.
+const TINY: [&str; 12] = [
+    "--set",
+    "train.iterations=4",
+    "--set",
+    "model.hash_levels=4",
+    "--set",
+    "model.hash_log2_table=12",
+    "--set",
+    "train.rays=64",
+    "--set",
+    "train.eikonal_points=64",
+    "--set",
+    "train.bubble_points=64",
+];
+
+/// Settings that make stage 2 on the tiny run take a second.
+const TINY_STAGE2: [&str; 10] = [
+    "--set",
+    "stage2.iterations=3",
+    "--set",
+    "stage2.cache_samples=4",
+    "--set",
+    "stage2.bake_resolution=32",
+    "--set",
+    "material.hash_levels=2",
+    "--set",
+    "material.hash_log2_table=10",
+];
+
+/// `i2sdf train --stage material` of `data` into `out`.
+fn train_material(data: &Path, out: &Path, extra: &[&str]) -> Outcome {
+    let mut args = vec![
+        "train",
+        "--quiet",
+        "--stage",
+        "material",
+        "--data",
+        s(data),
+        "--out",
+        s(out),
+    ];
+    args.extend_from_slice(extra);
+    i2sdf(&args)
+}
+
+fn copy_stage1(run: &Path, dest: &Path) {
+    std::fs::create_dir(dest).unwrap();
+    for f in ["checkpoint.safetensors", "config.toml", "run.json"] {
+        std::fs::copy(run.join(f), dest.join(f)).unwrap();
+    }
+}
+
+/// The fixture dataset, a tiny stage-1 run and a copy of it with a tiny stage 2, shared by the
+/// rows (one training for the whole file).
+struct Trained {
+    _dir: tempfile::TempDir,
+    data: PathBuf,
+    stage1: PathBuf,
+    stage2: PathBuf,
+}
+
+fn trained() -> &'static Trained {
+    static RUN: OnceLock<Trained> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let data = dir.path().join("data");
+        fixture::write_native(&data, &FixtureOptions::default());
+        let stage1 = dir.path().join("run");
+        let mut args = vec!["train", "--quiet", "--data", s(&data), "--out", s(&stage1)];
+        args.extend_from_slice(&TINY);
+        let o = i2sdf(&args);
+        assert_eq!(o.code, 0, "{}", o.stderr);
+        let stage2 = dir.path().join("run2");
+        copy_stage1(&stage1, &stage2);
+        let o = train_material(&data, &stage2, &TINY_STAGE2);
+        assert_eq!(o.code, 0, "{}", o.stderr);
+        Trained {
+            _dir: dir,
+            data,
+            stage1,
+            stage2,
+        }
+    })
+}
+
+/// Every file of a folder with its bytes: "unchanged" means equal snapshots.
+fn snapshot(dir: &Path) -> BTreeMap<String, Vec<u8>> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| {
+            let e = e.unwrap();
+            let bytes = if e.path().is_file() {
+                std::fs::read(e.path()).unwrap()
+            } else {
+                b"<dir>".to_vec()
+            };
+            (e.file_name().to_string_lossy().into_owned(), bytes)
+        })
+        .collect()
+}
+
+/// One row of the table, as run.
+struct Row {
+    case: String,
+    code: i32,
+    first_line: String,
+    problems: Vec<String>,
+}
+
+#[derive(Default)]
+struct Table {
+    rows: Vec<Row>,
+}
+
+impl Table {
+    /// Records `o` for `case`: its exit code must be `code`, its stderr must contain every
+    /// needle, and `untouched` (checked after the run) must hold.
+    fn record(&mut self, case: &str, o: Outcome, code: i32, needles: &[&str], untouched: Result<(), String>) {
+        let mut problems = Vec::new();
+        if o.code != code {
+            problems.push(format!("exit {} (expected {code})", o.code));
+        }
+        for n in needles {
+            if !o.stderr.contains(n) {
+                problems.push(format!("stderr lacks '{n}'"));
+            }
+        }
+        if let Err(e) = untouched {
+            problems.push(e);
+        }
+        if !problems.is_empty() {
+            problems.push(format!("stderr: {}", o.stderr.trim()));
+        }
+        let first_line = o
+            .stderr
+            .lines()
+            .find(|l| l.starts_with("error:"))
+            .or_else(|| o.stderr.lines().next())
+            .unwrap_or("")
+            .to_string();
+        self.rows.push(Row {
+            case: case.to_string(),
+            code: o.code,
+            first_line,
+            problems,
+        });
+    }
+
+    fn markdown(&self, strip: &[&Path]) -> String {
+        let mut md = String::from("| case | exit | message (first line) |\n|---|---|---|\n");
+        for r in &self.rows {
+            // Temporary paths make the table unreadable and differ per run.
+            let mut line = r.first_line.clone();
+            for dir in strip {
+                line = line.replace(&format!("{}/", dir.display()), "");
+            }
+            line = line.replace('|', "\\|");
+            md.push_str(&format!(
+                "| {} | {} | `{}` |\n",
+                r.case.replace('|', "\\|"),
+                r.code,
+                line
+            ));
+        }
+        md
+    }
+
+    fn finish(self, strip: &[&Path]) {
+        let md = self.markdown(strip);
+        println!("{md}");
+        if let Ok(path) = std::env::var("BAD_INPUT_TABLE") {
+            std::fs::write(path, &md).unwrap();
+        }
+        let failed: Vec<String> = self
+            .rows
+            .iter()
+            .filter(|r| !r.problems.is_empty())
+            .map(|r| format!("{}: {}", r.case, r.problems.join("; ")))
+            .collect();
+        assert!(
+            failed.is_empty(),
+            "{} row(s) failed:\n{}",
+            failed.len(),
+            failed.join("\n")
+        );
+    }
+}
+
+const SPHERE: &str = "sphere = { centre = [0, 0, 0], radius = 0.5 }";
+const TEX_PLANE: &str = "origin = [0, 0, 0], u = [1, 0, 0], v = [0, 1, 0]";
+
+/// The edit spec rows: (case, spec text, needles). Files named by the specs live beside them.
+#[rustfmt::skip]
+fn edit_rows() -> Vec<(&'static str, String, Vec<&'static str>)> {
+    let relight = "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = 1\n";
+    let material = |body: &str| format!("[[op]]\nkind = \"material\"\n{SPHERE}\n{body}\n");
+    let insert = |body: &str| format!("[[op]]\nkind = \"insert\"\n{body}\n");
+    let texture = |image: &str, plane: &str| material(&format!("texture = {{ image = \"{image}\", {plane} }}"));
+    let mesh = |path: &str, extra: &str| insert(&format!("mesh = {{ path = \"{path}\"{extra} }}"));
+    vec![
+        ("not TOML at all", "this is { not toml".into(), vec!["spec.toml", "bad edit spec"]),
+        ("binary garbage", "\u{1}\u{2}\u{fffd}[[[".into(), vec!["spec.toml", "bad edit spec"]),
+        ("unknown top-level key", "[lights]\nbulb = 2\n".into(), vec!["lights", "unknown key"]),
+        ("op is not a list of tables", "op = 3\n".into(), vec!["op", "[[op]]"]),
+        ("op without kind", "[[op]]\nat = [0, 0, 0]\n".into(), vec!["op[0].kind", "missing"]),
+        ("kind not a string", "[[op]]\nkind = 3\n".into(), vec!["op[0].kind", "string"]),
+        ("unknown op kind", "[[op]]\nkind = \"paint\"\n".into(), vec!["op[0].kind", "paint"]),
+        ("relight: unknown key", format!("{relight}shine = 2\n"), vec!["op[0].shine", "relight"]),
+        ("material: unknown key", material("preset = \"matte\"\ncolour = 1"), vec!["op[0].colour", "material"]),
+        ("insert: unknown key", insert(&format!("{SPHERE}\nglow = 1")), vec!["op[0].glow", "an \"insert\" op"]),
+        ("insert: texture", insert(&format!("{SPHERE}\ntexture = {{ image = \"tex.png\", {TEX_PLANE} }}")), vec!["op[0].texture", "not a texture"]),
+        ("box: unknown key", "[[op]]\nkind = \"material\"\nbox = { lo = [0, 0, 0], hi = [1, 1, 1], mid = 2 }\npreset = \"matte\"\n".into(), vec!["op[0].box", "mid"]),
+        ("relight: missing at", "[[op]]\nkind = \"relight\"\nscale = 1\n".into(), vec!["op[0].at", "missing"]),
+        ("relight: missing scale", "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\n".into(), vec!["op[0].scale", "missing"]),
+        ("material: no region", "[[op]]\nkind = \"material\"\npreset = \"matte\"\n".into(), vec!["op[0]", "region", "none"]),
+        ("material: two regions", material("below = { point = [0, 0, 0], normal = [0, 1, 0] }\npreset = \"matte\""), vec!["op[0]", "sphere and below"]),
+        ("insert: no shape", insert("preset = \"matte\""), vec!["op[0]", "shape", "none"]),
+        ("box: missing hi", "[[op]]\nkind = \"material\"\nbox = { lo = [0, 0, 0] }\npreset = \"matte\"\n".into(), vec!["op[0].box", "hi"]),
+        ("mesh: missing path", insert("mesh = { scale = 2 }"), vec!["op[0].mesh", "path"]),
+        ("relight: at wrong type", "[[op]]\nkind = \"relight\"\nat = \"ceiling\"\nscale = 1\n".into(), vec!["op[0].at"]),
+        ("relight: at with 2 components", "[[op]]\nkind = \"relight\"\nat = [0, 0]\nscale = 1\n".into(), vec!["op[0].at"]),
+        ("relight: scale wrong type", "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = \"x2\"\n".into(), vec!["op[0].scale"]),
+        ("preset wrong type", material("preset = 1"), vec!["op[0].preset"]),
+        ("kd wrong type", material("kd = 0.5"), vec!["op[0].kd"]),
+        ("region box lo > hi", "[[op]]\nkind = \"material\"\nbox = { lo = [1, 0, 0], hi = [0, 1, 1] }\npreset = \"mirror\"\n".into(), vec!["op[0].box.lo", "≤ hi"]),
+        ("insert box lo = hi", insert("box = { lo = [0, 0, 0], hi = [0, 1, 1] }"), vec!["op[0].box.lo", "< hi"]),
+        ("region sphere radius 0", "[[op]]\nkind = \"material\"\nsphere = { centre = [0, 0, 0], radius = 0 }\npreset = \"matte\"\n".into(), vec!["op[0].sphere.radius", "> 0"]),
+        ("insert sphere radius < 0", insert("sphere = { centre = [0, 0, 0], radius = -1 }"), vec!["op[0].sphere.radius", "> 0"]),
+        ("plane normal zero", "[[op]]\nkind = \"material\"\nabove = { point = [0, 0, 0], normal = [0, 0, 0] }\npreset = \"matte\"\n".into(), vec!["op[0].above.normal", "non-zero"]),
+        ("at = nan", "[[op]]\nkind = \"relight\"\nat = [nan, 0, 0]\nscale = 1\n".into(), vec!["op[0].at", "finite"]),
+        ("scale = inf", "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = inf\n".into(), vec!["op[0].scale", "finite"]),
+        ("scale = nan", "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = nan\n".into(), vec!["op[0].scale", "finite"]),
+        ("box hi = inf", "[[op]]\nkind = \"material\"\nbox = { lo = [0, 0, 0], hi = [inf, 1, 1] }\npreset = \"matte\"\n".into(), vec!["op[0].box.hi", "finite"]),
+        ("sphere radius = nan", insert("sphere = { centre = [0, 0, 0], radius = nan }"), vec!["op[0].sphere.radius"]),
+        ("sphere centre = -inf", insert("sphere = { centre = [0, -inf, 0], radius = 1 }"), vec!["op[0].sphere.centre", "finite"]),
+        ("plane point = nan", "[[op]]\nkind = \"material\"\nbelow = { point = [0, nan, 0], normal = [0, 1, 0] }\npreset = \"matte\"\n".into(), vec!["op[0].below.point", "finite"]),
+        ("roughness = nan", material("roughness = nan"), vec!["op[0].roughness"]),
+        ("kd = inf", material("kd = [inf, 0, 0]"), vec!["op[0].kd"]),
+        ("emission = nan", insert(&format!("{SPHERE}\nemission = [nan, 1, 1]")), vec!["op[0].emission"]),
+        ("texture origin = inf", texture("tex.png", "origin = [inf, 0, 0], u = [1, 0, 0], v = [0, 1, 0]"), vec!["op[0].texture.origin", "finite"]),
+        ("mesh rotation = nan", mesh("good.ply", ", rotation = [nan, 0, 0]"), vec!["op[0].mesh.rotation", "finite"]),
+        ("mesh translation = inf", mesh("good.ply", ", translation = [0, 0, inf]"), vec!["op[0].mesh.translation", "finite"]),
+        ("huge value overflowing f32", "[[op]]\nkind = \"relight\"\nat = [1e300, 0, 0]\nscale = 1\n".into(), vec!["op[0].at"]),
+        ("relight scale < 0", "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = -1\n".into(), vec!["op[0].scale", "≥ 0"]),
+        ("relight color negative", format!("{relight}color = [1, -0.5, 1]\n"), vec!["op[0].color", "≥ 0"]),
+        ("emission negative", insert(&format!("{SPHERE}\nemission = [1, 1, -1]")), vec!["op[0].emission", "≥ 0"]),
+        ("kd > 1", material("kd = [1.5, 0, 0]"), vec!["op[0].kd", "[0, 1]"]),
+        ("ks < 0", material("ks = [0, -0.1, 0]"), vec!["op[0].ks", "[0, 1]"]),
+        ("roughness 0", material("roughness = 0"), vec!["op[0].roughness", "[0.01, 1]"]),
+        ("unknown preset", material("preset = \"gold\""), vec!["op[0].preset", "gold"]),
+        ("preset with values", material("preset = \"matte\"\nkd = [0.5, 0.5, 0.5]"), vec!["op[0].preset", "kd"]),
+        ("material: neither preset nor values", material(""), vec!["op[0]", "needs a material"]),
+        ("texture with kd", material(&format!("kd = [0.5, 0.5, 0.5]\ntexture = {{ image = \"tex.png\", {TEX_PLANE} }}")), vec!["op[0].texture", "kd"]),
+        ("texture file missing", texture("missing.png", TEX_PLANE), vec!["op[0].texture.image", "missing.png", "not found"]),
+        ("texture not an image type", texture("notes.txt", TEX_PLANE), vec!["op[0].texture.image", "notes.txt", ".png or .exr"]),
+        ("texture garbage bytes", texture("garbage.png", TEX_PLANE), vec!["op[0].texture.image", "garbage.png"]),
+        ("texture truncated PNG", texture("truncated.png", TEX_PLANE), vec!["op[0].texture.image", "truncated.png"]),
+        ("texture garbage EXR", texture("garbage.exr", TEX_PLANE), vec!["op[0].texture.image", "garbage.exr"]),
+        ("texture is a folder", texture("folder.png", TEX_PLANE), vec!["op[0].texture.image", "folder.png", "not a file"]),
+        ("texture u ∥ v", texture("tex.png", "origin = [0, 0, 0], u = [1, 0, 0], v = [2, 0, 0]"), vec!["op[0].texture.v", "parallel"]),
+        ("texture u zero", texture("tex.png", "origin = [0, 0, 0], u = [0, 0, 0], v = [0, 1, 0]"), vec!["op[0].texture.u", "non-zero"]),
+        ("texture missing v", texture("tex.png", "origin = [0, 0, 0], u = [1, 0, 0]"), vec!["op[0].texture", "v"]),
+        ("PLY mesh missing", mesh("absent.ply", ""), vec!["op[0].mesh.path", "absent.ply", "not found"]),
+        ("PLY garbage", mesh("garbage.ply", ""), vec!["op[0].mesh.path", "garbage.ply"]),
+        ("PLY bad header", mesh("header.ply", ""), vec!["op[0].mesh.path", "header.ply"]),
+        ("PLY truncated", mesh("truncated.ply", ""), vec!["op[0].mesh.path", "truncated.ply"]),
+        ("PLY faces out of range", mesh("faces.ply", ""), vec!["op[0].mesh.path", "faces.ply", "past"]),
+        ("PLY non-finite vertex", mesh("nan.ply", ""), vec!["op[0].mesh.path", "nan.ply"]),
+        ("PLY without faces", mesh("nofaces.ply", ""), vec!["op[0].mesh.path", "nofaces.ply", "empty"]),
+        ("insert mesh scale 0", mesh("good.ply", ", scale = 0"), vec!["op[0].mesh.scale", "> 0"]),
+        ("insert mesh scale < 0", mesh("good.ply", ", scale = -2"), vec!["op[0].mesh.scale", "> 0"]),
+        ("mesh scale overflows to inf", mesh("good.ply", ", scale = 1e38, translation = [3e38, 0, 0]"), vec!["op[0].mesh.path", "not finite"]),
+        ("error in the 2nd op", format!("{relight}[[op]]\nkind = \"insert\"\nsphere = {{ centre = [0, 0, 0], radius = 0 }}\n"), vec!["op[1].sphere.radius"]),
+    ]
+}
+
+/// The files the edit rows refer to.
+fn write_assets(dir: &Path) {
+    let tex = i2sdf_data::imageio::ImageF32::from_data(2, 2, 3, vec![0.5; 12]);
+    i2sdf_data::imageio::write_png(&dir.join("tex.png"), &tex).unwrap();
+    let png = std::fs::read(dir.join("tex.png")).unwrap();
+    std::fs::write(dir.join("truncated.png"), &png[..png.len() / 2]).unwrap();
+    std::fs::write(dir.join("garbage.png"), b"\x00\x01 definitely not a PNG \xff\xfe").unwrap();
+    std::fs::write(dir.join("garbage.exr"), b"v/1\x01 not an EXR either").unwrap();
+    std::fs::write(dir.join("notes.txt"), b"wood").unwrap();
+    std::fs::create_dir(dir.join("folder.png")).unwrap();
+    let header = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n";
+    let faces = "element face 1\nproperty list uchar int vertex_indices\nend_header\n";
+    let plys: [(&str, String); 7] = [
+        ("good.ply", format!("{header}{faces}0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")),
+        ("garbage.ply", "\u{7}\u{0}binary noise".into()),
+        ("header.ply", "ply\nformat nonsense\n".into()),
+        ("truncated.ply", format!("{header}{faces}0 0 0\n1 0")),
+        ("faces.ply", format!("{header}{faces}0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n")),
+        ("nan.ply", format!("{header}{faces}0 0 0\nnan 0 0\n0 1 0\n3 0 1 2\n")),
+        ("nofaces.ply", format!("{header}end_header\n0 0 0\n1 0 0\n0 1 0\n")),
+    ];
+    for (name, text) in plys {
+        std::fs::write(dir.join(name), text).unwrap();
+    }
+}
+
+/// The stage-2 configuration rows: (case, --set value, needles).
+#[rustfmt::skip]
+const STAGE2_SETS: &[(&str, &str, &[&str])] = &[
+    ("iterations 0", "stage2.iterations=0", &["stage2.iterations", "1..="]),
+    ("iterations negative", "stage2.iterations=-5", &["stage2.iterations"]),
+    ("iterations fractional", "stage2.iterations=1.5", &["stage2.iterations"]),
+    ("iterations = inf", "stage2.iterations=inf", &["stage2.iterations"]),
+    ("pixels 0", "stage2.pixels=0", &["stage2.pixels", "1..="]),
+    ("pixels too many", "stage2.pixels=2000000", &["stage2.pixels"]),
+    ("estimator unknown", "stage2.estimator=fast", &["stage2.estimator", "fast"]),
+    ("estimator wrong type", "stage2.estimator=3", &["stage2.estimator"]),
+    ("cache_pixels negative", "stage2.cache_pixels=-1", &["stage2.cache_pixels"]),
+    ("cache_pixels too many", "stage2.cache_pixels=100000000", &["stage2.cache_pixels"]),
+    ("cache_samples 0", "stage2.cache_samples=0", &["stage2.cache_samples"]),
+    ("cache_samples too many", "stage2.cache_samples=5000", &["stage2.cache_samples"]),
+    ("refresh_pixels with pooled irradiance", "stage2.refresh_pixels=5", &["stage2.refresh_pixels", "stage2.irradiance_radius"]),
+    ("refresh_pixels wrong type", "stage2.refresh_pixels=[1]", &["stage2.refresh_pixels"]),
+    ("input_normals wrong type", "stage2.input_normals=yes", &["stage2.input_normals"]),
+    ("label_unobserved wrong type", "stage2.label_unobserved=1", &["stage2.label_unobserved"]),
+    ("irradiance_radius negative", "stage2.irradiance_radius=-0.1", &["stage2.irradiance_radius"]),
+    ("irradiance_radius = nan", "stage2.irradiance_radius=nan", &["stage2.irradiance_radius", "finite"]),
+    ("irradiance_radius too large", "stage2.irradiance_radius=0.6", &["stage2.irradiance_radius"]),
+    ("bake_resolution too small", "stage2.bake_resolution=8", &["stage2.bake_resolution"]),
+    ("bake_resolution too large", "stage2.bake_resolution=5000", &["stage2.bake_resolution"]),
+    ("samples 0", "stage2.samples=0", &["stage2.samples"]),
+    ("emitter_sampling wrong type", "stage2.emitter_sampling=maybe", &["stage2.emitter_sampling"]),
+    ("lr_grid 0", "stage2.lr_grid=0", &["stage2.lr_grid"]),
+    ("lr_grid = nan", "stage2.lr_grid=nan", &["stage2.lr_grid", "finite"]),
+    ("lr_mlp negative", "stage2.lr_mlp=-1", &["stage2.lr_mlp"]),
+    ("lr_emission = inf", "stage2.lr_emission=inf", &["stage2.lr_emission", "finite"]),
+    ("lr_final_fraction > 1", "stage2.lr_final_fraction=2", &["stage2.lr_final_fraction"]),
+    ("smooth negative", "stage2.smooth=-1", &["stage2.smooth"]),
+    ("smooth = inf", "stage2.smooth=inf", &["stage2.smooth", "finite"]),
+    ("energy = nan", "stage2.energy=nan", &["stage2.energy", "finite"]),
+    ("smooth_epsilon 0", "stage2.smooth_epsilon=0", &["stage2.smooth_epsilon"]),
+    ("emitters too many", "stage2.emitters=65", &["stage2.emitters"]),
+    ("emitters wrong type", "stage2.emitters=two", &["stage2.emitters"]),
+    ("max_emitters 0", "stage2.max_emitters=0", &["stage2.max_emitters"]),
+    ("emitter_link 0", "stage2.emitter_link=0", &["stage2.emitter_link"]),
+    ("emitter_min_fraction > 0.5", "stage2.emitter_min_fraction=0.6", &["stage2.emitter_min_fraction"]),
+    ("emitter_threshold > 1", "stage2.emitter_threshold=2", &["stage2.emitter_threshold"]),
+    ("emitter_threshold = -inf", "stage2.emitter_threshold=-inf", &["stage2.emitter_threshold", "finite"]),
+    ("use_hdr wrong type", "stage2.use_hdr=sometimes", &["stage2.use_hdr"]),
+    ("cache over 2^27 samples", "stage2.cache_pixels=67108864", &["stage2.cache_pixels", "stage2.cache_samples"]),
+    ("unknown stage2 key", "stage2.iteratons=5", &["iteratons"]),
+    ("stage2 not a section", "stage2=3", &["stage2"]),
+    ("material.hash_levels 0", "material.hash_levels=0", &["material.hash_levels"]),
+    ("material.hash_log2_table 30", "material.hash_log2_table=30", &["material.hash_log2_table"]),
+    ("material.hidden_dim 4", "material.hidden_dim=4", &["material.hidden_dim"]),
+    ("material.rho_min = nan", "material.rho_min=nan", &["material.rho_min", "finite"]),
+    ("material.rho_init 1", "material.rho_init=1", &["material.rho_init"]),
+    ("material.backbone unknown", "material.backbone=cnn", &["material.backbone", "cnn"]),
+    ("unknown material key", "material.colour=1", &["colour"]),
+];
+
+/// The configuration-file rows: (case, file text, needles).
+#[rustfmt::skip]
+const STAGE2_FILES: &[(&str, &str, &[&str])] = &[
+    ("file: stage2 value = nan", "[stage2]\nlr_grid = nan\n", &["bad.toml", "stage2.lr_grid"]),
+    ("file: stage2 wrong type", "[stage2]\npixels = \"many\"\n", &["bad.toml", "stage2.pixels (line 2)"]),
+    ("file: unknown stage2 key", "[stage2]\nbounces = 3\n", &["bad.toml", "stage2.bounces (line 2)"]),
+];
+
+#[test]
+fn bad_input_table() {
+    let t = trained();
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    write_assets(root);
+    let mut table = Table::default();
+
+    // `i2sdf edit`: the spec, its textures and meshes are checked before anything is written.
+    for (i, (case, text, needles)) in edit_rows().into_iter().enumerate() {
+        let spec = root.join("spec.toml");
+        std::fs::write(&spec, &text).unwrap();
+        let out = root.join(format!("out{i}"));
+        let o = i2sdf(&[
+            "edit",
+            "--run",
+            s(&t.stage2),
+            "--spec",
+            s(&spec),
+            "--out",
+            s(&out),
+            "--spp",
+            "1",
+            "--bounces",
+            "1",
+            "--mesh-resolution",
+            "32",
+        ]);
+        let untouched = if out.exists() {
+            Err(format!("{} was created", out.display()))
+        } else {
+            Ok(())
+        };
+        table.record(&format!("edit: {case}"), o, 2, &needles, untouched);
+    }
+    let absent = root.join("absent.toml");
+    let out = root.join("out_absent");
+    let o = i2sdf(&["edit", "--run", s(&t.stage2), "--spec", s(&absent), "--out", s(&out)]);
+    let untouched = if out.exists() {
+        Err("out created".into())
+    } else {
+        Ok(())
+    };
+    table.record("edit: spec file missing", o, 2, &["absent.toml"], untouched);
+    // An empty spec is valid (DESIGN.md: it renders the unedited scene).
+    let empty = root.join("empty.toml");
+    std::fs::write(&empty, "# nothing to change\n").unwrap();
+    let out = root.join("out_empty");
+    let o = i2sdf(&[
+        "edit",
+        "--run",
+        s(&t.stage2),
+        "--spec",
+        s(&empty),
+        "--out",
+        s(&out),
+        "--spp",
+        "1",
+        "--bounces",
+        "1",
+        "--mesh-resolution",
+        "32",
+        "--view",
+        "0",
+        "--width",
+        "8",
+        "--height",
+        "6",
+    ]);
+    let written = (out.join("edit.toml").is_file())
+        .then_some(())
+        .ok_or("no edit.toml".into());
+    table.record("edit: empty file (valid: the unedited scene)", o, 0, &[], written);
+
+    // `i2sdf train --stage material`: a bad stage-2 value writes nothing into the run.
+    let run = root.join("stage1");
+    copy_stage1(&t.stage1, &run);
+    let before = snapshot(&run);
+    let unchanged = |run: &Path| {
+        if snapshot(run) == before {
+            Ok(())
+        } else {
+            Err(format!("{} changed", run.display()))
+        }
+    };
+    for (case, set, needles) in STAGE2_SETS {
+        let o = train_material(&t.data, &run, &["--set", set]);
+        table.record(&format!("train: --set {set} ({case})"), o, 2, needles, unchanged(&run));
+    }
+    for (case, text, needles) in STAGE2_FILES {
+        let config = root.join("bad.toml");
+        std::fs::write(&config, text).unwrap();
+        let o = train_material(&t.data, &run, &["--config", s(&config)]);
+        table.record(&format!("train: {case}"), o, 2, needles, unchanged(&run));
+    }
+
+    // Marching cubes at a resolution that cannot fit is refused before anything is allocated.
+    let ply = root.join("m.ply");
+    let start = std::time::Instant::now();
+    let o = i2sdf(&[
+        "mesh",
+        "--run",
+        s(&t.stage1),
+        "--out",
+        s(&ply),
+        "--resolution",
+        "100000",
+    ]);
+    let quick = if start.elapsed().as_secs_f64() > 20.0 {
+        Err(format!("took {:.1} s", start.elapsed().as_secs_f64()))
+    } else if ply.exists() {
+        Err("wrote the mesh".into())
+    } else {
+        Ok(())
+    };
+    table.record(
+        "mesh: --resolution 100000",
+        o,
+        2,
+        &["100000", "memory", "available"],
+        quick,
+    );
+    table.finish(&[root, t._dir.path()]);
+}
