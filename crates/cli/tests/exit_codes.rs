@@ -289,6 +289,24 @@ fn eval_bad_input_exits_2() {
         2,
         &["threshold"],
     );
+    // Refused before any view is rendered.
+    let t = std::time::Instant::now();
+    expect(
+        i2sdf(&[
+            "eval",
+            "--run",
+            s(run),
+            "--data",
+            s(data),
+            "--out",
+            s(&json),
+            "--mesh-resolution",
+            "100000",
+        ]),
+        2,
+        &["marching cubes at resolution 100000", "lower the resolution"],
+    );
+    assert!(t.elapsed().as_secs() < 30, "refused late: {:?}", t.elapsed());
     assert!(!json.exists());
 }
 

@@ -79,19 +79,20 @@ pub mod check {
     }
 
     /// `lo ≤ v ≤ hi` and finite.
-    pub fn real<T: Into<f64> + Copy>(key: &str, v: T, lo: f64, hi: f64) -> Result<(), String> {
+    pub fn real<T: Into<f64> + Copy + std::fmt::Display>(key: &str, v: T, lo: f64, hi: f64) -> Result<(), String> {
         let x: f64 = v.into();
         if !(x.is_finite() && x >= lo && x <= hi) {
-            return Err(format!("{key} = {x}: must be a finite number in [{lo}, {hi}]"));
+            // The value as the user wrote it (an f32 printed through f64 shows its rounding).
+            return Err(format!("{key} = {v}: must be a finite number in [{lo}, {hi}]"));
         }
         Ok(())
     }
 
     /// `0 < v ≤ hi` and finite.
-    pub fn positive<T: Into<f64> + Copy>(key: &str, v: T, hi: f64) -> Result<(), String> {
+    pub fn positive<T: Into<f64> + Copy + std::fmt::Display>(key: &str, v: T, hi: f64) -> Result<(), String> {
         let x: f64 = v.into();
         if !(x.is_finite() && x > 0.0 && x <= hi) {
-            return Err(format!("{key} = {x}: must be a finite number in (0, {hi}]"));
+            return Err(format!("{key} = {v}: must be a finite number in (0, {hi}]"));
         }
         Ok(())
     }

@@ -53,6 +53,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let (scene, fields, info) = super::load_run_intrinsic(&args.run)?;
     let dataset = i2sdf_data::load(&args.data)?;
+    // A mesh resolution that cannot fit is refused now, not after the views are rendered.
+    i2sdf_model::marching_cubes::sdf_grid(&scene, &dataset.bounds, args.mesh_resolution, 0.01)?.check_fits(
+        i2sdf_model::McOptions::default().batch_points,
+        i2sdf_model::marching_cubes::MachineMemory::read().map(|m| m.available),
+    )?;
     let mut options = EvalOptions {
         mesh_resolution: args.mesh_resolution,
         render: super::run_render_settings(&args.run)?,
