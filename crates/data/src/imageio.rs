@@ -309,6 +309,8 @@ fn read_npy(path: &Path, bytes: &[u8]) -> Result<ImageF32> {
     npy_to_image(path, npy_file(path, bytes)?)
 }
 
+const MAX_NPY_HEADER_NESTING: usize = 8;
+
 /// Opens a `.npy` array held in memory. The header's length field is checked against the bytes
 /// first: npyz allocates whatever length the field claims (up to 4 GiB in a version-2/3 file)
 /// before reading the header.
@@ -328,6 +330,22 @@ pub fn npy_file<'a>(path: &Path, bytes: &'a [u8]) -> Result<npyz::NpyFile<&'a [u
                 "the header claims {len} bytes, the file has {} after it",
                 bytes.len() - start
             )));
+        }
+        // npyz's header grammar backtracks exponentially in the nesting depth (the fuzzer found
+        // 41 nested braces taking minutes). A header is a flat dict with a shape tuple (a
+        // structured dtype, refused anyway, nests a few levels more).
+        let mut depth = 0usize;
+        for &b in &bytes[start..start + len] {
+            match b {
+                b'{' | b'[' | b'(' => depth += 1,
+                b'}' | b']' | b')' => depth = depth.saturating_sub(1),
+                _ => {}
+            }
+            if depth > MAX_NPY_HEADER_NESTING {
+                return Err(bad(format!(
+                    "the header nests brackets more than {MAX_NPY_HEADER_NESTING} deep"
+                )));
+            }
         }
     }
     npyz::NpyFile::new(bytes).map_err(|e| bad(e.to_string()))

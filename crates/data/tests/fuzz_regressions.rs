@@ -110,3 +110,15 @@ fn npy_header_length_past_the_end_is_refused() {
     refused(name, imageio::read_float_map_bytes(path, bytes), "the header claims");
     refused(name, imageio::npy_file(path, bytes).map(|_| ()), "the header claims");
 }
+
+/// Found by the `npy` target (timeout): 41 nested braces in the header text, on which npyz's
+/// header grammar backtracks for minutes. Refused by depth before it is parsed.
+#[test]
+fn npy_header_nesting_too_deep_is_refused() {
+    let (name, bytes) = case!("npy_timeout_nested_header.npy");
+    refused(
+        name,
+        imageio::read_float_map_bytes(Path::new(name), bytes),
+        "nests brackets",
+    );
+}
