@@ -124,16 +124,34 @@ pub fn save_safetensors(
             Ok((n.clone(), view))
         })
         .collect::<Result<_, ParamError>>()?;
-    safetensors::serialize_to_file(views, metadata, path).map_err(|e| match e {
-        safetensors::SafeTensorError::IoError(source) => ParamError::Io {
-            path: p.clone(),
-            source,
-        },
-        other => ParamError::Format {
-            path: p.clone(),
-            message: other.to_string(),
-        },
-    })
+    // The header's metadata in the HashMap's (random) order as safetensors writes it, to find it.
+    let written = metadata
+        .as_ref()
+        .map(|m| serde_json::to_string(m).expect("strings serialize"));
+    let sorted = metadata.as_ref().map(|m| {
+        serde_json::to_string(&m.iter().collect::<std::collections::BTreeMap<_, _>>()).expect("strings serialize")
+    });
+    let mut bytes = safetensors::serialize(views, metadata).map_err(|e| ParamError::Format {
+        path: p.clone(),
+        message: e.to_string(),
+    })?;
+    if let (Some(written), Some(sorted)) = (written, sorted) {
+        sort_header_metadata(&mut bytes, &written, &sorted);
+    }
+    std::fs::write(path, &bytes).map_err(|source| ParamError::Io { path: p, source })
+}
+
+/// Rewrites the header's `__metadata__` object `written` as `sorted` (the same entries by key,
+/// so the same length): safetensors serializes a HashMap, whose order changes from run to run,
+/// and a fixed seed must give a byte-identical checkpoint. Leaves the bytes alone if the header
+/// does not start as expected.
+fn sort_header_metadata(bytes: &mut [u8], written: &str, sorted: &str) {
+    let prefix = format!("{{\"__metadata__\":{written}");
+    let start = 8;
+    if written.len() == sorted.len() && bytes.get(start..start + prefix.len()) == Some(prefix.as_bytes()) {
+        let at = start + prefix.len() - written.len();
+        bytes[at..at + sorted.len()].copy_from_slice(sorted.as_bytes());
+    }
 }
 
 /// Read a safetensors file into `modules` (each under its prefix); every tensor they expect must be
@@ -277,6 +295,28 @@ mod tests {
         });
         c.feature_dim = features;
         SdfNetwork::new(c, seed)
+    }
+
+    /// Each HashMap hashes with its own random keys, so its order differs between instances: the
+    /// files must not.
+    #[test]
+    fn the_same_tensors_and_metadata_give_the_same_bytes() {
+        let dir = tempfile::tempdir().unwrap();
+        let a = net(1, 7);
+        let files: Vec<Vec<u8>> = (0..6)
+            .map(|i| {
+                let meta: HashMap<String, String> =
+                    (0..12).map(|k| (format!("key{k}"), format!("value \"{k}\""))).collect();
+                let path = dir.path().join(format!("{i}.safetensors"));
+                save_safetensors(&path, &[("sdf", &a)], Some(meta)).unwrap();
+                std::fs::read(&path).unwrap()
+            })
+            .collect();
+        assert!(files.iter().all(|f| f == &files[0]));
+        let mut b = net(2, 7);
+        let got = load_safetensors(&dir.path().join("3.safetensors"), &mut [("sdf", &mut b)]).unwrap();
+        assert_eq!(got.len(), 12);
+        assert_eq!(got["key7"], "value \"7\"");
     }
 
     #[test]
