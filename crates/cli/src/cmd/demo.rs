@@ -87,7 +87,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .and_then(|i| i.stage2.map(|s| s.done))
         .unwrap_or(false);
     if !stage2_done {
-        plan.stage(3, &format!("train stage 2 (emitters, materials) into {}", run_dir.display()));
+        plan.stage(
+            3,
+            &format!("train stage 2 (emitters, materials) into {}", run_dir.display()),
+        );
         let set = if args.quick {
             vec![
                 "stage2.iterations=400".to_string(),
@@ -134,7 +137,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         spp: if args.quick { 16 } else { 64 },
         bounces: if args.quick { 4 } else { 8 },
     })?;
-    plan.stage(7, "edit: the ceiling light recoloured, a wall mirror, an inserted sphere");
+    plan.stage(
+        7,
+        "edit: the ceiling light recoloured, a wall mirror, an inserted sphere",
+    );
     for (name, text) in DEMO_EDITS {
         let dir = args.out.join("edits");
         std::fs::create_dir_all(&dir).map_err(|e| i2sdf_data::DataError::io(&dir, e.to_string()))?;
@@ -168,7 +174,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bounces: if args.quick { 4 } else { 8 },
         mesh_resolution: resolution.min(128),
     })?;
-    eprintln!("open {} in a browser", args.out.join("report").join("index.html").display());
+    eprintln!(
+        "open {} in a browser",
+        args.out.join("report").join("index.html").display()
+    );
     plan.finish();
     Ok(())
 }
@@ -237,7 +246,11 @@ impl StagePlan {
         self.current = Some(i);
         let ran = self.done - self.skipped;
         // The plan's pace until this machine has shown its own over a few seconds of it.
-        let pace = if ran >= 5.0 && elapsed > 1.0 { elapsed / ran } else { 1.0 };
+        let pace = if ran >= 5.0 && elapsed > 1.0 {
+            elapsed / ran
+        } else {
+            1.0
+        };
         (elapsed, (self.total() - self.done) * pace)
     }
 
