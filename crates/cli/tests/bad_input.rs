@@ -7,81 +7,12 @@
 //! table (case → exit code → first line of the message); with `BAD_INPUT_TABLE=FILE` it also
 //! writes it there as markdown.
 
+mod common;
+use common::*;
 use i2sdf_data::fixture::{self, FixtureOptions};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::OnceLock;
-
-struct Outcome {
-    code: i32,
-    stderr: String,
-}
-
-fn i2sdf(args: &[&str]) -> Outcome {
-    let out = Command::new(env!("CARGO_BIN_EXE_i2sdf")).args(args).output().unwrap();
-    Outcome {
-        code: out.status.code().unwrap_or(-1),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    }
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-/// Settings that make a stage-1 run of the fixture take a second or two.
-const TINY: [&str; 12] = [
-    "--set",
-    "train.iterations=4",
-    "--set",
-    "model.hash_levels=4",
-    "--set",
-    "model.hash_log2_table=12",
-    "--set",
-    "train.rays=64",
-    "--set",
-    "train.eikonal_points=64",
-    "--set",
-    "train.bubble_points=64",
-];
-
-/// Settings that make stage 2 on the tiny run take a second.
-const TINY_STAGE2: [&str; 10] = [
-    "--set",
-    "stage2.iterations=3",
-    "--set",
-    "stage2.cache_samples=4",
-    "--set",
-    "stage2.bake_resolution=32",
-    "--set",
-    "material.hash_levels=2",
-    "--set",
-    "material.hash_log2_table=10",
-];
-
-/// `i2sdf train --stage material` of `data` into `out`.
-fn train_material(data: &Path, out: &Path, extra: &[&str]) -> Outcome {
-    let mut args = vec![
-        "train",
-        "--quiet",
-        "--stage",
-        "material",
-        "--data",
-        s(data),
-        "--out",
-        s(out),
-    ];
-    args.extend_from_slice(extra);
-    i2sdf(&args)
-}
-
-fn copy_stage1(run: &Path, dest: &Path) {
-    std::fs::create_dir(dest).unwrap();
-    for f in ["checkpoint.safetensors", "config.toml", "run.json"] {
-        std::fs::copy(run.join(f), dest.join(f)).unwrap();
-    }
-}
 
 /// The fixture dataset, a tiny stage-1 run and a copy of it with a tiny stage 2, shared by the
 /// rows (one training for the whole file).

@@ -3,52 +3,11 @@
 //! file named; a write that fails exits 1 and leaves nothing half-written; nothing panics (a panic
 //! exits 101, which every assertion here would report).
 
+mod common;
+use common::*;
 use i2sdf_data::fixture::{self, FixtureOptions};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::OnceLock;
-
-struct Outcome {
-    code: i32,
-    stderr: String,
-}
-
-fn i2sdf(args: &[&str]) -> Outcome {
-    let out = Command::new(env!("CARGO_BIN_EXE_i2sdf")).args(args).output().unwrap();
-    Outcome {
-        code: out.status.code().unwrap_or(-1),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    }
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-/// Asserts exit code `code` and that stderr names every needle.
-#[track_caller]
-fn expect(o: Outcome, code: i32, needles: &[&str]) {
-    assert_eq!(o.code, code, "expected exit {code}; stderr: {}", o.stderr);
-    for n in needles {
-        assert!(o.stderr.contains(n), "expected '{n}' in: {}", o.stderr);
-    }
-}
-
-/// Settings that make a run of the fixture take a second or two.
-const TINY: [&str; 12] = [
-    "--set",
-    "train.iterations=4",
-    "--set",
-    "model.hash_levels=4",
-    "--set",
-    "model.hash_log2_table=12",
-    "--set",
-    "train.rays=64",
-    "--set",
-    "train.eikonal_points=64",
-    "--set",
-    "train.bubble_points=64",
-];
 
 /// A fixture dataset and a finished tiny run on it, shared by the tests.
 fn trained() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {
@@ -64,13 +23,6 @@ fn trained() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {
         assert_eq!(o.code, 0, "{}", o.stderr);
         (dir, data, run)
     })
-}
-
-/// A path whose parent is a regular file: creating it fails whoever runs the test (root too).
-fn unwritable(dir: &Path, name: &str) -> PathBuf {
-    let blocker = dir.join("not_a_directory");
-    std::fs::write(&blocker, b"x").unwrap();
-    blocker.join(name)
 }
 
 #[test]
@@ -360,44 +312,6 @@ fn failed_writes_exit_1_and_leave_nothing_half_written() {
         .map(|e| e.unwrap().file_name())
         .collect();
     assert_eq!(left, ["not_a_directory"], "{left:?}");
-}
-
-/// `i2sdf train --stage material` of `data` into `out`.
-fn train_material(data: &Path, out: &Path, extra: &[&str]) -> Outcome {
-    let mut args = vec![
-        "train",
-        "--quiet",
-        "--stage",
-        "material",
-        "--data",
-        s(data),
-        "--out",
-        s(out),
-    ];
-    args.extend_from_slice(extra);
-    i2sdf(&args)
-}
-
-/// Settings that make stage 2 on the tiny run take a second.
-const TINY_STAGE2: [&str; 10] = [
-    "--set",
-    "stage2.iterations=3",
-    "--set",
-    "stage2.cache_samples=4",
-    "--set",
-    "stage2.bake_resolution=32",
-    "--set",
-    "material.hash_levels=2",
-    "--set",
-    "material.hash_log2_table=10",
-];
-
-/// A finished stage-1 run's files copied into a new run directory `dest`.
-fn copy_stage1(run: &Path, dest: &Path) {
-    std::fs::create_dir(dest).unwrap();
-    for f in ["checkpoint.safetensors", "config.toml", "run.json"] {
-        std::fs::copy(run.join(f), dest.join(f)).unwrap();
-    }
 }
 
 /// A copy of the tiny run with a tiny stage 2, for the commands that need one.

@@ -3,64 +3,11 @@
 //! exists inside the report, and it links nothing outside (no network); bad input exits 2
 //! naming the file, an unwritable output exits 1, and neither leaves a report behind.
 
+mod common;
+use common::*;
 use i2sdf_data::fixture::{self, FixtureOptions};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::OnceLock;
-
-struct Outcome {
-    code: i32,
-    stderr: String,
-}
-
-fn i2sdf(args: &[&str]) -> Outcome {
-    let out = Command::new(env!("CARGO_BIN_EXE_i2sdf")).args(args).output().unwrap();
-    Outcome {
-        code: out.status.code().unwrap_or(-1),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    }
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-#[track_caller]
-fn expect(o: Outcome, code: i32, needles: &[&str]) {
-    assert_eq!(o.code, code, "expected exit {code}; stderr: {}", o.stderr);
-    for n in needles {
-        assert!(o.stderr.contains(n), "expected '{n}' in: {}", o.stderr);
-    }
-}
-
-/// As `exit_codes.rs`: settings that make a fixture run take a second or two.
-const TINY: [&str; 12] = [
-    "--set",
-    "train.iterations=4",
-    "--set",
-    "model.hash_levels=4",
-    "--set",
-    "model.hash_log2_table=12",
-    "--set",
-    "train.rays=64",
-    "--set",
-    "train.eikonal_points=64",
-    "--set",
-    "train.bubble_points=64",
-];
-
-const TINY_STAGE2: [&str; 10] = [
-    "--set",
-    "stage2.iterations=3",
-    "--set",
-    "stage2.cache_samples=4",
-    "--set",
-    "stage2.bake_resolution=32",
-    "--set",
-    "material.hash_levels=2",
-    "--set",
-    "material.hash_log2_table=10",
-];
 
 /// The fixture dataset, a tiny stage-1 run, and a copy of it with a tiny stage 2.
 fn runs() -> &'static (tempfile::TempDir, PathBuf, PathBuf, PathBuf) {

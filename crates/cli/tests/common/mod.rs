@@ -1,0 +1,95 @@
+//! What the CLI's test files share: running the real binary, asserting its exit code and what
+//! stderr names, and the settings that make a fixture run take a second or two.
+// Each test file is its own crate and uses only some of these.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+pub struct Outcome {
+    pub code: i32,
+    pub stderr: String,
+}
+
+/// Runs `i2sdf ARGS` to completion.
+pub fn i2sdf(args: &[&str]) -> Outcome {
+    let out = Command::new(env!("CARGO_BIN_EXE_i2sdf")).args(args).output().unwrap();
+    Outcome {
+        code: out.status.code().unwrap_or(-1),
+        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+    }
+}
+
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Asserts exit code `code` and that stderr names every needle.
+#[track_caller]
+pub fn expect(o: Outcome, code: i32, needles: &[&str]) {
+    assert_eq!(o.code, code, "expected exit {code}; stderr: {}", o.stderr);
+    for n in needles {
+        assert!(o.stderr.contains(n), "expected '{n}' in: {}", o.stderr);
+    }
+}
+
+/// Settings that make a stage-1 run of the fixture take a second or two.
+pub const TINY: [&str; 12] = [
+    "--set",
+    "train.iterations=4",
+    "--set",
+    "model.hash_levels=4",
+    "--set",
+    "model.hash_log2_table=12",
+    "--set",
+    "train.rays=64",
+    "--set",
+    "train.eikonal_points=64",
+    "--set",
+    "train.bubble_points=64",
+];
+
+/// Settings that make stage 2 on the tiny run take a second.
+pub const TINY_STAGE2: [&str; 10] = [
+    "--set",
+    "stage2.iterations=3",
+    "--set",
+    "stage2.cache_samples=4",
+    "--set",
+    "stage2.bake_resolution=32",
+    "--set",
+    "material.hash_levels=2",
+    "--set",
+    "material.hash_log2_table=10",
+];
+
+/// `i2sdf train --quiet --stage material` of `data` into `out`.
+pub fn train_material(data: &Path, out: &Path, extra: &[&str]) -> Outcome {
+    let mut args = vec![
+        "train",
+        "--quiet",
+        "--stage",
+        "material",
+        "--data",
+        s(data),
+        "--out",
+        s(out),
+    ];
+    args.extend_from_slice(extra);
+    i2sdf(&args)
+}
+
+/// A finished stage-1 run's files copied into a new run directory `dest`.
+pub fn copy_stage1(run: &Path, dest: &Path) {
+    std::fs::create_dir(dest).unwrap();
+    for f in ["checkpoint.safetensors", "config.toml", "run.json"] {
+        std::fs::copy(run.join(f), dest.join(f)).unwrap();
+    }
+}
+
+/// A path whose parent is a regular file: creating it fails whoever runs the test (root too).
+pub fn unwritable(dir: &Path, name: &str) -> PathBuf {
+    let blocker = dir.join("not_a_directory");
+    std::fs::write(&blocker, b"x").unwrap();
+    blocker.join(name)
+}
