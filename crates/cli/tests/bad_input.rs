@@ -9,7 +9,6 @@
 
 mod common;
 use common::*;
-use i2sdf_data::fixture::{self, FixtureOptions};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -26,18 +25,9 @@ struct Trained {
 fn trained() -> &'static Trained {
     static RUN: OnceLock<Trained> = OnceLock::new();
     RUN.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let data = dir.path().join("data");
-        fixture::write_native(&data, &FixtureOptions::default());
-        let stage1 = dir.path().join("run");
-        let mut args = vec!["train", "--quiet", "--data", s(&data), "--out", s(&stage1)];
-        args.extend_from_slice(&TINY);
-        let o = i2sdf(&args);
-        assert_eq!(o.code, 0, "{}", o.stderr);
+        let (dir, data, stage1) = tiny_stage1();
         let stage2 = dir.path().join("run2");
-        copy_stage1(&stage1, &stage2);
-        let o = train_material(&data, &stage2, &TINY_STAGE2);
-        assert_eq!(o.code, 0, "{}", o.stderr);
+        tiny_stage2(&data, &stage1, &stage2);
         Trained {
             _dir: dir,
             data,

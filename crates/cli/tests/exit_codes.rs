@@ -12,17 +12,7 @@ use std::sync::OnceLock;
 /// A fixture dataset and a finished tiny run on it, shared by the tests.
 fn trained() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {
     static RUN: OnceLock<(tempfile::TempDir, PathBuf, PathBuf)> = OnceLock::new();
-    RUN.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let data = dir.path().join("data");
-        fixture::write_native(&data, &FixtureOptions::default());
-        let run = dir.path().join("run");
-        let mut args = vec!["train", "--quiet", "--data", s(&data), "--out", s(&run)];
-        args.extend_from_slice(&TINY);
-        let o = i2sdf(&args);
-        assert_eq!(o.code, 0, "{}", o.stderr);
-        (dir, data, run)
-    })
+    RUN.get_or_init(tiny_stage1)
 }
 
 #[test]

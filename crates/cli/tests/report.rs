@@ -5,7 +5,6 @@
 
 mod common;
 use common::*;
-use i2sdf_data::fixture::{self, FixtureOptions};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
@@ -13,32 +12,9 @@ use std::sync::OnceLock;
 fn runs() -> &'static (tempfile::TempDir, PathBuf, PathBuf, PathBuf) {
     static RUNS: OnceLock<(tempfile::TempDir, PathBuf, PathBuf, PathBuf)> = OnceLock::new();
     RUNS.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let data = dir.path().join("data");
-        fixture::write_native(&data, &FixtureOptions::default());
-        let run = dir.path().join("run");
-        let mut args = vec!["train", "--quiet", "--data", s(&data), "--out", s(&run)];
-        args.extend_from_slice(&TINY);
-        let o = i2sdf(&args);
-        assert_eq!(o.code, 0, "{}", o.stderr);
+        let (dir, data, run) = tiny_stage1();
         let run2 = dir.path().join("run2");
-        std::fs::create_dir(&run2).unwrap();
-        for f in ["checkpoint.safetensors", "config.toml", "run.json", "log.jsonl"] {
-            std::fs::copy(run.join(f), run2.join(f)).unwrap();
-        }
-        let mut args = vec![
-            "train",
-            "--quiet",
-            "--stage",
-            "material",
-            "--data",
-            s(&data),
-            "--out",
-            s(&run2),
-        ];
-        args.extend_from_slice(&TINY_STAGE2);
-        let o = i2sdf(&args);
-        assert_eq!(o.code, 0, "{}", o.stderr);
+        tiny_stage2(&data, &run, &run2);
         (dir, data, run, run2)
     })
 }

@@ -79,11 +79,15 @@ pub fn train_material(data: &Path, out: &Path, extra: &[&str]) -> Outcome {
     i2sdf(&args)
 }
 
-/// A finished stage-1 run's files copied into a new run directory `dest`.
+/// A finished stage-1 run's files (and its log, where it has one) copied into a new run
+/// directory `dest`.
 pub fn copy_stage1(run: &Path, dest: &Path) {
     std::fs::create_dir(dest).unwrap();
     for f in ["checkpoint.safetensors", "config.toml", "run.json"] {
         std::fs::copy(run.join(f), dest.join(f)).unwrap();
+    }
+    if run.join("log.jsonl").is_file() {
+        std::fs::copy(run.join("log.jsonl"), dest.join("log.jsonl")).unwrap();
     }
 }
 
@@ -92,4 +96,24 @@ pub fn unwritable(dir: &Path, name: &str) -> PathBuf {
     let blocker = dir.join("not_a_directory");
     std::fs::write(&blocker, b"x").unwrap();
     blocker.join(name)
+}
+
+/// A fixture dataset (`DIR/data`) and a finished tiny stage-1 run on it (`DIR/run`).
+pub fn tiny_stage1() -> (tempfile::TempDir, PathBuf, PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    i2sdf_data::fixture::write_native(&data, &i2sdf_data::fixture::FixtureOptions::default());
+    let run = dir.path().join("run");
+    let mut args = vec!["train", "--quiet", "--data", s(&data), "--out", s(&run)];
+    args.extend_from_slice(&TINY);
+    let o = i2sdf(&args);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    (dir, data, run)
+}
+
+/// A copy `dest` of the finished tiny stage-1 run `stage1`, with a tiny stage 2 trained on it.
+pub fn tiny_stage2(data: &Path, stage1: &Path, dest: &Path) {
+    copy_stage1(stage1, dest);
+    let o = train_material(data, dest, &TINY_STAGE2);
+    assert_eq!(o.code, 0, "{}", o.stderr);
 }
