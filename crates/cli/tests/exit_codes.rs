@@ -608,3 +608,50 @@ fn camera_paths_render_frames_and_an_animation() {
     assert!(edited.join("frame_0001.png").is_file() && edited.join("frame_0001.exr").is_file());
     assert!(std::fs::read(edited.join("edit.gif")).unwrap().starts_with(b"GIF89a"));
 }
+
+/// A dataset in the paper's release format with a `mesh.ply` beside its cameras (where the
+/// official code's `--score` looks) gets its mesh scored, as the native format does.
+#[test]
+fn eval_scores_the_mesh_of_a_paper_format_dataset() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("paper");
+    fixture::write_paper(&data, &FixtureOptions::default());
+    let run = dir.path().join("run");
+    let mut args = vec!["train", "--quiet", "--data", s(&data), "--out", s(&run)];
+    args.extend_from_slice(&TINY);
+    expect(i2sdf(&args), 0, &[]);
+    let metrics = |name: &str| {
+        let out = dir.path().join(name);
+        let o = i2sdf(&[
+            "eval",
+            "--run",
+            s(&run),
+            "--data",
+            s(&data),
+            "--out",
+            s(&out),
+            "--mesh-resolution",
+            "32",
+        ]);
+        assert_eq!(o.code, 0, "{}", o.stderr);
+        serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(out).unwrap()).unwrap()
+    };
+    assert!(metrics("none.json")["geometry"]["mesh"]["fscore"].is_null());
+    // Any mesh in world units will do: the run's own.
+    let o = i2sdf(&[
+        "mesh",
+        "--run",
+        s(&run),
+        "--out",
+        s(&data.join("mesh.ply")),
+        "--resolution",
+        "32",
+    ]);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    let m = metrics("scored.json");
+    assert!(
+        m["geometry"]["mesh"]["fscore"].as_f64().is_some_and(|f| f > 0.5),
+        "{}",
+        m["geometry"]
+    );
+}

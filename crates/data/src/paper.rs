@@ -9,6 +9,8 @@
 //! val/NNNN.png            held-out test images (↔ val_mat_i)
 //! hdr/NNNN.exr            HDR images (optional)
 //! material/NNNN_kd.exr, NNNN_ks.exr, NNNN_rough.exr   GT materials (optional)
+//! mesh.ply                the ground-truth mesh in world units (optional; where the official
+//!                         code's `--score` looks for it): `eval` scores the mesh against it
 //! ```
 //!
 //! Two conventions of the release's own loader are kept to read its data right: pixel (u, v)'s ray
@@ -296,7 +298,7 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
         ldr_transfer: "srgb".into(),
         ldr_exposure: None,
         emitters: Vec::new(),
-        mesh_path: None,
+        mesh_path: Some(root.join("mesh.ply")).filter(|p| p.is_file()),
         relight: Vec::new(),
         objects: Vec::new(),
         bounds,

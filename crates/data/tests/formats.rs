@@ -97,6 +97,10 @@ fn paper_format_loads_with_its_integer_pixel_and_camera_space_conventions() {
     assert_eq!(assert_views_agree_on_anchor(&ds, 1e-4), 4);
     let f = &ds.frames[0];
     assert!(f.emitter_mask.is_some() && f.normal.is_some() && f.depth.is_some());
+    // The release keeps no mesh by default; a `mesh.ply` beside the cameras is the GT mesh.
+    assert_eq!(ds.mesh_path, None);
+    std::fs::write(dir.path().join("mesh.ply"), b"ply\n").unwrap();
+    assert_eq!(load(dir.path()).unwrap().mesh_path, Some(dir.path().join("mesh.ply")));
 }
 
 #[test]
