@@ -131,18 +131,7 @@ pub fn line_chart(title: &str, y_label: &str, series: &[Series], log_y: bool) ->
                 .y_label_formatter(&|y| format!("{y:.0e}"))
                 .draw()
                 .map_err(plot_err)?;
-            for (i, s) in series.iter().enumerate() {
-                let colour = Palette99::pick(i).to_rgba();
-                chart
-                    .draw_series(LineSeries::new(
-                        s.points.iter().copied().filter(|p| keep(p.1)),
-                        colour.stroke_width(2),
-                    ))
-                    .map_err(plot_err)?
-                    .label(s.name.clone())
-                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
-            }
-            legend(&mut chart)?;
+            draw_lines(&mut chart, series, &keep)?;
         } else {
             let mut chart = builder(&root, title)
                 .build_cartesian_2d(x0..x1, y0..y1)
@@ -153,18 +142,7 @@ pub fn line_chart(title: &str, y_label: &str, series: &[Series], log_y: bool) ->
                 .y_desc(y_label)
                 .draw()
                 .map_err(plot_err)?;
-            for (i, s) in series.iter().enumerate() {
-                let colour = Palette99::pick(i).to_rgba();
-                chart
-                    .draw_series(LineSeries::new(
-                        s.points.iter().copied().filter(|p| keep(p.1)),
-                        colour.stroke_width(2),
-                    ))
-                    .map_err(plot_err)?
-                    .label(s.name.clone())
-                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
-            }
-            legend(&mut chart)?;
+            draw_lines(&mut chart, series, &keep)?;
         }
         root.present().map_err(plot_err)?;
     }
@@ -178,6 +156,31 @@ fn builder<'a, 'b>(root: &'a DrawingArea<SVGBackend<'b>, Shift>, title: &str) ->
         .x_label_area_size(36)
         .y_label_area_size(58);
     b
+}
+
+/// Each series as a line in its palette colour, labelled, then the legend (log and linear
+/// charts differ only in their coordinates).
+fn draw_lines<'a, 'b: 'a, X, Y>(
+    chart: &mut ChartContext<'a, SVGBackend<'b>, Cartesian2d<X, Y>>,
+    series: &[Series],
+    keep: &dyn Fn(f64) -> bool,
+) -> Result<(), DataError>
+where
+    X: Ranged<ValueType = f64>,
+    Y: Ranged<ValueType = f64>,
+{
+    for (i, s) in series.iter().enumerate() {
+        let colour = Palette99::pick(i).to_rgba();
+        chart
+            .draw_series(LineSeries::new(
+                s.points.iter().copied().filter(|p| keep(p.1)),
+                colour.stroke_width(2),
+            ))
+            .map_err(plot_err)?
+            .label(s.name.clone())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
+    }
+    legend(chart)
 }
 
 fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(

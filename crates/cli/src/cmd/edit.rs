@@ -188,12 +188,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     bar.finish();
     if args.path.path.is_some() {
         // The frames sit in DIR itself: the animation is DIR/edit.gif (and edit.mp4).
-        let gif = args.out.join("edit.gif");
-        i2sdf_data::animation::write_gif(&gif, &anim, args.path.fps)?;
-        println!("wrote {}", gif.display());
-        let mp4 = args.out.join("edit.mp4");
-        if i2sdf_data::animation::write_mp4(&args.out.join("frame_%04d.png"), &mp4, args.path.fps)? {
-            println!("wrote {}", mp4.display());
+        for p in args.path.animate_frames(&args.out, &args.out.join("edit"), &anim)? {
+            println!("wrote {}", p.display());
         }
     }
     println!(

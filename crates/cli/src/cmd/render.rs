@@ -125,18 +125,30 @@ impl PathArgs {
             .collect())
     }
 
-    /// After a path's frames are written: `DIR/MAP.gif` of each map's PNG frames and, with
-    /// ffmpeg, `DIR/MAP.mp4`. Returns what was written.
+    /// After a path's frames are written: `DIR/MAP.gif` of each map's PNG frames (in `DIR/MAP/`)
+    /// and, with ffmpeg, `DIR/MAP.mp4`. Returns what was written.
     pub fn animate(&self, out: &std::path::Path, maps: &[(String, Vec<ImageF32>)]) -> Result<Vec<PathBuf>, DataError> {
         let mut written = Vec::new();
         for (m, frames) in maps {
-            let gif = out.join(format!("{m}.gif"));
-            animation::write_gif(&gif, frames, self.fps)?;
-            written.push(gif);
-            let mp4 = out.join(format!("{m}.mp4"));
-            if animation::write_mp4(&out.join(m).join("frame_%04d.png"), &mp4, self.fps)? {
-                written.push(mp4);
-            }
+            written.extend(self.animate_frames(&out.join(m), &out.join(m.as_str()), frames)?);
+        }
+        Ok(written)
+    }
+
+    /// `STEM.gif` of `frames` and, with ffmpeg, `STEM.mp4` from their PNGs
+    /// `frames_dir/frame_NNNN.png`. Returns what was written.
+    pub fn animate_frames(
+        &self,
+        frames_dir: &std::path::Path,
+        stem: &std::path::Path,
+        frames: &[ImageF32],
+    ) -> Result<Vec<PathBuf>, DataError> {
+        let gif = stem.with_extension("gif");
+        animation::write_gif(&gif, frames, self.fps)?;
+        let mut written = vec![gif];
+        let mp4 = stem.with_extension("mp4");
+        if animation::write_mp4(&frames_dir.join("frame_%04d.png"), &mp4, self.fps)? {
+            written.push(mp4);
         }
         Ok(written)
     }
