@@ -2,6 +2,7 @@
 //! its own clap `Args` and a `run` function; this file only dispatches and maps errors to exit codes.
 
 mod cmd;
+mod progress;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;

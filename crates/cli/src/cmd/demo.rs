@@ -21,11 +21,11 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let mut plan = StagePlan::new(if args.quick { &QUICK_SECONDS } else { &FULL_SECONDS });
-    eprintln!(
+    crate::progress::line(&format!(
         "i2sdf demo{}: about {} on 2 cores where `i2sdf bench`'s iteration takes ~75 ms (twice that on a machine twice as slow); finished steps are skipped on a re-run",
         if args.quick { " --quick" } else { "" },
         minutes(plan.total())
-    );
+    ));
     let scene = args.out.join("scene");
     let run_dir = args.out.join("run");
     if !scene.join("transforms.json").is_file() {
@@ -49,7 +49,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             unbiased: false,
         })?;
     } else {
-        eprintln!("== 1/8 reuse the room in {}", scene.display());
+        crate::progress::line(&format!("== 1/8 reuse the room in {}", scene.display()));
     }
     check::run(check::Args {
         data: scene.clone(),
@@ -174,11 +174,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bounces: if args.quick { 4 } else { 8 },
         mesh_resolution: resolution.min(128),
     })?;
-    eprintln!(
+    plan.finish();
+    crate::progress::line(&format!(
         "open {} in a browser",
         args.out.join("report").join("index.html").display()
-    );
-    plan.finish();
+    ));
     Ok(())
 }
 
@@ -196,40 +196,130 @@ fn minutes(seconds: f64) -> String {
     }
 }
 
-/// One progress line across the demo's steps: the step, the time so far and what is left, the
-/// plan's expected seconds scaled by how fast this machine has gone through the steps done.
+/// The demo's one progress display across its steps: a bar on top of the steps' own bars, its
+/// position the plan's seconds done, its message the step, the time so far and what is left —
+/// the plan's expected seconds scaled by how fast this machine has gone through the steps done.
+/// A ticker thread moves it within a step (up to 95 % of the step's plan) so that it never
+/// stands still while a step runs; each step also prints one `== k/8` line, which logs keep.
 struct StagePlan {
+    state: std::sync::Arc<std::sync::Mutex<PlanState>>,
+    bar: indicatif::ProgressBar,
+    ticker: Option<std::thread::JoinHandle<()>>,
+}
+
+struct PlanState {
     expected: &'static [f64; 8],
     start: std::time::Instant,
     /// Expected seconds of the steps finished (or skipped: they count as done, at no time).
     done: f64,
     current: Option<usize>,
+    /// When the current step began, in seconds since `start`.
+    current_since: f64,
     skipped: f64,
+    what: String,
+    finished: bool,
 }
 
 impl StagePlan {
     fn new(expected: &'static [f64; 8]) -> Self {
-        StagePlan {
+        let state = PlanState {
             expected,
             start: std::time::Instant::now(),
             done: 0.0,
             current: None,
+            current_since: 0.0,
             skipped: 0.0,
+            what: String::new(),
+            finished: false,
+        };
+        let bar = crate::progress::top_bar(state.total().ceil() as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("demo [{bar:30}] {percent:>3}% {msg}")
+                .expect("valid template")
+                .progress_chars("=> "),
+        );
+        let state = std::sync::Arc::new(std::sync::Mutex::new(state));
+        let ticker = {
+            let (state, bar) = (state.clone(), bar.clone());
+            std::thread::spawn(move || loop {
+                {
+                    let s = state.lock().unwrap_or_else(|p| p.into_inner());
+                    if s.finished {
+                        break;
+                    }
+                    s.show(&bar);
+                }
+                std::thread::sleep(std::time::Duration::from_millis(500));
+            })
+        };
+        StagePlan {
+            state,
+            bar,
+            ticker: Some(ticker),
         }
     }
 
+    fn lock(&self) -> std::sync::MutexGuard<'_, PlanState> {
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
     fn total(&self) -> f64 {
-        self.expected.iter().sum()
+        self.lock().total()
     }
 
     /// Step `k` (1-based) begins; the steps before it that never began were skipped.
     fn stage(&mut self, k: usize, what: &str) {
-        let (elapsed, left) = self.begin(k, self.start.elapsed().as_secs_f64());
-        eprintln!(
+        let mut s = self.lock();
+        let now = s.start.elapsed().as_secs_f64();
+        let (elapsed, left) = s.begin(k, now);
+        s.what = format!("{k}/8 {what}");
+        s.show(&self.bar);
+        crate::progress::line(&format!(
             "== {k}/8 {what}  [{} elapsed, about {} left]",
             minutes(elapsed),
             minutes(left)
-        );
+        ));
+    }
+
+    fn finish(mut self) {
+        let took = {
+            let mut s = self.lock();
+            s.finished = true;
+            s.start.elapsed().as_secs_f64()
+        };
+        if let Some(t) = self.ticker.take() {
+            let _ = t.join();
+        }
+        self.bar.finish_and_clear();
+        crate::progress::line(&format!("== demo done in {}", minutes(took)));
+    }
+}
+
+impl Drop for StagePlan {
+    /// A failed step ends the demo: the ticker stops and the bar goes.
+    fn drop(&mut self) {
+        self.lock().finished = true;
+        if let Some(t) = self.ticker.take() {
+            let _ = t.join();
+            self.bar.abandon();
+        }
+    }
+}
+
+impl PlanState {
+    fn total(&self) -> f64 {
+        self.expected.iter().sum()
+    }
+
+    /// This machine's seconds per planned second, from the steps it ran (not skipped); the
+    /// plan's own pace until it has shown one over a few seconds of work.
+    fn pace(&self, elapsed_done: f64) -> f64 {
+        let ran = self.done - self.skipped;
+        if ran >= 5.0 && elapsed_done > 1.0 {
+            elapsed_done / ran
+        } else {
+            1.0
+        }
     }
 
     /// Books step `k` as begun `elapsed` seconds in: (elapsed, the seconds expected to be left).
@@ -244,18 +334,32 @@ impl StagePlan {
             self.skipped += self.expected[j];
         }
         self.current = Some(i);
-        let ran = self.done - self.skipped;
-        // The plan's pace until this machine has shown its own over a few seconds of it.
-        let pace = if ran >= 5.0 && elapsed > 1.0 {
-            elapsed / ran
-        } else {
-            1.0
-        };
-        (elapsed, (self.total() - self.done) * pace)
+        self.current_since = elapsed;
+        (elapsed, (self.total() - self.done) * self.pace(elapsed))
     }
 
-    fn finish(&self) {
-        eprintln!("== demo done in {}", minutes(self.start.elapsed().as_secs_f64()));
+    /// At `now` seconds: (the plan's seconds done, the seconds expected to be left). Within a
+    /// step its plan is credited at this machine's pace, up to 95 % until the step ends.
+    fn progress(&self, now: f64) -> (f64, f64) {
+        let Some(c) = self.current else {
+            return (0.0, self.total());
+        };
+        let pace = self.pace(self.current_since);
+        let step = ((now - self.current_since) / pace).min(0.95 * self.expected[c]);
+        let done = self.done + step;
+        (done, (self.total() - done) * pace)
+    }
+
+    fn show(&self, bar: &indicatif::ProgressBar) {
+        let now = self.start.elapsed().as_secs_f64();
+        let (done, left) = self.progress(now);
+        bar.set_position(done as u64);
+        bar.set_message(format!(
+            "{}  [{} elapsed, about {} left]",
+            self.what,
+            minutes(now),
+            minutes(left)
+        ));
     }
 }
 
@@ -285,12 +389,27 @@ mod tests {
     #[test]
     fn the_eta_follows_the_plan_then_this_machine() {
         const PLAN: [f64; 8] = [10.0, 100.0, 20.0, 5.0, 5.0, 50.0, 10.0, 0.0];
-        let mut plan = StagePlan::new(&PLAN);
+        let state = || PlanState {
+            expected: &PLAN,
+            start: std::time::Instant::now(),
+            done: 0.0,
+            current: None,
+            current_since: 0.0,
+            skipped: 0.0,
+            what: String::new(),
+            finished: false,
+        };
+        let mut plan = state();
+        assert_eq!(plan.progress(0.0), (0.0, 200.0));
         assert_eq!(plan.begin(1, 0.0), (0.0, 200.0));
+        // Within step 1, at the plan's pace: credited as it goes, never past 95 % of the step.
+        assert_eq!(plan.progress(4.0), (4.0, 196.0));
+        assert_eq!(plan.progress(30.0), (9.5, 190.5));
         // Step 1 took twice its plan: what is left is expected at the same pace.
         assert_eq!(plan.begin(2, 20.0), (20.0, 380.0));
+        assert_eq!(plan.progress(40.0), (20.0, 360.0));
         // A re-run that skips steps 1–3: they are done at no cost, the pace is the plan's.
-        let mut rerun = StagePlan::new(&PLAN);
+        let mut rerun = state();
         assert_eq!(rerun.begin(4, 0.0), (0.0, 70.0));
         assert_eq!(rerun.begin(5, 10.0), (10.0, 130.0));
     }

@@ -12,7 +12,6 @@ use i2sdf_data::edit_spec::EditOp;
 use i2sdf_data::edit_spec::EditSpec;
 use i2sdf_data::{imageio, Camera, DataError, Split};
 use i2sdf_edit::{differential_hdr, edit_images, hdr_ldr_images, light_gains, Composite, EditSettings, RecoveredScene};
-use indicatif::ProgressBar;
 use std::path::PathBuf;
 
 #[derive(ClapArgs)]
@@ -163,7 +162,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     imageio::write_bytes_atomic(&args.out.join("edit.toml"), &spec_text)?;
     let rows: usize = shots.iter().map(|(_, c, _)| c.height).sum();
     let passes = if unedited.is_some() { 2 } else { 1 };
-    let bar = ProgressBar::new((rows * passes) as u64);
+    let bar = crate::progress::bar((rows * passes) as u64);
     let rm = &recovered.radiometry;
     let mut anim = Vec::new();
     for (name, cam, v) in &shots {

@@ -11,7 +11,6 @@ use i2sdf_edit::EditSettings;
 use i2sdf_eval::intrinsic::{intrinsic_metrics_with_progress, IntrinsicOptions};
 use i2sdf_eval::neural::{evaluate, EvalOptions};
 use i2sdf_eval::relight::{relight_frames, relight_metrics, RelightOptions};
-use indicatif::ProgressBar;
 use std::path::PathBuf;
 
 #[derive(ClapArgs)]
@@ -73,7 +72,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ..Default::default()
         };
         let rows: usize = dataset.split(Split::Test).map(|f| f.camera.height).sum();
-        let bar = ProgressBar::new(rows as u64).with_message("stage 2 re-render");
+        let bar = crate::progress::bar(rows as u64).with_message("stage 2 re-render");
         let (rerender, material, emitters) =
             intrinsic_metrics_with_progress(&scene, fields, &dataset, &intrinsic, &|| bar.inc(1))?;
         bar.finish_and_clear();
@@ -99,7 +98,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .flat_map(|s| &s.frames)
                 .map(|f| f.camera.height)
                 .sum();
-            let bar = ProgressBar::new(rows as u64).with_message("relit sets");
+            let bar = crate::progress::bar(rows as u64).with_message("relit sets");
             report.relight = relight_metrics(&scene, fields, &dataset, &relight, &|| bar.inc(1))?;
             bar.finish_and_clear();
         }

@@ -19,7 +19,6 @@ use i2sdf_data::{animation, camera_path, imageio, Camera, DataError, ImageF32, P
 use i2sdf_eval::intrinsic::{emission_map, encode_image, frozen_scene, rerender_hdr, rgb_map};
 use i2sdf_model::images::render_volume_view;
 use i2sdf_model::rerender_view;
-use indicatif::ProgressBar;
 use std::path::PathBuf;
 
 #[derive(ClapArgs)]
@@ -205,7 +204,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let animated = args.path.path.is_some();
     let rows: usize = views.iter().map(|(_, c)| c.height).sum();
     let passes = stage1 as usize + stage2 as usize;
-    let bar = ProgressBar::new((rows * passes) as u64);
+    let bar = crate::progress::bar((rows * passes) as u64);
     let wants = |m: &str| what.contains(&m);
     let file = |m: &str, name: &str, ext: &str| args.out.join(m).join(format!("{name}.{ext}"));
     // Each map's PNG frames of a path, for its animation.

@@ -6,7 +6,7 @@ use anyhow::Context;
 use i2sdf_data::DataError;
 use i2sdf_synth::tracer::Estimator;
 use i2sdf_synth::{generate, DepthNoise, RoomPreset, SceneDesc, SynthOptions};
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressStyle;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -76,7 +76,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
     };
     opts.validate()?;
-    let bar = ProgressBar::new((opts.views * opts.height) as u64);
+    let bar = crate::progress::bar((opts.views * opts.height) as u64);
     bar.set_style(
         ProgressStyle::with_template("{msg} [{elapsed_precise}] {bar:40} {pos}/{len} rows (eta {eta})")
             .expect("template"),

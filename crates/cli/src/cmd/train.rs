@@ -82,7 +82,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     eprintln!("loading {}", args.data.display());
     let dataset = i2sdf_data::load(&args.data)?;
     let bar = |label: &str| {
-        let bar = ProgressBar::new(0);
+        let bar = crate::progress::bar(0);
         bar.set_style(
             ProgressStyle::with_template(&format!(
                 "{{spinner}} {label} [{{bar:30}}] {{pos}}/{{len}} {{msg}} ({{elapsed}} < {{eta}})"
