@@ -10,8 +10,9 @@ use crate::scene::{NeuralScene, SceneGrads};
 use i2sdf_nn::sdf::SdfInferWorkspace;
 use i2sdf_nn::{MlpWorkspace, SdfWorkspace};
 use i2sdf_render::volume::{
-    composite_batch, composite_batch_backward, error_bounded_samples, laplace_density_backward, laplace_density_batch,
-    CompositeGrads, CompositeOutputs, ErrorBoundedSamplerConfig, PackedSamples, RaySampleSet,
+    composite_batch, composite_batch_backward, error_bounded_samples_into, laplace_density_backward,
+    laplace_density_batch, CompositeGrads, CompositeOutputs, ErrorBoundedSamplerConfig, PackedSamples, RayBatchRef,
+    RaySampleSet, SamplerScratch,
 };
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
@@ -34,6 +35,7 @@ impl Default for RenderSettings {
             sampler: ErrorBoundedSamplerConfig {
                 num_samples: 48,
                 num_samples_eval: 48,
+                num_samples_upsample: 48,
                 num_samples_extra: 8,
                 max_total_iters: 3,
                 ..Default::default()
@@ -52,6 +54,7 @@ impl RenderSettings {
         let mut s = RenderSettings::default();
         s.sampler.num_samples = samples;
         s.sampler.num_samples_eval = coarse;
+        s.sampler.num_samples_upsample = coarse;
         s.sampler.eps = epsilon;
         s
     }
@@ -145,38 +148,42 @@ pub fn sample<R: Rng + ?Sized>(
         .map(|(o, d)| sphere_exit(*o, *d, settings.bound_radius).max(settings.near * 2.0))
         .collect();
     // The sampler walks its rays one by one between batched SDF calls, so it runs on chunks of
-    // rays in parallel (one SDF workspace and one RNG stream per chunk; the streams are drawn from
-    // the caller's RNG, so a seeded run stays reproducible for a given thread count).
+    // rays in parallel (one SDF workspace, sampler scratch and RNG stream per chunk; the streams
+    // are drawn from the caller's RNG, so a seeded run stays reproducible for a given thread
+    // count). The chunks' buffers live in the workspace: nothing is allocated once warm.
     let chunks = (2 * rayon::current_num_threads()).clamp(1, rays.max(1));
     let per = rays.div_ceil(chunks).max(1);
     let seeds: Option<Vec<u64>> = rng.map(|r| (0..chunks).map(|_| r.gen::<u64>()).collect());
     if ws.sampler_chunks.len() < chunks {
         ws.sampler_chunks.resize_with(chunks, SamplerChunk::default);
     }
-    let results: Vec<RaySampleSet> = ws.sampler_chunks[..chunks]
+    ws.sampler_chunks[..chunks]
         .par_iter_mut()
         .enumerate()
-        .map(|(c, chunk)| {
-            let range = (c * per).min(rays)..((c + 1) * per).min(rays);
-            let SamplerChunk { sdf_ws } = chunk;
+        .for_each(|(c, chunk)| {
+            let r = (c * per).min(rays)..((c + 1) * per).min(rays);
+            let SamplerChunk { sdf_ws, scratch, set } = chunk;
             // Distances only, through the inference path (nothing kept for a backward).
             let sdf_eval = |pts: &[[f32; 3]], out: &mut [f32]| {
                 scene.sdf.infer(pts.as_flattened(), sdf_ws, out, None, None);
             };
             let mut chunk_rng = seeds.as_ref().map(|s| rand_pcg::Pcg64::seed_from_u64(s[c]));
-            let r = range.clone();
-            error_bounded_samples(
+            let batch = RayBatchRef {
+                origins: &origins[r.clone()],
+                directions: &dirs[r.clone()],
+                near: &near[r.clone()],
+                far: &far[r],
+            };
+            error_bounded_samples_into(
                 &settings.sampler,
-                &origins[r.clone()],
-                &dirs[r.clone()],
-                &near[r.clone()],
-                &far[r],
+                &batch,
                 beta,
                 sdf_eval,
                 chunk_rng.as_mut(),
-            )
-        })
-        .collect();
+                scratch,
+                set,
+            );
+        });
     // Concatenate the chunks' packed samples.
     let set = &mut ws.samples;
     set.ray_offsets.clear();
@@ -186,7 +193,8 @@ pub fn sample<R: Rng + ?Sized>(
     set.beta_used.clear();
     set.converged.clear();
     set.sdf_evaluations = 0;
-    for r in results {
+    for chunk in &ws.sampler_chunks[..chunks] {
+        let r = &chunk.set;
         let base = *set.ray_offsets.last().unwrap();
         set.ray_offsets.extend(r.ray_offsets[1..].iter().map(|o| o + base));
         set.t.extend_from_slice(&r.t);
@@ -201,6 +209,8 @@ pub fn sample<R: Rng + ?Sized>(
 #[derive(Default)]
 struct SamplerChunk {
     sdf_ws: SdfInferWorkspace,
+    scratch: SamplerScratch,
+    set: RaySampleSet,
 }
 
 /// The differentiable part of [`forward`], at the samples already in `ws.samples`.

@@ -586,3 +586,123 @@ fn inverted_sphere_room_from_inside() {
     }
     assert!(set.sdf_evaluations < dirs.len() * 128 * 5, "{}", set.sdf_evaluations);
 }
+
+/// The vectorized bound against VolSDF's loop written out in f64 (std `exp`), on random rays
+/// whose SDF crosses zero, at β from sharp to blurry.
+#[test]
+fn opacity_error_bound_matches_its_scalar_definition() {
+    let mut r = rng(5);
+    for case in 0..200 {
+        let m = 2 + case % 97;
+        let mut z: Vec<f32> = (0..m).map(|_| r.gen_range(0.0..3.0f32)).collect();
+        z.sort_by(f32::total_cmp);
+        let surface = r.gen_range(0.5..2.5f32);
+        let sdf: Vec<f32> = z.iter().map(|t| surface - t + r.gen_range(-0.01..0.01f32)).collect();
+        let d_star: Vec<f32> = (0..m - 1)
+            .map(|i| interval_distance_bound(z[i + 1] - z[i], sdf[i], sdf[i + 1]))
+            .collect();
+        let beta = [0.002f32, 0.01, 0.05, 0.3][case % 4];
+        let (mut tau, mut bound) = (vec![0.0; m - 1], vec![0.0; m - 1]);
+        let max = opacity_error_bound(&z, &sdf, &d_star, beta, &mut tau, &mut bound);
+        let (mut integral, mut error, mut want_max) = (0.0f64, 0.0f64, 0.0f64);
+        for i in 0..m - 1 {
+            let delta = (z[i + 1] - z[i]) as f64;
+            let b = beta as f64;
+            let t = (-integral).exp();
+            error += (-(d_star[i] as f64) / b).exp() * delta * delta / (4.0 * b * b);
+            let want = (error.exp().min(1e6) - 1.0) * t;
+            let tol = 1e-5 * want.abs().max(1.0) + 1e-4 * want.abs();
+            assert!(
+                (bound[i] as f64 - want).abs() <= tol,
+                "case {case} interval {i}: {} vs {want}",
+                bound[i]
+            );
+            want_max = want_max.max(want);
+            integral += delta * laplace_density(sdf[i] as f64, b);
+        }
+        assert!((max as f64 - want_max).abs() <= 1e-5 * want_max.max(1.0) + 1e-4 * want_max);
+    }
+}
+
+/// The weights against T_i (1 − e^{−τ_i}) + 1e-5 in f64.
+#[test]
+fn interval_weights_match_their_definition() {
+    let mut r = rng(6);
+    let z: Vec<f32> = (0..80).map(|i| i as f32 * 0.03 + r.gen_range(0.0..0.01f32)).collect();
+    let sdf: Vec<f32> = z.iter().map(|t| 1.2 - t).collect();
+    let (mut tau, mut w) = (Vec::new(), Vec::new());
+    interval_weights(&z, &sdf, 0.02, &mut tau, &mut w);
+    let mut t = 1.0f64;
+    for i in 0..z.len() - 1 {
+        let tau = laplace_density(sdf[i] as f64, 0.02) * (z[i + 1] - z[i]) as f64;
+        let want = t * (1.0 - (-tau).exp()) + 1e-5;
+        assert!((w[i] as f64 - want).abs() < 1e-5, "interval {i}: {} vs {want}", w[i]);
+        t *= (-tau).exp();
+    }
+}
+
+#[test]
+fn merging_keeps_order_and_pairs() {
+    let mut state = RayState {
+        z: vec![0.1, 0.5, 0.9],
+        sdf: vec![1.0, 5.0, 9.0],
+        pending: vec![0.0, 0.5, 0.7, 2.0],
+        ..Default::default()
+    };
+    let (mut mt, mut mv) = (Vec::new(), Vec::new());
+    merge_sorted(&mut state, &[0.0, 5.5, 7.0, 20.0], &mut mt, &mut mv);
+    assert_eq!(state.z, [0.0, 0.1, 0.5, 0.5, 0.7, 0.9, 2.0]);
+    assert_eq!(state.sdf, [0.0, 1.0, 5.0, 5.5, 7.0, 9.0, 20.0]);
+    assert!(state.pending.is_empty());
+}
+
+/// A scratch reused across batches of other sizes gives what a fresh one gives, with and
+/// without an RNG: no state leaks from one call to the next.
+#[test]
+fn reused_sampler_scratch_gives_the_fresh_result() {
+    let radius = 0.4f32;
+    let sphere = move |p: [f32; 3]| (p[0] * p[0] + p[1] * p[1] + (p[2] - 2.0).powi(2)).sqrt() - radius;
+    let config = ErrorBoundedSamplerConfig {
+        num_samples_upsample: 40,
+        ..Default::default()
+    };
+    let mut scratch = SamplerScratch::default();
+    let mut reused = RaySampleSet::default();
+    for (n, seed) in [(37usize, Some(1u64)), (12, None), (50, Some(2)), (12, None)] {
+        let dirs = directions(n, 0.5);
+        let origins = vec![[0.0f32; 3]; n];
+        let (near, far) = (vec![0.5f32; n], vec![4.0f32; n]);
+        let batch = RayBatchRef {
+            origins: &origins,
+            directions: &dirs,
+            near: &near,
+            far: &far,
+        };
+        let mut r1 = seed.map(rng);
+        error_bounded_samples_into(
+            &config,
+            &batch,
+            0.01,
+            batched(sphere),
+            r1.as_mut(),
+            &mut scratch,
+            &mut reused,
+        );
+        let mut r2 = seed.map(rng);
+        let fresh = error_bounded_samples(
+            &config,
+            &origins,
+            &dirs,
+            &near,
+            &far,
+            0.01,
+            batched(sphere),
+            r2.as_mut(),
+        );
+        assert_eq!(reused.t, fresh.t, "{n} rays");
+        assert_eq!(reused.ray_offsets, fresh.ray_offsets);
+        assert_eq!(reused.delta, fresh.delta);
+        assert_eq!(reused.converged, fresh.converged);
+        assert_eq!(reused.sdf_evaluations, fresh.sdf_evaluations);
+    }
+}

@@ -4,7 +4,7 @@
 //! samples lose against a dense reference (4096 uniform samples per ray): opacity, depth and
 //! colour.
 //!
-//! `cargo run --release -p i2sdf-train --example sampler_bench -- RUN DATA [rays] [reps] [--time-only]`
+//! `cargo run --release -p i2sdf-train --example sampler_bench -- RUN DATA [rays] [reps] [--time-only] [upsample=N coarse=N rounds=N eps=X]`
 
 use i2sdf_model::renderer::{self, sphere_exit, RenderWorkspace};
 use i2sdf_model::{NeuralScene, RunDir};
@@ -31,7 +31,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let run = RunDir::new(std::path::Path::new(&args[1]));
     let dataset = i2sdf_data::load(std::path::Path::new(&args[2]))?;
     let config = TrainConfig::load(Some(&run.config_path()), &[])?;
-    let settings = render_settings(&config);
+    let mut settings = render_settings(&config);
+    // `KEY=VALUE` arguments override the sampler: upsample, coarse, rounds, eps.
+    for a in args.iter().filter_map(|a| a.split_once('=')) {
+        let s = &mut settings.sampler;
+        match a.0 {
+            "upsample" => s.num_samples_upsample = a.1.parse()?,
+            "coarse" => s.num_samples_eval = a.1.parse()?,
+            "rounds" => s.max_total_iters = a.1.parse()?,
+            "eps" => s.eps = a.1.parse()?,
+            k => return Err(format!("unknown override {k}").into()),
+        }
+    }
     let (scene, _) = NeuralScene::load(&run.checkpoint_path())?;
     let images = train_images(&dataset);
     let mut rng = Pcg64::seed_from_u64(7);
@@ -42,8 +53,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         origins.push(im.origin);
         dirs.push(im.dirs[p]);
     }
+    // The stage-1 batch's extra points (eikonal, bubble and smoothness pairs): random in the
+    // unit sphere's cube, as many as the run's config draws.
+    let t = &config.train;
+    let extra: Vec<f32> = (0..3 * (t.eikonal_points + t.bubble_points + 2 * rays))
+        .map(|_| rng.gen_range(-0.9..0.9f32))
+        .collect();
+    let mut grads = i2sdf_model::SceneGrads::new(&scene);
     let mut ws = RenderWorkspace::default();
-    let (mut t_sample, mut t_forward) = (Vec::new(), Vec::new());
+    let (mut t_sample, mut t_forward, mut t_backward) = (Vec::new(), Vec::new(), Vec::new());
     let mut evaluations = 0;
     for rep in 0..reps {
         let mut r = Pcg64::seed_from_u64(rep as u64);
@@ -52,15 +70,36 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         t_sample.push(t.elapsed().as_secs_f64() * 1e3);
         evaluations = ws.samples.sdf_evaluations;
         let t = Instant::now();
-        renderer::forward_with_samples(&scene, &origins, &dirs, &[], &mut ws);
+        renderer::forward_with_samples(&scene, &origins, &dirs, &extra, &mut ws);
         t_forward.push(t.elapsed().as_secs_f64() * 1e3);
+        // Upstream gradients of every output and of every point's SDF and ∇SDF (the eikonal
+        // term touches them all), as a training step has; the values do not matter for time.
+        let n = ws.sdf.len();
+        let (g_rays, g_rays3) = (vec![1e-3f32; rays], vec![1e-3f32; 3 * rays]);
+        let (mut d_sdf, mut d_grad) = (vec![1e-3f32; n], vec![1e-3f32; 3 * n]);
+        let t = Instant::now();
+        renderer::backward(
+            &scene,
+            &mut ws,
+            &renderer::RayGrads {
+                rgb: &g_rays3,
+                depth: &g_rays,
+                normal: &g_rays3,
+                emitter: &g_rays,
+                opacity: &g_rays,
+            },
+            &mut d_sdf,
+            &mut d_grad,
+            &mut grads,
+        );
+        t_backward.push(t.elapsed().as_secs_f64() * 1e3);
     }
     let converged = ws.samples.converged.iter().filter(|c| **c).count();
+    let (ts, tf, tb) = (median(t_sample), median(t_forward), median(t_backward));
     println!(
-        "beta {:.5}  rays {rays}  sampler {:.1} ms (median of {reps})  forward {:.1} ms  SDF evaluations/ray {:.1}  samples/ray {:.1}  converged {:.1} %",
+        "beta {:.5}  rays {rays}  sampler {ts:.1} ms (median of {reps}, {:.0} % of the three)  forward {tf:.1} ms  backward {tb:.1} ms  SDF evaluations/ray {:.1}  samples/ray {:.1}  converged {:.1} %",
         scene.beta.value(),
-        median(t_sample),
-        median(t_forward),
+        100.0 * ts / (ts + tf + tb),
         evaluations as f64 / rays as f64,
         ws.samples.t.len() as f64 / rays as f64,
         100.0 * converged as f64 / rays as f64
