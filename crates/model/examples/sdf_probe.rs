@@ -30,12 +30,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         s_world.push(s);
     }
     let mut sdf = vec![0.0; steps];
-    scene.sdf.infer(&pts, &mut SdfInferWorkspace::default(), &mut sdf, None, None);
+    scene
+        .sdf
+        .infer(&pts, &mut SdfInferWorkspace::default(), &mut sdf, None, None);
     let step = 2.0 * half / (steps.max(2) - 1) as f64 / norm.scale;
     println!("beta {:.2} cm (world)", beta as f64 * norm.scale * 100.0);
     for (s, d) in s_world.iter().zip(&sdf) {
         let alpha = 1.0 - (-(i2sdf_render::volume::laplace_density(*d, beta) as f64) * step).exp();
-        println!("{:8.2} cm  sdf {:8.2} cm  alpha/step {:.3}", s * 100.0, *d as f64 * norm.scale * 100.0, alpha);
+        println!(
+            "{:8.2} cm  sdf {:8.2} cm  alpha/step {:.3}",
+            s * 100.0,
+            *d as f64 * norm.scale * 100.0,
+            alpha
+        );
     }
     Ok(())
 }

@@ -50,6 +50,12 @@ pub struct Schedule {
     pub bubble_fraction: f64,
     /// Turn the bubble step off entirely (ablation): the bubble step then trains like warm-up.
     pub bubble: bool,
+    /// λ5 in the smooth step, as a fraction of the bubble step's (beyond the paper, which turns
+    /// bubbles off there: 0). The bubble points are still drawn from the error-guided PDF maps,
+    /// which by then hold only the pixels whose depth error stays above P_min — the thin and
+    /// suspended objects that the smooth step's eikonal and smoothness terms would otherwise
+    /// erase — so the bubbles stay on only where the error persists.
+    pub smooth_bubble: f64,
 }
 
 impl Default for Schedule {
@@ -58,6 +64,7 @@ impl Default for Schedule {
             warmup_fraction: 0.25,
             bubble_fraction: 0.5,
             bubble: true,
+            smooth_bubble: 0.0,
         }
     }
 }
@@ -65,6 +72,9 @@ impl Default for Schedule {
 impl Schedule {
     pub fn validate(&self) -> Result<(), String> {
         let ok = |f: f64| (0.0..=1.0).contains(&f);
+        if !ok(self.smooth_bubble) {
+            return Err(format!("smooth_bubble ({}) must be in [0, 1]", self.smooth_bubble));
+        }
         if !ok(self.warmup_fraction) || !ok(self.bubble_fraction) || self.warmup_fraction + self.bubble_fraction > 1.0 {
             return Err(format!(
                 "warmup_fraction ({}) and bubble_fraction ({}) must be in [0, 1] and sum to at most 1",
@@ -93,7 +103,7 @@ impl Schedule {
     }
 
     /// The weights in force in a phase (supp.: warm-up λ1 = 0.1, λ4 = λ5 = 0; bubble λ1 = λ4 = 0,
-    /// λ5 = 0.5; smooth λ1 = 0.1, λ4 = 0.01, λ5 = 0).
+    /// λ5 = 0.5; smooth λ1 = 0.1, λ4 = 0.01, λ5 = 0, or `smooth_bubble` × λ5).
     pub fn weights(&self, phase: Phase, base: &LossWeights) -> LossWeights {
         let mut w = base.clone();
         match phase {
@@ -110,6 +120,7 @@ impl Schedule {
                 w.smooth = 0.0;
                 w.bubble = 0.0;
             }
+            Phase::Smooth if self.bubble => w.bubble = base.bubble * self.smooth_bubble as f32,
             Phase::Smooth => w.bubble = 0.0,
         }
         w
@@ -138,9 +149,27 @@ mod tests {
     }
 
     #[test]
+    fn bubbles_can_persist_into_the_smooth_step() {
+        let s = Schedule {
+            smooth_bubble: 0.2,
+            ..Default::default()
+        };
+        let w = s.weights(Phase::Smooth, &LossWeights::default());
+        assert_eq!((w.eikonal, w.smooth), (0.1, 0.01));
+        assert!((w.bubble - 0.1).abs() < 1e-7);
+        assert!(Schedule {
+            smooth_bubble: 1.5,
+            ..Default::default()
+        }
+        .validate()
+        .is_err());
+    }
+
+    #[test]
     fn ablation_without_bubbles_never_applies_them() {
         let s = Schedule {
             bubble: false,
+            smooth_bubble: 0.5,
             ..Default::default()
         };
         for it in (0..1000).step_by(50) {
@@ -149,7 +178,8 @@ mod tests {
         assert!(Schedule {
             warmup_fraction: 0.8,
             bubble_fraction: 0.5,
-            bubble: true
+            bubble: true,
+            smooth_bubble: 0.0
         }
         .validate()
         .is_err());
