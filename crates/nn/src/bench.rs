@@ -492,6 +492,22 @@ impl Pipeline {
     }
 }
 
+/// The representative iteration alone, best of `iterations` (after one warm-up), in ms: a second's
+/// measure of this machine's speed for a caller that scales a time estimate by it (`demo`).
+pub fn representative_iteration_ms(iterations: usize) -> f64 {
+    let o = BenchOptions::default();
+    Pipeline::new(
+        SdfNetworkConfig::hash_grid(0.9),
+        (64, 2),
+        DirEncoding::Sh(SphericalHarmonics::new(4)),
+        o.rays,
+        o.samples,
+        1,
+    )
+    .run(iterations.max(1))
+    .iteration_ms
+}
+
 /// Run the benchmark.
 pub fn run(opts: &BenchOptions) -> BenchReport {
     let load_average = load_average();

@@ -171,14 +171,26 @@ where
 {
     for (i, s) in series.iter().enumerate() {
         let colour = Palette99::pick(i).to_rgba();
-        chart
-            .draw_series(LineSeries::new(
-                s.points.iter().copied().filter(|p| keep(p.1)),
-                colour.stroke_width(2),
-            ))
-            .map_err(plot_err)?
-            .label(s.name.clone())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
+        // A gap where a value is not drawn (a loss term that is off in one step, 0 on a log
+        // axis) breaks the line rather than bridging the step with a straight segment.
+        let mut runs: Vec<Vec<(f64, f64)>> = vec![Vec::new()];
+        for &p in s.points {
+            if keep(p.1) {
+                runs.last_mut().expect("never empty").push(p);
+            } else if !runs.last().expect("never empty").is_empty() {
+                runs.push(Vec::new());
+            }
+        }
+        for (k, run) in runs.into_iter().filter(|r| !r.is_empty()).enumerate() {
+            let drawn = chart
+                .draw_series(LineSeries::new(run, colour.stroke_width(2)))
+                .map_err(plot_err)?;
+            if k == 0 {
+                drawn
+                    .label(s.name.clone())
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
+            }
+        }
     }
     legend(chart)
 }
@@ -332,6 +344,27 @@ mod tests {
         let s2 = &log.stages["stage2"];
         assert_eq!(s2.emission.len(), 2);
         assert!((s2.emission[1][0].1 - 2.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_term_that_is_off_for_a_while_breaks_its_line() {
+        let lines = |pts: &[(f64, f64)]| {
+            let svg = line_chart(
+                "loss",
+                "value",
+                &[Series {
+                    name: "eikonal".into(),
+                    points: pts,
+                }],
+                true,
+            )
+            .unwrap()
+            .unwrap();
+            svg.matches("<polyline").count()
+        };
+        let whole = lines(&[(0.0, 1.0), (10.0, 0.5), (20.0, 0.3), (30.0, 0.2), (40.0, 0.1)]);
+        let gapped = lines(&[(0.0, 1.0), (10.0, 0.5), (20.0, 0.0), (30.0, 0.2), (40.0, 0.1)]);
+        assert_eq!(gapped, whole + 1, "one more line on the far side of the gap");
     }
 
     #[test]

@@ -198,6 +198,10 @@ pub struct SamplingConfig {
     pub samples: usize,
     /// Uniform samples of the first pass.
     pub coarse: usize,
+    /// Samples each upsampling round adds; unset: `coarse` again, as VolSDF (and every run
+    /// written before the key existed).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub upsample: Option<usize>,
     /// Target bound on the opacity error (VolSDF ε).
     pub epsilon: f32,
 }
@@ -207,6 +211,7 @@ impl Default for SamplingConfig {
         SamplingConfig {
             samples: 32,
             coarse: 32,
+            upsample: None,
             epsilon: 0.1,
         }
     }
@@ -298,6 +303,9 @@ impl TrainConfig {
         let s = &self.sampling;
         int("sampling.samples", s.samples, 2, 1024)?;
         int("sampling.coarse", s.coarse, 2, 1024)?;
+        if let Some(u) = s.upsample {
+            int("sampling.upsample", u, 1, 1024)?;
+        }
         positive("sampling.epsilon", s.epsilon, 10.0)?;
         let l = &self.loss;
         for (key, v) in [
@@ -480,6 +488,8 @@ mod tests {
             ("train.lr_warmup=-1", "train.lr_warmup"),
             ("train.checkpoint_every=0", "train.checkpoint_every"),
             ("sampling.samples=1", "sampling.samples"),
+            ("sampling.upsample=0", "sampling.upsample"),
+            ("schedule.smooth_bubble=2", "smooth_bubble"),
             ("adaptive.p_min=nan", "adaptive.p_min"),
             ("schedule.warmup_fraction=nan", "warmup_fraction"),
             ("stage2.pixels=0", "stage2.pixels"),

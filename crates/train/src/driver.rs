@@ -241,7 +241,9 @@ pub fn read_run_config(run: &RunDir) -> Result<TrainConfig, DataError> {
 /// (the one mapping that training, `render` and `eval` use).
 pub fn render_settings(config: &TrainConfig) -> RenderSettings {
     let s = &config.sampling;
-    RenderSettings::with_sampling(s.samples, s.coarse, s.epsilon)
+    let mut r = RenderSettings::with_sampling(s.samples, s.coarse, s.epsilon);
+    r.sampler.num_samples_upsample = s.upsample.unwrap_or(s.coarse);
+    r
 }
 
 /// Opens a run directory for training: a fresh one (refused if it already holds a run) or, with
