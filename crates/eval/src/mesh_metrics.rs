@@ -143,6 +143,10 @@ pub struct MeshMetricsOptions {
     pub object_groups: Vec<ObjectGroup>,
 }
 
+/// The distances (scene units: 2 cm and 5 cm in metric scenes) at which thin objects are scored:
+/// `geometry.thin_objects` and each object's `recall_2cm` / `recall_5cm`.
+pub const THIN_OBJECT_THRESHOLDS: [f64; 2] = [0.02, 0.05];
+
 /// GT objects scored together (e.g. every object tagged `thin`): a missing lamp pole barely moves
 /// the global recall, so the objects that matter are measured on their own.
 #[derive(Clone, Debug, PartialEq)]
@@ -173,6 +177,9 @@ pub struct ObjectRecall {
     pub object_id: i32,
     /// Fraction of the object's visible GT points within the threshold of the prediction.
     pub recall: Option<f64>,
+    /// The same within each of [`THIN_OBJECT_THRESHOLDS`] (2 and 5 cm): what a thin object's
+    /// recovery is measured by, whatever the main threshold.
+    pub recall_thin: [Option<f64>; 2],
     /// The object's visible GT points.
     pub points: usize,
 }
@@ -302,23 +309,32 @@ pub fn mesh_metrics(
         metrics.fscore = Some(if p + r > 0.0 { 2.0 * p * r / (p + r) } else { 0.0 });
     }
     if let Some(ids) = &gt.face_object_ids {
-        let mut per_object: BTreeMap<i32, (usize, usize)> = BTreeMap::new();
+        // Per object: points, and those matched within t and within each thin threshold.
+        let mut per_object: BTreeMap<i32, (usize, [usize; 3])> = BTreeMap::new();
         for id in ids {
             per_object.entry(*id).or_default();
         }
+        let [t2, t5] = THIN_OBJECT_THRESHOLDS;
         for (k, &f) in gt_faces.iter().enumerate() {
             let entry = per_object.get_mut(&ids[f as usize]).unwrap();
             entry.0 += 1;
-            if (gt_to_pred[k] as f64) < t {
-                entry.1 += 1;
+            let d = gt_to_pred[k] as f64;
+            for (n, limit) in entry.1.iter_mut().zip([t, t2, t5]) {
+                if d < limit {
+                    *n += 1;
+                }
             }
         }
         metrics.per_object_recall = per_object
             .into_iter()
-            .map(|(object_id, (points, matched))| ObjectRecall {
-                object_id,
-                recall: (points > 0).then(|| matched as f64 / points as f64),
-                points,
+            .map(|(object_id, (points, [matched, m2, m5]))| {
+                let share = |m: usize| (points > 0).then(|| m as f64 / points as f64);
+                ObjectRecall {
+                    object_id,
+                    recall: share(matched),
+                    recall_thin: [share(m2), share(m5)],
+                    points,
+                }
             })
             .collect();
     }
@@ -529,6 +545,13 @@ mod tests {
         let lamp = &m.per_object_recall[1];
         assert_eq!(lamp.object_id, 7);
         assert!(lamp.points > 0 && lamp.recall == Some(0.0), "{lamp:?}");
+        assert_eq!(lamp.recall_thin, [Some(0.0), Some(0.0)]);
+        // The lamp 3.5 cm off along each axis: lost at 2 cm, found at 5 cm.
+        let mut moved = box_mesh([1.535, 1.235, 0.835], [1.735, 1.435, 1.635]);
+        moved.face_object_ids = Some(vec![7; 12]);
+        let m = mesh_metrics(&concat(&[room(), moved]), &gt, &views, &options()).unwrap();
+        let [r2, r5] = m.per_object_recall[1].recall_thin.map(Option::unwrap);
+        assert!(r2 < 0.2 && r5 > 0.8, "recall {r2} at 2 cm, {r5} at 5 cm");
     }
 
     #[test]

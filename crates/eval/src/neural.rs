@@ -97,8 +97,7 @@ pub fn view_metrics(
 
 /// Objects with any of these tags make up `geometry.thin_objects`.
 pub const THIN_OBJECT_TAGS: [&str; 2] = ["thin", "suspended"];
-/// The distances (scene units: 2 cm and 5 cm in metric scenes) of `geometry.thin_objects`.
-pub const THIN_OBJECT_THRESHOLDS: [f64; 2] = [0.02, 0.05];
+pub use crate::mesh_metrics::THIN_OBJECT_THRESHOLDS;
 
 /// Mesh metrics of `pred` against `gt` (see [`mesh_metrics`]), with the per-object recall named
 /// and tagged from `objects`, and the recall of the objects tagged thin or suspended (`None` when

@@ -87,6 +87,9 @@ pub struct ObjectRecallReport {
     pub name: Option<String>,
     pub tags: Vec<String>,
     pub recall: Option<f64>,
+    /// Within 2 cm and 5 cm (scene units 0.02, 0.05), whatever the main threshold.
+    pub recall_2cm: Option<f64>,
+    pub recall_5cm: Option<f64>,
     pub points: usize,
 }
 
@@ -119,6 +122,8 @@ impl From<&MeshMetrics> for MeshReport {
                         name: None,
                         tags: Vec::new(),
                         recall: r.recall,
+                        recall_2cm: r.recall_thin[0],
+                        recall_5cm: r.recall_thin[1],
                         points: r.points,
                     })
                     .collect()
@@ -319,11 +324,13 @@ mod tests {
                 ObjectRecall {
                     object_id: 3,
                     recall: Some(0.5),
+                    recall_thin: [Some(0.25), Some(0.5)],
                     points: 4,
                 },
                 ObjectRecall {
                     object_id: 5,
                     recall: None,
+                    recall_thin: [None, None],
                     points: 0,
                 },
             ],

@@ -211,7 +211,9 @@ impl Default for SamplingConfig {
         SamplingConfig {
             samples: 32,
             coarse: 32,
-            upsample: None,
+            // Half the first pass: the sampler's time from 25 % to 20 % of a step, at 0.7 cm
+            // mean depth and 45 dB colour against a dense reference (issue 12).
+            upsample: Some(16),
             epsilon: 0.1,
         }
     }
@@ -316,6 +318,7 @@ impl TrainConfig {
             ("loss.smooth", l.smooth),
             ("loss.bubble", l.bubble),
             ("loss.emitter", l.emitter),
+            ("loss.inside", l.inside),
         ] {
             real(key, v, 0.0, 1e4)?;
         }

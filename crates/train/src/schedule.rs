@@ -25,6 +25,9 @@ pub struct LossWeights {
     pub smooth: f32,
     pub bubble: f32,
     pub emitter: f32,
+    /// Beyond the paper: the hinge max(0, d) on points just behind each bubble point along its
+    /// ray (`losses::inside`), on whenever the bubble loss is; 0 turns it off (the paper).
+    pub inside: f32,
 }
 
 impl Default for LossWeights {
@@ -37,6 +40,7 @@ impl Default for LossWeights {
             smooth: 0.01,
             bubble: 0.5,
             emitter: 0.5,
+            inside: 0.5,
         }
     }
 }
@@ -51,7 +55,7 @@ pub struct Schedule {
     /// Turn the bubble step off entirely (ablation): the bubble step then trains like warm-up.
     pub bubble: bool,
     /// λ5 in the smooth step, as a fraction of the bubble step's (beyond the paper, which turns
-    /// bubbles off there: 0). The bubble points are still drawn from the error-guided PDF maps,
+    /// bubbles off there: 0; the default 1 keeps it). The bubble points are still drawn from the error-guided PDF maps,
     /// which by then hold only the pixels whose depth error stays above P_min — the thin and
     /// suspended objects that the smooth step's eikonal and smoothness terms would otherwise
     /// erase — so the bubbles stay on only where the error persists.
@@ -64,7 +68,8 @@ impl Default for Schedule {
             warmup_fraction: 0.25,
             bubble_fraction: 0.5,
             bubble: true,
-            smooth_bubble: 0.0,
+            // Measured on the default room (issue 12): the thin objects survive the smooth step.
+            smooth_bubble: 1.0,
         }
     }
 }
@@ -123,6 +128,9 @@ impl Schedule {
             Phase::Smooth if self.bubble => w.bubble = base.bubble * self.smooth_bubble as f32,
             Phase::Smooth => w.bubble = 0.0,
         }
+        if w.bubble == 0.0 {
+            w.inside = 0.0;
+        }
         w
     }
 }
@@ -133,7 +141,10 @@ mod tests {
 
     #[test]
     fn paper_step_lengths_and_weights() {
-        let s = Schedule::default();
+        let s = Schedule {
+            smooth_bubble: 0.0,
+            ..Default::default()
+        };
         assert_eq!(s.boundaries(200_000), (50_000, 150_000));
         assert_eq!(s.phase(49_999, 200_000), Phase::WarmUp);
         assert_eq!(s.phase(50_000, 200_000), Phase::Bubble);

@@ -30,6 +30,11 @@ use std::path::Path;
 /// Half-width of the random perturbation ε of the smoothness loss (eq:smooth), normalized units.
 const SMOOTH_EPS: f32 = 0.01;
 
+/// How far behind a bubble point, along its ray, the inside point of `loss.inside` lies
+/// (normalized units: 2.9 mm at the default room's scale of 3.65 m). Anything thicker than this
+/// along the ray has the point inside; a thinner sheet is rarer indoors than a thin pole.
+const INSIDE_DEPTH: f32 = 8e-4;
+
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct StepStats {
     pub iteration: u64,
@@ -42,6 +47,8 @@ pub struct StepStats {
     pub eikonal: f32,
     pub smooth: f32,
     pub bubble: f32,
+    /// `loss.inside`'s hinge on the points just behind the bubble points.
+    pub inside: f32,
     /// PSNR of the batch's rendered colours.
     pub psnr: f32,
     pub beta: f32,
@@ -321,7 +328,7 @@ impl Stage1 {
         let t = &self.config.train;
         self.batch.sample_uniform(&self.images, t.rays, rng);
 
-        // Extra points: [eikonal | bubble | smooth x | smooth x + ε].
+        // Extra points: [eikonal | bubble | inside | smooth x | smooth x + ε].
         self.extra.clear();
         let n_eik = t.eikonal_points;
         for _ in 0..n_eik {
@@ -344,7 +351,19 @@ impl Stage1 {
                     n_bub += 1;
                 }
             }
+            if w.inside > 0.0 {
+                for p in &picks {
+                    let im = &self.images[p.image as usize];
+                    if im.surface_point(p.pixel as usize).is_some() {
+                        let (d, t) = (im.dirs[p.pixel as usize], im.depth[p.pixel as usize] + INSIDE_DEPTH);
+                        let o = im.origin;
+                        self.extra
+                            .extend_from_slice(&[o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]);
+                    }
+                }
+            }
         }
+        let n_in = if w.inside > 0.0 { n_bub } else { 0 };
         let mut n_smooth = 0;
         if w.smooth > 0.0 {
             let mut pairs = Vec::new();
@@ -441,8 +460,12 @@ impl Stage1 {
         if n_bub > 0 {
             st.bubble = losses::bubble(&self.ws.sdf[b0..b0 + n_bub], w.bubble, &mut d_sdf[b0..b0 + n_bub]);
         }
+        if n_in > 0 {
+            let i0 = b0 + n_bub;
+            st.inside = losses::inside(&self.ws.sdf[i0..i0 + n_in], w.inside, &mut d_sdf[i0..i0 + n_in]);
+        }
         if n_smooth > 0 {
-            let s0 = b0 + n_bub;
+            let s0 = b0 + n_bub + n_in;
             let (ga, gb) = d_grad3[s0..s0 + 2 * n_smooth].split_at_mut(n_smooth);
             st.smooth = losses::smoothness(
                 &grads3[s0..s0 + n_smooth],
@@ -458,7 +481,8 @@ impl Stage1 {
             + w.emitter * st.emitter
             + w.eikonal * st.eikonal
             + w.smooth * st.smooth
-            + w.bubble * st.bubble;
+            + w.bubble * st.bubble
+            + w.inside * st.inside;
         st.samples_per_ray = n_s as f32 / rays.max(1) as f32;
 
         // PDF maps learn from this batch's depth errors (Sec. 4.1.2).
