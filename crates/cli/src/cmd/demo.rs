@@ -197,8 +197,9 @@ const PLAN_BENCH_MS: f64 = 75.0;
 /// `--quick`: the fresh-clone run of 2026-12-01 (276 s in all at a bench of ~150 ms), halved.
 const QUICK_SECONDS: [f64; 8] = [7.0, 85.0, 13.0, 1.0, 8.0, 16.0, 5.0, 4.0];
 /// The full demo: its fresh-clone run of 2026-12-01 (51 min at a bench of ~165 ms, other jobs on
-/// the cores at times) scaled by 75/165; synthesis from a quiet run (4 min 42 s at ~75 ms).
-const FULL_SECONDS: [f64; 8] = [280.0, 600.0, 45.0, 3.0, 100.0, 160.0, 25.0, 15.0];
+/// the cores at times) scaled by 75/165; synthesis from a quiet run (4 min 42 s at ~75 ms); stage
+/// 1 from a quiet run of the current defaults (895 s at a bench of 150 ms).
+const FULL_SECONDS: [f64; 8] = [280.0, 450.0, 45.0, 3.0, 100.0, 160.0, 25.0, 15.0];
 
 fn minutes(seconds: f64) -> String {
     if seconds < 90.0 {
@@ -236,17 +237,7 @@ struct PlanState {
 
 impl StagePlan {
     fn new(expected: &'static [f64; 8], pace: f64) -> Self {
-        let state = PlanState {
-            expected,
-            initial_pace: pace,
-            start: std::time::Instant::now(),
-            done: 0.0,
-            current: None,
-            current_since: 0.0,
-            skipped: 0.0,
-            what: String::new(),
-            finished: false,
-        };
+        let state = PlanState::new(expected, pace);
         let bar = crate::progress::top_bar(state.total().ceil() as u64);
         bar.set_style(
             indicatif::ProgressStyle::with_template("demo [{bar:30}] {percent:>3}% {msg}")
@@ -322,6 +313,20 @@ impl Drop for StagePlan {
 }
 
 impl PlanState {
+    fn new(expected: &'static [f64; 8], initial_pace: f64) -> Self {
+        PlanState {
+            expected,
+            initial_pace,
+            start: std::time::Instant::now(),
+            done: 0.0,
+            current: None,
+            current_since: 0.0,
+            skipped: 0.0,
+            what: String::new(),
+            finished: false,
+        }
+    }
+
     fn total(&self) -> f64 {
         self.expected.iter().sum()
     }
@@ -404,17 +409,7 @@ mod tests {
     #[test]
     fn the_eta_follows_the_plan_then_this_machine() {
         const PLAN: [f64; 8] = [10.0, 100.0, 20.0, 5.0, 5.0, 50.0, 10.0, 0.0];
-        let state = || PlanState {
-            expected: &PLAN,
-            initial_pace: 1.0,
-            start: std::time::Instant::now(),
-            done: 0.0,
-            current: None,
-            current_since: 0.0,
-            skipped: 0.0,
-            what: String::new(),
-            finished: false,
-        };
+        let state = || PlanState::new(&PLAN, 1.0);
         let mut plan = state();
         assert_eq!(plan.progress(0.0), (0.0, 200.0));
         assert_eq!(plan.begin(1, 0.0), (0.0, 200.0));
@@ -429,10 +424,7 @@ mod tests {
         assert_eq!(rerun.begin(4, 0.0), (0.0, 70.0));
         assert_eq!(rerun.begin(5, 10.0), (10.0, 130.0));
         // A machine the bench found twice as slow: twice the plan until steps have run.
-        let mut slow = PlanState {
-            initial_pace: 2.0,
-            ..state()
-        };
+        let mut slow = PlanState::new(&PLAN, 2.0);
         assert_eq!(slow.begin(1, 0.0), (0.0, 400.0));
         assert_eq!(slow.progress(4.0), (2.0, 396.0));
         assert_eq!(slow.begin(2, 20.0), (20.0, 380.0));
