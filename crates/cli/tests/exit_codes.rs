@@ -258,7 +258,7 @@ fn failed_writes_exit_1_and_leave_nothing_half_written() {
     let dir = tempfile::tempdir().unwrap();
     let ply = unwritable(dir.path(), "m.ply");
     expect(
-        i2sdf(&["mesh", "--run", s(run), "--out", s(&ply)]),
+        i2sdf(&["mesh", "--run", s(run), "--out", s(&ply), "--resolution", "32"]),
         1,
         &["not_a_directory"],
     );
@@ -270,7 +270,17 @@ fn failed_writes_exit_1_and_leave_nothing_half_written() {
     );
     let json = unwritable(dir.path(), "m.json");
     expect(
-        i2sdf(&["eval", "--run", s(run), "--data", s(data), "--out", s(&json)]),
+        i2sdf(&[
+            "eval",
+            "--run",
+            s(run),
+            "--data",
+            s(data),
+            "--out",
+            s(&json),
+            "--mesh-resolution",
+            "32",
+        ]),
         1,
         &["not_a_directory"],
     );

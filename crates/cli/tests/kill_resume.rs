@@ -215,6 +215,8 @@ fn psnr(run: &Path, data: &Path) -> (f64, f64) {
         s(&out),
         "--spp",
         "2",
+        "--mesh-resolution",
+        "64",
     ]);
     expect(&o, 0, &[]);
     let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();

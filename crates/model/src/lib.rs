@@ -12,6 +12,7 @@ pub mod intrinsic;
 pub mod intrinsic_io;
 pub mod marching_cubes;
 pub mod material_field;
+pub mod mc_band;
 pub mod mc_tables;
 pub mod observed;
 pub mod query;

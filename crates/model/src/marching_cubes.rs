@@ -4,6 +4,8 @@
 //! evaluated in blocks that fill one sampler batch, and each grid edge owns a single vertex shared by
 //! every cell that uses it, so a closed surface comes out watertight without welding.
 
+use crate::mc_band::BandMask;
+pub use crate::mc_band::NarrowBand;
 use crate::mc_tables::case_table;
 use crate::query::SceneQuery;
 use crate::scene::NeuralScene;
@@ -44,22 +46,28 @@ impl McGrid {
     /// sampler's block (at least one plane) and its points, and the mesh. The mesh is estimated
     /// from the box's surface in cells: an indoor scene's walls lie near the box's faces and the
     /// furniture adds about as much again ([`MESH_VERTICES_PER_FACE_CELL`]); each vertex costs
-    /// its position and two triangles, twice over for the vectors' growth. Saturates (f64).
-    pub fn memory_estimate(&self, batch_points: usize) -> f64 {
+    /// its position and two triangles, twice over for the vectors' growth; and a narrow band's
+    /// coarse grid. Saturates (f64).
+    pub fn memory_estimate(&self, options: &McOptions) -> f64 {
+        let batch_points = options.batch_points;
+        let band = options
+            .narrow_band
+            .as_ref()
+            .map_or(0.0, |b| BandMask::memory_estimate(self, b));
         let [nx, ny, nz] = self.samples.map(|n| n as f64);
         let plane = nx * ny;
         let block = plane.max(batch_points as f64);
         let planes = plane * 4.0 * (2.0 + 2.0 + 2.0 + 1.0) + block * 4.0 + block.min(batch_points as f64) * 12.0;
         let face_cells = 2.0 * (nx * ny + ny * nz + nx * nz);
         let vertices = MESH_VERTICES_PER_FACE_CELL * face_cells;
-        planes + vertices * (12.0 + 2.0 * 12.0) * 2.0
+        planes + vertices * (12.0 + 2.0 * 12.0) * 2.0 + band
     }
 
     /// Refuses (bad input, before anything is allocated) a grid whose
     /// [`memory_estimate`](Self::memory_estimate) exceeds `available` bytes; `None` (unknown)
     /// accepts.
-    pub fn check_fits(&self, batch_points: usize, available: Option<u64>) -> Result<(), DataError> {
-        let need = self.memory_estimate(batch_points);
+    pub fn check_fits(&self, options: &McOptions, available: Option<u64>) -> Result<(), DataError> {
+        let need = self.memory_estimate(options);
         match available {
             Some(avail) if need > avail as f64 => {
                 let [nx, ny, nz] = self.samples;
@@ -135,6 +143,19 @@ pub struct McOptions {
     /// When set, drop connected components with less than this fraction of the largest one's area
     /// (floaters). Off by default.
     pub min_component_area_fraction: Option<f64>,
+    /// When set, evaluate only the fine samples near the level set ([`NarrowBand`]); only for a
+    /// field that obeys the band's Lipschitz bound. Off by default: every sample is evaluated.
+    pub narrow_band: Option<NarrowBand>,
+}
+
+impl McOptions {
+    /// The options of [`extract_mesh`] at `resolution`: the defaults and [`NarrowBand::for_sdf`].
+    pub fn for_sdf(resolution: usize) -> McOptions {
+        McOptions {
+            narrow_band: Some(NarrowBand::for_sdf(resolution)),
+            ..Default::default()
+        }
+    }
 }
 
 impl Default for McOptions {
@@ -143,24 +164,64 @@ impl Default for McOptions {
             iso: 0.0,
             batch_points: 65536,
             min_component_area_fraction: None,
+            narrow_band: None,
         }
     }
 }
 
-/// Evaluates whole z-planes of the grid in blocks of about one sampler batch.
+/// Calls `sampler` and refuses a non-finite value, naming the point.
+fn sample_checked<F: FnMut(&[[f32; 3]], &mut [f32])>(
+    sampler: &mut F,
+    points: &[[f32; 3]],
+    out: &mut [f32],
+) -> Result<(), DataError> {
+    sampler(points, out);
+    match out.iter().position(|v| !v.is_finite()) {
+        Some(bad) => Err(DataError::invalid(format!(
+            "marching cubes: the field is not finite ({}) at {:?}",
+            out[bad], points[bad]
+        ))),
+        None => Ok(()),
+    }
+}
+
+/// Evaluates whole z-planes of the grid in blocks of about one sampler batch; with a narrow band,
+/// only the samples of its active blocks go to the sampler and the others are filled.
 struct PlaneSource<'g, F> {
     grid: &'g McGrid,
     sampler: F,
     batch_points: usize,
+    band: Option<BandMask>,
     block_first_plane: usize,
     block_planes: usize,
     block_values: Vec<f32>,
     points: Vec<[f32; 3]>,
+    /// Indices into `block_values` of the batch in `points`.
+    targets: Vec<usize>,
+    batch_values: Vec<f32>,
+    /// Fine samples sent to the sampler so far.
+    evaluated: u64,
 }
 
 impl<F: FnMut(&[[f32; 3]], &mut [f32])> PlaneSource<'_, F> {
     fn plane_len(&self) -> usize {
         self.grid.samples[0] * self.grid.samples[1]
+    }
+
+    /// Evaluates the queued points and scatters their values into the block.
+    fn flush(&mut self) -> Result<(), DataError> {
+        if self.points.is_empty() {
+            return Ok(());
+        }
+        self.batch_values.resize(self.points.len(), 0.0);
+        sample_checked(&mut self.sampler, &self.points, &mut self.batch_values)?;
+        for (&t, &v) in self.targets.iter().zip(&self.batch_values) {
+            self.block_values[t] = v;
+        }
+        self.evaluated += self.points.len() as u64;
+        self.points.clear();
+        self.targets.clear();
+        Ok(())
     }
 
     /// Copies plane `k`'s values (x fastest) into `out`.
@@ -172,28 +233,22 @@ impl<F: FnMut(&[[f32; 3]], &mut [f32])> PlaneSource<'_, F> {
             self.block_planes = planes_per_block.min(self.grid.samples[2] - k);
             let total = self.block_planes * plane_len;
             self.block_values.resize(total, 0.0);
-            let mut start = 0;
-            while start < total {
-                let end = (start + self.batch_points).min(total);
-                self.points.clear();
-                for flat in start..end {
-                    let kk = k + flat / plane_len;
-                    let rem = flat % plane_len;
-                    let p = self
-                        .grid
-                        .point(rem % self.grid.samples[0], rem / self.grid.samples[0], kk);
-                    self.points.push([p[0] as f32, p[1] as f32, p[2] as f32]);
+            let nx = self.grid.samples[0];
+            for flat in 0..total {
+                let (kk, rem) = (k + flat / plane_len, flat % plane_len);
+                let (i, j) = (rem % nx, rem / nx);
+                if let Some(band) = self.band.as_ref().filter(|b| !b.needs(i, j, kk)) {
+                    self.block_values[flat] = band.fill(i, j, kk);
+                    continue;
                 }
-                (self.sampler)(&self.points, &mut self.block_values[start..end]);
-                if let Some(bad) = self.block_values[start..end].iter().position(|v| !v.is_finite()) {
-                    return Err(DataError::invalid(format!(
-                        "marching cubes: the field is not finite ({}) at {:?}",
-                        self.block_values[start + bad],
-                        self.points[bad]
-                    )));
+                let p = self.grid.point(i, j, kk);
+                self.points.push([p[0] as f32, p[1] as f32, p[2] as f32]);
+                self.targets.push(flat);
+                if self.points.len() == self.batch_points {
+                    self.flush()?;
                 }
-                start = end;
             }
+            self.flush()?;
         }
         let offset = (k - self.block_first_plane) * plane_len;
         out.copy_from_slice(&self.block_values[offset..offset + plane_len]);
@@ -221,16 +276,27 @@ where
         return Err(DataError::invalid("marching cubes batch size must be positive"));
     }
     // Before anything is allocated: a resolution that cannot fit is refused, not swapped to death.
-    grid.check_fits(options.batch_points, MachineMemory::read().map(|m| m.available))?;
+    grid.check_fits(options, MachineMemory::read().map(|m| m.available))?;
     let iso = options.iso;
+    let mut sampler = sampler;
+    let band = match &options.narrow_band {
+        Some(b) if b.step > 1 => Some(BandMask::build(grid, b, iso, options.batch_points, |p, v| {
+            sample_checked(&mut sampler, p, v)
+        })?),
+        _ => None,
+    };
     let mut source = PlaneSource {
         grid,
         sampler,
         batch_points: options.batch_points,
+        band,
         block_first_plane: 0,
         block_planes: 0,
         block_values: Vec::new(),
         points: Vec::new(),
+        targets: Vec::new(),
+        batch_values: Vec::new(),
+        evaluated: 0,
     };
     let plane_len = nx * ny;
     let mut mesh = TriangleMesh::default();
@@ -380,13 +446,14 @@ pub fn extract_mesh(
     pad_fraction: f64,
 ) -> Result<TriangleMesh, DataError> {
     let grid = sdf_grid(scene, bounds, resolution, pad_fraction)?;
+    let options = McOptions::for_sdf(resolution);
     // Checked here too so the refusal comes before the query's buffers are allocated.
     let available = MachineMemory::read().map(|m| m.available);
-    grid.check_fits(McOptions::default().batch_points, available)?;
+    grid.check_fits(&options, available)?;
     let norm = &scene.normalization;
     let mut query = SceneQuery::new(scene);
     let mut flat = Vec::new();
-    let mut mesh = marching_cubes(&grid, &McOptions::default(), |pts, out| {
+    let mut mesh = marching_cubes(&grid, &options, |pts, out| {
         flat.clear();
         flat.extend(pts.iter().flatten());
         query.sdf(&flat, out);
@@ -566,12 +633,12 @@ mod tests {
 
     #[test]
     fn a_grid_that_does_not_fit_is_refused_before_sampling() {
-        let batch = McOptions::default().batch_points;
+        let batch = McOptions::default();
         let huge = McGrid::cubic([-1.0; 3], [1.0; 3], 100_000).unwrap();
         // 10^10 samples per plane at 32 bytes each and a mesh of ~10^11 vertices: ~9 TB, far
         // beyond 1 GiB (and any machine's memory).
-        assert!(huge.memory_estimate(batch) > 1e12);
-        let err = huge.check_fits(batch, Some(1 << 30)).unwrap_err();
+        assert!(huge.memory_estimate(&batch) > 1e12);
+        let err = huge.check_fits(&batch, Some(1 << 30)).unwrap_err();
         let msg = err.to_string();
         assert!(err.is_bad_input());
         for needle in ["resolution 100000", "100000×100000×100000", "1.00 GiB", "available"] {
@@ -585,9 +652,9 @@ mod tests {
         assert!(e.is_err() && calls == 0, "refused before the field is sampled");
         // A small grid fits, and an unknown machine accepts.
         let small = McGrid::cubic([-1.0; 3], [1.0; 3], 64).unwrap();
-        assert!(small.memory_estimate(batch) < 64e6);
-        assert!(small.check_fits(batch, Some(1 << 30)).is_ok());
-        assert!(huge.check_fits(batch, None).is_ok());
+        assert!(small.memory_estimate(&batch) < 64e6);
+        assert!(small.check_fits(&batch, Some(1 << 30)).is_ok());
+        assert!(huge.check_fits(&batch, None).is_ok());
     }
 
     #[test]

@@ -23,7 +23,7 @@ pub struct Args {
     #[arg(long)]
     pub out: PathBuf,
     /// Marching-cubes resolution of the evaluated mesh.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = i2sdf_eval::neural::MESH_RESOLUTION)]
     pub mesh_resolution: usize,
     /// F-score threshold in scene (world) units.
     #[arg(long, default_value_t = 0.05)]
@@ -54,7 +54,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let dataset = i2sdf_data::load(&args.data)?;
     // A mesh resolution that cannot fit is refused now, not after the views are rendered.
     i2sdf_model::marching_cubes::sdf_grid(&scene, &dataset.bounds, args.mesh_resolution, 0.01)?.check_fits(
-        i2sdf_model::McOptions::default().batch_points,
+        &i2sdf_model::McOptions::for_sdf(args.mesh_resolution),
         i2sdf_model::marching_cubes::MachineMemory::read().map(|m| m.available),
     )?;
     let mut options = EvalOptions {

@@ -11,7 +11,7 @@ pub struct Args {
     #[arg(long)]
     pub out: PathBuf,
     /// Samples along the longest side of the scene's bounding box.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = i2sdf_eval::neural::MESH_RESOLUTION)]
     pub resolution: usize,
 }
 
