@@ -218,33 +218,14 @@ fn eval_bad_input_exits_2() {
         &["run.json"],
     );
     expect(
-        i2sdf(&[
-            "eval",
-            "--run",
-            s(run),
-            "--data",
-            s(data),
-            "--out",
-            s(&json),
-            "--threshold=-1",
-        ]),
+        i2sdf(&eval_args(run, data, &json, &["--threshold=-1"])),
         2,
         &["threshold"],
     );
     // Refused before any view is rendered.
     let t = std::time::Instant::now();
     expect(
-        i2sdf(&[
-            "eval",
-            "--run",
-            s(run),
-            "--data",
-            s(data),
-            "--out",
-            s(&json),
-            "--mesh-resolution",
-            "100000",
-        ]),
+        i2sdf(&eval_args(run, data, &json, &["--mesh-resolution", "100000"])),
         2,
         &["marching cubes at resolution 100000", "lower the resolution"],
     );
@@ -270,17 +251,7 @@ fn failed_writes_exit_1_and_leave_nothing_half_written() {
     );
     let json = unwritable(dir.path(), "m.json");
     expect(
-        i2sdf(&[
-            "eval",
-            "--run",
-            s(run),
-            "--data",
-            s(data),
-            "--out",
-            s(&json),
-            "--mesh-resolution",
-            "32",
-        ]),
+        i2sdf(&eval_args(run, data, &json, &["--mesh-resolution", "32"])),
         1,
         &["not_a_directory"],
     );

@@ -117,3 +117,10 @@ pub fn tiny_stage2(data: &Path, stage1: &Path, dest: &Path) {
     let o = train_material(data, dest, &TINY_STAGE2);
     assert_eq!(o.code, 0, "{}", o.stderr);
 }
+
+/// `eval --run RUN --data DATA --out OUT` followed by `extra`.
+pub fn eval_args<'a>(run: &'a Path, data: &'a Path, out: &'a Path, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut args = vec!["eval", "--run", s(run), "--data", s(data), "--out", s(out)];
+    args.extend_from_slice(extra);
+    args
+}
