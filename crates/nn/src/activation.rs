@@ -25,9 +25,9 @@ pub enum Activation {
     Sigmoid,
 }
 
-const LOG2E: f32 = std::f32::consts::LOG2_E;
-const LN2_HI: f32 = 0.693_359_4;
-const LN2_LO: f32 = -2.121_944_4e-4;
+pub(crate) const LOG2E: f32 = std::f32::consts::LOG2_E;
+pub(crate) const LN2_HI: f32 = 0.693_359_4;
+pub(crate) const LN2_LO: f32 = -2.121_944_4e-4;
 
 /// `e^x`, relative error ~2e-7, clamped to the normal f32 range; NaN stays NaN. Branch-free so
 /// loops over slices vectorize.
@@ -80,6 +80,17 @@ fn log1p_unit(e: f32) -> f32 {
 impl Activation {
     /// `a = φ(z)` in place.
     pub fn forward_inplace(self, z: &mut [f32]) {
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx512f"))]
+        if let Activation::Softplus { beta } = self {
+            // SAFETY: the build enables AVX-512F (checked by the cfg).
+            let done = unsafe { crate::activation_simd::softplus_forward(z, beta) };
+            return self.forward_inplace_scalar(&mut z[done..]);
+        }
+        self.forward_inplace_scalar(z)
+    }
+
+    /// [`forward_inplace`](Self::forward_inplace) without the AVX-512 path.
+    pub(crate) fn forward_inplace_scalar(self, z: &mut [f32]) {
         match self {
             Activation::Identity => {}
             Activation::Relu => z.iter_mut().for_each(|v| *v = v.max(0.0)),
@@ -132,6 +143,17 @@ impl Activation {
     /// `s = φ'(z)` for every output `a = φ(z)`.
     pub fn derivative_into(self, a: &[f32], s: &mut [f32]) {
         debug_assert_eq!(a.len(), s.len());
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx512f"))]
+        if let Activation::Softplus { beta } = self {
+            // SAFETY: the build enables AVX-512F (checked by the cfg).
+            let done = unsafe { crate::activation_simd::softplus_derivative(a, s, beta) };
+            return self.derivative_into_scalar(&a[done..], &mut s[done..]);
+        }
+        self.derivative_into_scalar(a, s)
+    }
+
+    /// [`derivative_into`](Self::derivative_into) without the AVX-512 path.
+    pub(crate) fn derivative_into_scalar(self, a: &[f32], s: &mut [f32]) {
         match self {
             Activation::Identity => s.fill(1.0),
             Activation::Relu => s
@@ -172,6 +194,17 @@ impl Activation {
     /// `g ← g ⊙ φ'(z)` given the outputs `a`: the backward of the activation.
     pub fn backward_inplace(self, a: &[f32], g: &mut [f32]) {
         debug_assert_eq!(a.len(), g.len());
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx512f"))]
+        if let Activation::Softplus { beta } = self {
+            // SAFETY: the build enables AVX-512F (checked by the cfg).
+            let done = unsafe { crate::activation_simd::softplus_backward(a, g, beta) };
+            return self.backward_inplace_scalar(&a[done..], &mut g[done..]);
+        }
+        self.backward_inplace_scalar(a, g)
+    }
+
+    /// [`backward_inplace`](Self::backward_inplace) without the AVX-512 path.
+    pub(crate) fn backward_inplace_scalar(self, a: &[f32], g: &mut [f32]) {
         match self {
             Activation::Identity => {}
             Activation::Relu => g.iter_mut().zip(a).for_each(|(g, &a)| {

@@ -73,6 +73,8 @@
 //!   threading is compiled out (no `threading` feature) so it never competes with rayon.
 
 pub mod activation;
+#[cfg(all(target_arch = "x86_64", target_feature = "avx512f"))]
+mod activation_simd;
 pub mod adam;
 pub mod bench;
 pub mod encoding;
