@@ -86,26 +86,25 @@ pub(super) fn softplus_forward(z: &mut [f32], beta: f32) -> usize {
 /// `s = 1 − e^{−β a}` on the first `16·⌊n/16⌋` values; returns how many were done.
 #[target_feature(enable = "avx512f")]
 pub(super) fn softplus_derivative(a: &[f32], s: &mut [f32], beta: f32) -> usize {
-    let neg_beta = _mm512_set1_ps(-beta);
-    let n = a.len().min(s.len()) / 16 * 16;
-    for (a, s) in a[..n].chunks_exact(16).zip(s[..n].chunks_exact_mut(16)) {
-        // SAFETY: both chunks hold exactly 16 floats.
-        let d = derivative16(unsafe { _mm512_loadu_ps(a.as_ptr()) }, neg_beta);
-        unsafe { _mm512_storeu_ps(s.as_mut_ptr(), d) };
-    }
-    n
+    derivative_pass(a, s, beta, |d, _| d)
 }
 
 /// `g ← g · (1 − e^{−β a})` on the first `16·⌊n/16⌋` values; returns how many were done.
 #[target_feature(enable = "avx512f")]
 pub(super) fn softplus_backward(a: &[f32], g: &mut [f32], beta: f32) -> usize {
+    derivative_pass(a, g, beta, |d, g| _mm512_mul_ps(g, d))
+}
+
+/// `out ← combine(1 − e^{−β a}, out)` over whole 16-lane chunks; returns how many were done.
+#[inline]
+#[target_feature(enable = "avx512f")]
+fn derivative_pass(a: &[f32], out: &mut [f32], beta: f32, combine: impl Fn(__m512, __m512) -> __m512) -> usize {
     let neg_beta = _mm512_set1_ps(-beta);
-    let n = a.len().min(g.len()) / 16 * 16;
-    for (a, g) in a[..n].chunks_exact(16).zip(g[..n].chunks_exact_mut(16)) {
-        // SAFETY: both chunks hold exactly 16 floats.
-        let d = derivative16(unsafe { _mm512_loadu_ps(a.as_ptr()) }, neg_beta);
-        let gv = unsafe { _mm512_loadu_ps(g.as_ptr()) };
-        unsafe { _mm512_storeu_ps(g.as_mut_ptr(), _mm512_mul_ps(gv, d)) };
+    let n = a.len().min(out.len()) / 16 * 16;
+    for (a, o) in a[..n].chunks_exact(16).zip(out[..n].chunks_exact_mut(16)) {
+        // SAFETY: both chunks hold exactly 16 floats; unaligned loads and stores.
+        let (av, ov) = unsafe { (_mm512_loadu_ps(a.as_ptr()), _mm512_loadu_ps(o.as_ptr())) };
+        unsafe { _mm512_storeu_ps(o.as_mut_ptr(), combine(derivative16(av, neg_beta), ov)) };
     }
     n
 }
