@@ -199,8 +199,6 @@ struct PlaneSource<'g, F> {
     /// Indices into `block_values` of the batch in `points`.
     targets: Vec<usize>,
     batch_values: Vec<f32>,
-    /// Fine samples sent to the sampler so far.
-    evaluated: u64,
 }
 
 impl<F: FnMut(&[[f32; 3]], &mut [f32])> PlaneSource<'_, F> {
@@ -218,7 +216,6 @@ impl<F: FnMut(&[[f32; 3]], &mut [f32])> PlaneSource<'_, F> {
         for (&t, &v) in self.targets.iter().zip(&self.batch_values) {
             self.block_values[t] = v;
         }
-        self.evaluated += self.points.len() as u64;
         self.points.clear();
         self.targets.clear();
         Ok(())
@@ -296,7 +293,6 @@ where
         points: Vec::new(),
         targets: Vec::new(),
         batch_values: Vec::new(),
-        evaluated: 0,
     };
     let plane_len = nx * ny;
     let mut mesh = TriangleMesh::default();
