@@ -297,6 +297,7 @@ const STAGE2_SETS: &[(&str, &str, &[&str])] = &[
     ("emitter_threshold > 1", "stage2.emitter_threshold=2", &["stage2.emitter_threshold"]),
     ("emitter_threshold = -inf", "stage2.emitter_threshold=-inf", &["stage2.emitter_threshold", "finite"]),
     ("use_hdr wrong type", "stage2.use_hdr=sometimes", &["stage2.use_hdr"]),
+    ("stage2.loss unknown", "stage2.loss=l3", &["stage2.loss", "l3"]),
     ("cache over 2^27 samples", "stage2.cache_pixels=67108864", &["stage2.cache_pixels", "stage2.cache_samples"]),
     ("unknown stage2 key", "stage2.iteratons=5", &["iteratons"]),
     ("stage2 not a section", "stage2=3", &["stage2"]),
@@ -305,6 +306,7 @@ const STAGE2_SETS: &[(&str, &str, &[&str])] = &[
     ("material.hidden_dim 4", "material.hidden_dim=4", &["material.hidden_dim"]),
     ("material.rho_min = nan", "material.rho_min=nan", &["material.rho_min", "finite"]),
     ("material.rho_init 1", "material.rho_init=1", &["material.rho_init"]),
+    ("material.ks_init 1.5", "material.ks_init=1.5", &["material.ks_init"]),
     ("material.backbone unknown", "material.backbone=cnn", &["material.backbone", "cnn"]),
     ("unknown material key", "material.colour=1", &["colour"]),
 ];

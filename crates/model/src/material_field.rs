@@ -59,6 +59,8 @@ pub struct MaterialConfig {
     /// pixel, so it keeps this value: starting rough means a surface is called glossy only where
     /// the images show a highlight.
     pub rho_init: f32,
+    /// Specular albedo a fresh field starts at (all three channels).
+    pub ks_init: f32,
 }
 
 impl Default for MaterialConfig {
@@ -73,6 +75,7 @@ impl Default for MaterialConfig {
             hidden_layers: 2,
             rho_min: 0.05,
             rho_init: 0.9,
+            ks_init: 0.04,
         }
     }
 }
@@ -104,6 +107,7 @@ impl MaterialConfig {
         check::int("material.hidden_layers", self.hidden_layers, 1, 8)?;
         check::real("material.rho_min", self.rho_min, 0.0, 0.5)?;
         check::real("material.rho_init", self.rho_init, self.rho_min as f64 + 0.01, 0.99)?;
+        check::real("material.ks_init", self.ks_init, 0.01, 0.99)?;
         Ok(())
     }
 
@@ -219,7 +223,8 @@ impl MaterialField {
             *w *= 0.1;
         }
         let rho_s = ((config.rho_init - config.rho_min) / (1.0 - config.rho_min)).clamp(0.01, 0.99);
-        let bias = [0.0, 0.0, 0.0, logit(0.04), logit(0.04), logit(0.04), logit(rho_s)];
+        let ks = logit(config.ks_init);
+        let bias = [0.0, 0.0, 0.0, ks, ks, ks, logit(rho_s)];
         mlp.params[last.bias_offset..last.bias_offset + MATERIAL_CHANNELS].copy_from_slice(&bias);
         MaterialField {
             config: config.clone(),
@@ -376,6 +381,7 @@ mod tests {
             hidden_layers: 2,
             rho_min: 0.05,
             rho_init: 0.9,
+            ks_init: 0.04,
         }
     }
 

@@ -61,6 +61,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let m = first.stage2.cache_samples;
         let (mut l1, mut l1_rel, mut n) = (0.0f64, 0.0f64, 0.0f64);
         let mut ratio = Vec::new();
+        let mut glossy_ratio = Vec::new();
+        let mut glossy_diffuse = Vec::new();
         // DUMP_RATIO=DIR: the GT-material pred/target ratio of the first training views as
         // images (grey = ratio / 2: mid-grey where the fit's floor is exact).
         let dump = std::env::var("DUMP_RATIO").ok();
@@ -88,6 +90,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             l1 += (pred - px.target).abs().element_sum() as f64 / 3.0;
             l1_rel += ((pred - px.target).abs().element_sum() / px.target.element_sum().max(1e-3)) as f64;
             ratio.push(pred.element_sum() / px.target.element_sum().max(1e-4));
+            if ks.data[p * 3] > 0.2 {
+                glossy_ratio.push(pred.element_sum() / px.target.element_sum().max(1e-4));
+                // The same pixel shaded as a pure diffuse surface of the Kd that fits it best.
+                let d = i2sdf_render::GgxBrdf::new(Vec3::ONE, Vec3::ZERO, 1.0);
+                let e = match stage.diffuse.get(f0 as usize / m) {
+                    Some(dd) => shade_pooled(&d, nv, samples, &emission, dd),
+                    None => shade(&d, nv, samples, &emission),
+                };
+                glossy_diffuse.push((px.target, e, pred));
+            }
             if let Some(m) = ratio_maps.get_mut(px.view as usize) {
                 let r = 0.5 * pred.element_sum() / px.target.element_sum().max(1e-4);
                 m[p * 3..p * 3 + 3].copy_from_slice(&[r; 3]);
@@ -122,6 +134,30 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 }
                 i2sdf_data::imageio::write_png(&std::path::Path::new(dir).join(format!("ratio_{v}.png")), &img)?;
             }
+        }
+        glossy_ratio.sort_by(f32::total_cmp);
+        if !glossy_ratio.is_empty() {
+            let q = |f: f64| glossy_ratio[((glossy_ratio.len() - 1) as f64 * f) as usize];
+            // Best constant grey Kd explaining all glossy pixels as diffuse, and its L1 vs GT's.
+            let (num, den) = glossy_diffuse.iter().fold((0.0f64, 0.0f64), |(a, b), (t, e, _)| {
+                (a + t.dot(*e) as f64, b + e.dot(*e) as f64)
+            });
+            let kd = (num / den.max(1e-12)) as f32;
+            let (mut l_gt, mut l_d) = (0.0f64, 0.0f64);
+            for (t, e, pr) in &glossy_diffuse {
+                l_gt += (*pr - *t).abs().element_sum() as f64;
+                l_d += (*e * kd - *t).abs().element_sum() as f64;
+            }
+            println!(
+                "  glossy pixels ({}): GT-material ratio p10 {:.2} p50 {:.2} p90 {:.2}; L1 GT {:.4} vs best grey diffuse Kd {:.3}: {:.4}",
+                glossy_ratio.len(),
+                q(0.1),
+                q(0.5),
+                q(0.9),
+                l_gt / (3 * glossy_diffuse.len()) as f64,
+                kd,
+                l_d / (3 * glossy_diffuse.len()) as f64
+            );
         }
         ratio.sort_by(f32::total_cmp);
         let q = |f: f64| ratio[((ratio.len() - 1) as f64 * f) as usize];
@@ -200,6 +236,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         stage.fields.material.infer(&pos, &features, &mut m);
         let (mut se, mut cnt, mut rl1, mut ksl1) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
         let (mut pg, mut pp) = ([0.0f64; 3], [0.0f64; 3]);
+        let mut glossy = [[0.0f64; 6]; 2];
         for (j, &i) in idx.iter().enumerate() {
             let (kd, ks, r) = gt[i];
             let o = &m[j * MATERIAL_CHANNELS..(j + 1) * MATERIAL_CHANNELS];
@@ -211,6 +248,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
             cnt += 3.0;
             rl1 += (o[6] - r).abs() as f64;
+            // Glossy (GT Ks > 0.2) against the rest: is ρ learnt where it is identifiable?
+            let g = &mut glossy[(ks.element_sum() / 3.0 > 0.2) as usize];
+            g[0] += 1.0;
+            g[1] += (0..3).map(|c| ((o[c] - kd[c]) as f64).powi(2)).sum::<f64>() / 3.0;
+            g[2] += o[6] as f64;
+            g[3] += r as f64;
+            g[4] += (o[3] + o[4] + o[5]) as f64 / 3.0;
+            g[5] += ks.element_sum() as f64 / 3.0;
         }
         let s: Vec<f64> = (0..3).map(|c| pg[c] / pp[c].max(1e-12)).collect();
         let mut se2 = 0.0;
@@ -259,6 +304,78 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             ksl1 / px,
             em.join(", ")
         );
+        // The fitted materials on the training pixels' cache: L1 against the targets, matte and
+        // glossy (GT Ks > 0.2), to set beside the GT materials' L1 on the same pixels (above).
+        {
+            use i2sdf_train::shading::{shade, shade_pooled};
+            use i2sdf_train::stage2::PixelKind;
+            let train: Vec<_> = dataset.split(Split::Train).collect();
+            let emission: Vec<Vec3> = (0..stage.fields.emitters.len())
+                .map(|k| stage.fields.emitters.emission(k))
+                .collect();
+            let surf: Vec<usize> = (0..stage.pixels.len())
+                .filter(|&i| matches!(stage.pixels[i].kind, PixelKind::Surface { .. }))
+                .collect();
+            let pos: Vec<f32> = surf
+                .iter()
+                .flat_map(|&i| {
+                    ((stage.pixels[i].point.position - Vec3::from_array(n.center.map(|v| v as f32))) / n.scale as f32)
+                        .to_array()
+                })
+                .collect();
+            let features = match stage.fields.material.config.backbone {
+                MaterialBackbone::FeatureMlp => {
+                    let frozen = FrozenScene::new(&stage.scene, &stage.fields.emitters, stage.fields.radiometry);
+                    let w: Vec<Vec3> = surf.iter().map(|&i| stage.pixels[i].point.position).collect();
+                    let mut z = vec![0.0; w.len() * stage.scene.feature_dim()];
+                    frozen.features(&w, &mut z);
+                    z
+                }
+                MaterialBackbone::HashGrid => Vec::new(),
+            };
+            let mut mo = vec![0.0; surf.len() * MATERIAL_CHANNELS];
+            stage.fields.material.infer(&pos, &features, &mut mo);
+            let m = config.stage2.cache_samples;
+            let mut acc = [[0.0f64; 2]; 2];
+            for (j, &i) in surf.iter().enumerate() {
+                let px = &stage.pixels[i];
+                let PixelKind::Surface { first: f0 } = px.kind else {
+                    continue;
+                };
+                let fr = train[px.view as usize];
+                let Some(ks) = &fr.specular else { continue };
+                let o = &mo[j * MATERIAL_CHANNELS..(j + 1) * MATERIAL_CHANNELS];
+                let brdf = i2sdf_render::GgxBrdf::new(Vec3::from_slice(&o[0..3]), Vec3::from_slice(&o[3..6]), o[6]);
+                let samples = &stage.cache[f0 as usize..f0 as usize + m];
+                let nv = px.point.normal.dot(px.point.view);
+                let pred = match stage.diffuse.get(f0 as usize / m) {
+                    Some(d) => shade_pooled(&brdf, nv, samples, &emission, d),
+                    None => shade(&brdf, nv, samples, &emission),
+                };
+                let g = (ks.data[px.pixel as usize * 3] > 0.2) as usize;
+                acc[g][0] += (pred - px.target).abs().element_sum() as f64 / 3.0;
+                acc[g][1] += 1.0;
+            }
+            println!(
+                "    fitted materials on the cache: L1 matte {:.4}, glossy {:.4} ({} px)",
+                acc[0][0] / acc[0][1].max(1.0),
+                acc[1][0] / acc[1][1].max(1.0),
+                acc[1][1]
+            );
+        }
+        for (name, g) in ["matte", "glossy"].iter().zip(&glossy) {
+            let n = g[0].max(1.0);
+            println!(
+                "    {name} (GT Ks {} 0.2): {} px, Kd PSNR {:.2}, rho {:.3} (GT {:.3}), Ks {:.3} (GT {:.3})",
+                if *name == "glossy" { ">" } else { "<=" },
+                g[0],
+                -10.0 * (g[1] / n).log10(),
+                g[2] / n,
+                g[3] / n,
+                g[4] / n,
+                g[5] / n
+            );
+        }
     }
     Ok(())
 }

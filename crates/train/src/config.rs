@@ -52,6 +52,18 @@ pub enum Stage2Estimator {
     Live,
 }
 
+/// The re-render loss of stage 2 (per channel, linear radiance).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stage2Loss {
+    /// The paper's L1: the median over the views that see a point, so a highlight seen in a
+    /// minority of them is an outlier it ignores.
+    L1,
+    /// Squared error over twice the mean surface target (so its slope is 1 at a residual of
+    /// that size, like L1's): the mean over views, highlights included.
+    L2,
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Stage2Config {
@@ -60,6 +72,7 @@ pub struct Stage2Config {
     /// Pixels per iteration.
     pub pixels: usize,
     pub estimator: Stage2Estimator,
+    pub loss: Stage2Loss,
     /// Training pixels whose surface point, normal and incident radiance are cached (drawn
     /// uniformly over the training views; 0 = every pixel).
     pub cache_pixels: usize,
@@ -116,11 +129,12 @@ impl Default for Stage2Config {
             iterations: 1500,
             pixels: 4096,
             estimator: Stage2Estimator::Cached,
-            cache_pixels: 131_072,
+            loss: Stage2Loss::L1,
+            cache_pixels: 262_144,
             cache_samples: 64,
             refresh_pixels: 0,
             bake_resolution: 256,
-            irradiance_radius: 0.016,
+            irradiance_radius: 0.024,
             input_normals: true,
             label_unobserved: false,
             samples: 16,

@@ -1,8 +1,26 @@
-//! The stage-1 loss terms (paper Sec. 4.1–4.2, eq:bubble, "eikonal", "depth", "normal",
-//! "smooth", "emitter BCE", eq:train1 "L_rgb"), each as a value plus its gradient with respect to what
-//! the renderer or the SDF produced. Every term is a mean over its batch (as in VolSDF's
+//! The loss terms: stage 1's (paper Sec. 4.1–4.2, eq:bubble, "eikonal", "depth", "normal",
+//! "smooth", "emitter BCE", eq:train1 "L_rgb") and stage 2's re-render loss per channel
+//! ([`rerender_channel`]), each as a value plus its gradient with respect to what the renderer or
+//! the SDF produced. Every term is a mean over its batch (as in VolSDF's
 //! implementation) so that weights do not depend on the batch size. Callers add the weighted
 //! gradients into their upstream buffers (`grad += w · ∂term`).
+
+use crate::config::Stage2Loss;
+
+/// Stage 2's re-render loss of one channel (linear radiance) and its slope ∂/∂pred, with the
+/// saturation rule of a clipped LDR target: it only bounds the prediction from below. `scale`:
+/// the mean surface target, L2's denominator (so that its slope is 1 at a residual of that size).
+#[inline]
+pub fn rerender_channel(kind: Stage2Loss, pred: f32, target: f32, saturated: bool, scale: f32) -> (f32, f32) {
+    let d = pred - target;
+    if saturated && d >= 0.0 {
+        return (0.0, 0.0);
+    }
+    match kind {
+        Stage2Loss::L1 => (d.abs(), d.signum()),
+        Stage2Loss::L2 => (d * d / (2.0 * scale), d / scale),
+    }
+}
 
 /// L_rgb = mean over rays and channels of |Ĉ − C|. Adds w·∂L/∂Ĉ into `grad`.
 pub fn rgb_l1(pred: &[[f32; 3]], target: &[[f32; 3]], w: f32, grad: &mut [[f32; 3]]) -> f32 {
@@ -177,6 +195,24 @@ mod tests {
     // Inputs are kept away from the kinks of |·| so central differences are exact enough.
     const P: [f32; 6] = [0.3, -0.7, 1.2, 0.9, 0.2, -0.4];
     const T: [f32; 6] = [0.1, 0.2, -0.3, 0.5, -0.6, 0.7];
+
+    #[test]
+    fn rerender_channel_slopes_match_finite_differences_and_saturation_only_bounds_below() {
+        for kind in [Stage2Loss::L1, Stage2Loss::L2] {
+            for (&p, &t) in P.iter().zip(&T) {
+                let f = |x: &[f32]| rerender_channel(kind, x[0], t, false, 0.4).0;
+                close(&[rerender_channel(kind, p, t, false, 0.4).1], &numeric(&f, &[p]), 1e-2);
+                // A clipped target: no loss and no slope above it, the unclipped ones below.
+                let above = rerender_channel(kind, t + 0.1, t, true, 0.4);
+                assert_eq!(above, (0.0, 0.0));
+                let below = rerender_channel(kind, t - 0.1, t, true, 0.4);
+                assert_eq!(below, rerender_channel(kind, t - 0.1, t, false, 0.4));
+                assert!(below.1 < 0.0);
+            }
+        }
+        // L2's slope is 1 at a residual of `scale`, like L1's.
+        assert!((rerender_channel(Stage2Loss::L2, 0.9, 0.5, false, 0.4).1 - 1.0).abs() < 1e-6);
+    }
 
     #[test]
     fn rgb_and_depth_gradients() {

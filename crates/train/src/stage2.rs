@@ -23,6 +23,7 @@
 use crate::config::{Stage2Estimator, TrainConfig};
 use crate::driver::{StepOutcome, TrainStage};
 use crate::kmeans::{cluster_emitters, ClusterSettings};
+use crate::losses::rerender_channel;
 use crate::shading::{
     pool_diffuse, shade, shade_backward, shade_pooled, shade_pooled_backward, trace_incident, DiffuseSums,
     IncidentSample, ShadingPoint,
@@ -110,6 +111,8 @@ pub struct Stage2 {
     /// Per surface pixel (cache order), the diffuse sums of its samples averaged over nearby
     /// pixels (`stage2.irradiance_radius`); empty when pooling is off.
     pub diffuse: Vec<DiffuseSums>,
+    /// The mean surface target ([`Stage2Loss::L2`]'s scale).
+    target_scale: f32,
 }
 
 /// The surface pixels (cache order) whose samples iteration `it` re-traces: `count` draws of the
@@ -465,6 +468,14 @@ impl Stage2 {
         let grad = material.new_grad();
         let k = emitters.len();
         let initial_emission = emitters.log_emission.clone();
+        // L2's scale: the mean surface target.
+        let (sum, n) = pixels
+            .iter()
+            .filter(|p| matches!(p.kind, PixelKind::Surface { .. }))
+            .fold((0.0f64, 0usize), |(s, n), p| {
+                (s + p.target.element_sum() as f64 / 3.0, n + 1)
+            });
+        let target_scale = if sum > 0.0 { (sum / n as f64) as f32 } else { 1.0 };
         Ok(Stage2 {
             config,
             scene,
@@ -486,6 +497,7 @@ impl Stage2 {
             baked,
             observed,
             diffuse,
+            target_scale,
         })
     }
 
@@ -614,17 +626,6 @@ impl Stage2 {
     }
 }
 
-/// L1 of one channel with the saturation rule: a saturated target only bounds from below.
-#[inline]
-fn l1(pred: f32, target: f32, saturated: bool) -> (f32, f32) {
-    let d = pred - target;
-    if saturated && d >= 0.0 {
-        (0.0, 0.0)
-    } else {
-        (d.abs(), d.signum())
-    }
-}
-
 fn brdf_of(m: &[f32]) -> GgxBrdf {
     GgxBrdf::new(Vec3::new(m[0], m[1], m[2]), Vec3::new(m[3], m[4], m[5]), m[6])
 }
@@ -710,6 +711,7 @@ impl TrainStage for Stage2 {
             .max(1) as f32;
         let n_emitter = (b as f32 - n_surface).max(1.0);
         let mut d_out = vec![0.0f32; 2 * b * MATERIAL_CHANNELS];
+        let scale = self.target_scale;
         // Re-render and emitter terms, pixel-parallel; per-chunk emission gradients reduced after.
         let pixels = &self.pixels;
         let cache = &self.cache;
@@ -740,7 +742,8 @@ impl TrainStage for Stage2 {
                             };
                             let mut g = Vec3::ZERO;
                             for c in 0..3 {
-                                let (l, s) = l1(pred[c], px.target[c], px.saturated >> c & 1 == 1);
+                                let (l, s) =
+                                    rerender_channel(c2.loss, pred[c], px.target[c], px.saturated >> c & 1 == 1, scale);
                                 render += l;
                                 g[c] = s / (3.0 * n_surface);
                             }
@@ -757,7 +760,8 @@ impl TrainStage for Stage2 {
                         PixelKind::Emitter(e) => {
                             let pred = emission[e as usize];
                             for c in 0..3 {
-                                let (l, s) = l1(pred[c], px.target[c], px.saturated >> c & 1 == 1);
+                                let (l, s) =
+                                    rerender_channel(c2.loss, pred[c], px.target[c], px.saturated >> c & 1 == 1, scale);
                                 emit += l;
                                 d_em[e as usize][c] += s / (3.0 * n_emitter);
                             }
