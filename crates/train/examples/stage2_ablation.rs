@@ -218,22 +218,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         stage = trainer.stage;
         let secs = t.elapsed().as_secs_f64();
         // Materials at the test pixels.
-        let n = stage.scene.normalization;
-        let pos: Vec<f32> = world
-            .iter()
-            .flat_map(|p| ((*p - Vec3::from_array(n.center.map(|v| v as f32))) / n.scale as f32).to_array())
-            .collect();
-        let features = match stage.fields.material.config.backbone {
-            MaterialBackbone::FeatureMlp => {
-                let frozen = FrozenScene::new(&stage.scene, &stage.fields.emitters, stage.fields.radiometry);
-                let mut z = vec![0.0; world.len() * stage.scene.feature_dim()];
-                frozen.features(&world, &mut z);
-                z
-            }
-            MaterialBackbone::HashGrid => Vec::new(),
-        };
-        let mut m = vec![0.0; world.len() * MATERIAL_CHANNELS];
-        stage.fields.material.infer(&pos, &features, &mut m);
+        let m = materials_at(&stage, &world);
         let (mut se, mut cnt, mut rl1, mut ksl1) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
         let (mut pg, mut pp) = ([0.0f64; 3], [0.0f64; 3]);
         let mut glossy = [[0.0f64; 6]; 2];
@@ -316,25 +301,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let surf: Vec<usize> = (0..stage.pixels.len())
                 .filter(|&i| matches!(stage.pixels[i].kind, PixelKind::Surface { .. }))
                 .collect();
-            let pos: Vec<f32> = surf
-                .iter()
-                .flat_map(|&i| {
-                    ((stage.pixels[i].point.position - Vec3::from_array(n.center.map(|v| v as f32))) / n.scale as f32)
-                        .to_array()
-                })
-                .collect();
-            let features = match stage.fields.material.config.backbone {
-                MaterialBackbone::FeatureMlp => {
-                    let frozen = FrozenScene::new(&stage.scene, &stage.fields.emitters, stage.fields.radiometry);
-                    let w: Vec<Vec3> = surf.iter().map(|&i| stage.pixels[i].point.position).collect();
-                    let mut z = vec![0.0; w.len() * stage.scene.feature_dim()];
-                    frozen.features(&w, &mut z);
-                    z
-                }
-                MaterialBackbone::HashGrid => Vec::new(),
-            };
-            let mut mo = vec![0.0; surf.len() * MATERIAL_CHANNELS];
-            stage.fields.material.infer(&pos, &features, &mut mo);
+            let w: Vec<Vec3> = surf.iter().map(|&i| stage.pixels[i].point.position).collect();
+            let mo = materials_at(&stage, &w);
             let m = config.stage2.cache_samples;
             let mut acc = [[0.0f64; 2]; 2];
             for (j, &i) in surf.iter().enumerate() {
@@ -378,6 +346,28 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     Ok(())
+}
+
+/// Kd, Ks, ρ (`[n × 7]`) of the stage's material field at world points.
+fn materials_at(stage: &Stage2, world: &[Vec3]) -> Vec<f32> {
+    let n = stage.scene.normalization;
+    let c = Vec3::from_array(n.center.map(|v| v as f32));
+    let pos: Vec<f32> = world
+        .iter()
+        .flat_map(|p| ((*p - c) / n.scale as f32).to_array())
+        .collect();
+    let features = match stage.fields.material.config.backbone {
+        MaterialBackbone::FeatureMlp => {
+            let frozen = FrozenScene::new(&stage.scene, &stage.fields.emitters, stage.fields.radiometry);
+            let mut z = vec![0.0; world.len() * stage.scene.feature_dim()];
+            frozen.features(world, &mut z);
+            z
+        }
+        MaterialBackbone::HashGrid => Vec::new(),
+    };
+    let mut m = vec![0.0; world.len() * MATERIAL_CHANNELS];
+    stage.fields.material.infer(&pos, &features, &mut m);
+    m
 }
 
 fn tempfile_dir() -> std::io::Result<std::path::PathBuf> {
