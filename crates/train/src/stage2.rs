@@ -111,7 +111,7 @@ pub struct Stage2 {
     /// Per surface pixel (cache order), the diffuse sums of its samples averaged over nearby
     /// pixels (`stage2.irradiance_radius`); empty when pooling is off.
     pub diffuse: Vec<DiffuseSums>,
-    /// The mean surface target ([`Stage2Loss::L2`]'s scale).
+    /// The mean surface target ([`crate::config::Stage2Loss::L2`]'s scale).
     target_scale: f32,
 }
 
