@@ -42,6 +42,23 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let ks = read_float_map(&m.join(format!("{stem}_ks.exr")))?;
         let gr = read_float_map(&m.join(format!("{stem}_roughness.exr")))?;
         let mask = read_image(&data.join("mask").join(format!("{stem}.png")))?;
+        // DUMP=DIR: GT Kd beside the prediction (sRGB-encoded, 3× enlarged), to look at.
+        if let Ok(dir) = std::env::var("DUMP") {
+            let (w, h, k) = (gt.width, gt.height, 3usize);
+            let mut img = i2sdf_data::ImageF32::new(2 * w * k, h * k, 3);
+            let enc = |v: f32| i2sdf_data::imageio::linear_to_srgb(v.max(0.0));
+            for y in 0..h * k {
+                for x in 0..2 * w * k {
+                    let (src, sx) = if x < w * k { (&gt, x / k) } else { (&pred, x / k - w) };
+                    let i = (y / k) * w + sx;
+                    for c in 0..3 {
+                        img.data[(y * 2 * w * k + x) * 3 + c] = enc(src.data[i * src.channels + c]);
+                    }
+                }
+            }
+            std::fs::create_dir_all(&dir)?;
+            i2sdf_data::imageio::write_png(&Path::new(&dir).join(format!("{stem}.png")), &img)?;
+        }
         for i in 0..gt.width * gt.height {
             if mask.data[i * mask.channels] > 0.5 {
                 continue;

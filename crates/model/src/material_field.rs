@@ -55,11 +55,14 @@ pub struct MaterialConfig {
     pub hidden_layers: usize,
     /// Smallest roughness the field can output.
     pub rho_min: f32,
-    /// Roughness a fresh field starts at. Where Ks ≈ 0 (most walls) ρ has no effect on any
-    /// pixel, so it keeps this value: starting rough means a surface is called glossy only where
-    /// the images show a highlight.
+    /// Roughness a fresh field starts at. Moderate by default (0.5): from a rough start a
+    /// glossy surface's Ks drains away before its ρ can fall (a wide lobe is only more diffuse
+    /// light), and the fit paints the reflections into Kd. Where Ks ends near zero no pixel
+    /// depends on ρ; stage 2's roughness prior (`stage2.rho_prior`) then takes it rough.
     pub rho_init: f32,
-    /// Specular albedo a fresh field starts at (all three channels).
+    /// Specular albedo a fresh field starts at (all three channels): 0.3 by default, so that
+    /// every surface starts with a visible lobe and the fit decides where to keep it (matte ones
+    /// fall to Ks ≈ 0.01 within the run; from 0.04 glossy ones never rise).
     pub ks_init: f32,
 }
 
@@ -70,12 +73,12 @@ impl Default for MaterialConfig {
             hash_levels: 16,
             hash_log2_table: 19,
             hash_base_resolution: 16,
-            hash_finest_resolution: 1024,
+            hash_finest_resolution: 128,
             hidden_dim: 64,
             hidden_layers: 2,
             rho_min: 0.05,
-            rho_init: 0.9,
-            ks_init: 0.04,
+            rho_init: 0.5,
+            ks_init: 0.3,
         }
     }
 }
@@ -193,13 +196,9 @@ fn rows_to_level(rows: &[f32], n: usize, levels: usize, f: usize, enc: &mut [f32
 impl MaterialField {
     /// A fresh field. `feature_dim` is the SDF feature width (read only by the FeatureMlp
     /// backbone). Initialisation, seeded: the last layer's weights are scaled by 0.1 and its
-    /// biases set so that the field starts nearly uniform at Kd ≈ 0.5, Ks ≈ 0.04, ρ ≈ `rho_init` — a
-    /// mid-grey, mostly diffuse, rough material. The sigmoid's slope is largest at 0.5, so Kd
-    /// can move either way quickly; Ks ≈ 0.04 is the dielectric reflectance (F0 of IOR 1.5) that
-    /// most indoor surfaces have, and starting it small keeps the first iterations from
-    /// explaining diffuse shading by a broad glossy lobe; a rough start (0.9 by default) keeps the
-    /// lobe wide, so the 16 sampled directions of eq:render see a smooth estimate rather than
-    /// fireflies from a sharp highlight while the albedos are still wrong.
+    /// biases set so that the field starts nearly uniform at Kd ≈ 0.5, Ks ≈ `ks_init`, ρ ≈
+    /// `rho_init` (0.3 and 0.5 by default: see those keys). The sigmoid's slope is largest at 0.5,
+    /// so Kd can move either way quickly.
     pub fn new(config: &MaterialConfig, feature_dim: usize, seed: u64) -> Self {
         let grid = (config.backbone == MaterialBackbone::HashGrid).then(|| HashGrid::new(config.grid_config(), seed));
         let input_dim = match &grid {
@@ -470,7 +469,7 @@ mod tests {
     }
 
     /// Inference equals the training forward (across a block boundary), the outputs are in
-    /// range, and a fresh field starts near Kd 0.5, Ks 0.04, ρ = rho_init (0.9).
+    /// range, and a fresh field starts near Kd 0.5, Ks = ks_init, ρ = rho_init.
     #[test]
     fn infer_equals_forward_and_starts_grey() {
         for backbone in [MaterialBackbone::HashGrid, MaterialBackbone::FeatureMlp] {

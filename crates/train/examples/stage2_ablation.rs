@@ -45,32 +45,33 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     })?;
     let (surface, emitter) = stage.counts();
     println!(
-        "cache: {surface} surface + {emitter} emitter pixels, {} samples, built in {:.1} s",
-        stage.cache.len(),
+        "cache: {surface} surface + {emitter} emitter pixels × {} samples ({}), built in {:.1} s",
+        stage.cache.per_pixel,
+        if stage.cache.bake.is_some() { "baked" } else { "kept" },
         t0.elapsed().as_secs_f64()
     );
     // The floor of the fit: the cached estimator with the GROUND-TRUTH materials of the training
     // pixels against their targets (what frozen geometry, F_c and the emissions allow).
     {
-        use i2sdf_train::shading::{shade, shade_pooled};
         use i2sdf_train::stage2::PixelKind;
         let train: Vec<_> = dataset.split(Split::Train).collect();
         let emission: Vec<Vec3> = (0..stage.fields.emitters.len())
             .map(|k| stage.fields.emitters.emission(k))
             .collect();
-        let m = first.stage2.cache_samples;
         let (mut l1, mut l1_rel, mut n) = (0.0f64, 0.0f64, 0.0f64);
         let mut ratio = Vec::new();
         let mut glossy_ratio = Vec::new();
         let mut glossy_diffuse = Vec::new();
+        let mut glossy_px = Vec::new();
         // DUMP_RATIO=DIR: the GT-material pred/target ratio of the first training views as
         // images (grey = ratio / 2: mid-grey where the fit's floor is exact).
         let dump = std::env::var("DUMP_RATIO").ok();
         let mut ratio_maps: Vec<Vec<f32>> = train.iter().take(6).map(|f| vec![0.0; f.pixel_count() * 3]).collect();
         for px in &stage.pixels {
-            let PixelKind::Surface { first: f0 } = px.kind else {
+            let PixelKind::Surface { index } = px.kind else {
                 continue;
             };
+            let index = index as usize;
             let fr = train[px.view as usize];
             let (Some(kd), Some(ks), Some(r)) = (&fr.albedo, &fr.specular, &fr.roughness) else {
                 continue;
@@ -81,12 +82,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 Vec3::from_slice(&ks.data[p * 3..p * 3 + 3]),
                 r.data[p],
             );
-            let samples = &stage.cache[f0 as usize..f0 as usize + m];
             let nv = px.point.normal.dot(px.point.view);
-            let pred = match stage.diffuse.get(f0 as usize / m) {
-                Some(d) => shade_pooled(&brdf, nv, samples, &emission, d),
-                None => shade(&brdf, nv, samples, &emission),
-            };
+            let pred = stage.cache.shade(index, &brdf, nv, &emission);
             l1 += (pred - px.target).abs().element_sum() as f64 / 3.0;
             l1_rel += ((pred - px.target).abs().element_sum() / px.target.element_sum().max(1e-3)) as f64;
             ratio.push(pred.element_sum() / px.target.element_sum().max(1e-4));
@@ -94,11 +91,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 glossy_ratio.push(pred.element_sum() / px.target.element_sum().max(1e-4));
                 // The same pixel shaded as a pure diffuse surface of the Kd that fits it best.
                 let d = i2sdf_render::GgxBrdf::new(Vec3::ONE, Vec3::ZERO, 1.0);
-                let e = match stage.diffuse.get(f0 as usize / m) {
-                    Some(dd) => shade_pooled(&d, nv, samples, &emission, dd),
-                    None => shade(&d, nv, samples, &emission),
-                };
+                let e = stage.cache.shade(index, &d, nv, &emission);
                 glossy_diffuse.push((px.target, e, pred));
+                glossy_px.push((px.point, px.target, brdf, index));
             }
             if let Some(m) = ratio_maps.get_mut(px.view as usize) {
                 let r = 0.5 * pred.element_sum() / px.target.element_sum().max(1e-4);
@@ -157,6 +152,53 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 l_gt / (3 * glossy_diffuse.len()) as f64,
                 kd,
                 l_d / (3 * glossy_diffuse.len()) as f64
+            );
+        }
+        // GLOSSY_LIVE=N: the GT materials of (up to 4000) glossy pixels shaded from N samples
+        // of their own GGX mixture (the live proposal): is the cache's floor noise or bias?
+        if let Some(nl) = std::env::var("GLOSSY_LIVE").ok().and_then(|v| v.parse::<usize>().ok()) {
+            use i2sdf_train::shading::{shade, shade_pooled as pooled, trace_incident};
+            use rand::SeedableRng;
+            let sel: Vec<_> = glossy_px.iter().step_by((glossy_px.len() / 4000).max(1)).collect();
+            let frozen = stage.frozen();
+            let pts: Vec<_> = sel.iter().map(|g| g.0).collect();
+            let mut rngs: Vec<rand_pcg::Pcg32> = (0..pts.len())
+                .map(|i| rand_pcg::Pcg32::seed_from_u64(i as u64 + 99))
+                .collect();
+            let em = &stage.fields.emitters;
+            let live = trace_incident(
+                &frozen,
+                &pts,
+                nl,
+                stage.scene.normalization.scale as f32,
+                &|j| i2sdf_train::stage2::live_mixture(&sel[j].2, em, true),
+                &mut rngs,
+            );
+            let (mut l_full, mut l_pool, mut l_cache) = (0.0f64, 0.0f64, 0.0f64);
+            let mut r_full = Vec::new();
+            for (j, g) in sel.iter().enumerate() {
+                let s = &live[j * nl..(j + 1) * nl];
+                let nv = g.0.normal.dot(g.0.view);
+                let full = shade(&g.2, nv, s, &emission);
+                l_full += (full - g.1).abs().element_sum() as f64 / 3.0;
+                r_full.push(full.element_sum() / g.1.element_sum().max(1e-4));
+                if let Some(d) = stage.cache.diffuse.get(g.3) {
+                    l_pool += (pooled(&g.2, nv, s, &emission, d) - g.1).abs().element_sum() as f64 / 3.0;
+                }
+                l_cache += (stage.cache.shade(g.3, &g.2, nv, &emission) - g.1).abs().element_sum() as f64 / 3.0;
+            }
+            r_full.sort_by(f32::total_cmp);
+            let q = |f: f64| r_full[((r_full.len() - 1) as f64 * f) as usize];
+            let k = sel.len() as f64;
+            println!(
+                "  glossy GT materials, {} px, live N={nl}: L1 {:.4} (ratio p10 {:.2} p50 {:.2} p90 {:.2}); pooled diffuse + live specular {:.4}; cache {:.4}",
+                sel.len(),
+                l_full / k,
+                q(0.1),
+                q(0.5),
+                q(0.9),
+                l_pool / k,
+                l_cache / k
             );
         }
         ratio.sort_by(f32::total_cmp);
@@ -292,7 +334,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         // The fitted materials on the training pixels' cache: L1 against the targets, matte and
         // glossy (GT Ks > 0.2), to set beside the GT materials' L1 on the same pixels (above).
         {
-            use i2sdf_train::shading::{shade, shade_pooled};
             use i2sdf_train::stage2::PixelKind;
             let train: Vec<_> = dataset.split(Split::Train).collect();
             let emission: Vec<Vec3> = (0..stage.fields.emitters.len())
@@ -303,23 +344,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 .collect();
             let w: Vec<Vec3> = surf.iter().map(|&i| stage.pixels[i].point.position).collect();
             let mo = materials_at(&stage, &w);
-            let m = config.stage2.cache_samples;
             let mut acc = [[0.0f64; 2]; 2];
             for (j, &i) in surf.iter().enumerate() {
                 let px = &stage.pixels[i];
-                let PixelKind::Surface { first: f0 } = px.kind else {
+                let PixelKind::Surface { index } = px.kind else {
                     continue;
                 };
                 let fr = train[px.view as usize];
                 let Some(ks) = &fr.specular else { continue };
                 let o = &mo[j * MATERIAL_CHANNELS..(j + 1) * MATERIAL_CHANNELS];
                 let brdf = i2sdf_render::GgxBrdf::new(Vec3::from_slice(&o[0..3]), Vec3::from_slice(&o[3..6]), o[6]);
-                let samples = &stage.cache[f0 as usize..f0 as usize + m];
                 let nv = px.point.normal.dot(px.point.view);
-                let pred = match stage.diffuse.get(f0 as usize / m) {
-                    Some(d) => shade_pooled(&brdf, nv, samples, &emission, d),
-                    None => shade(&brdf, nv, samples, &emission),
-                };
+                let pred = stage.cache.shade(index as usize, &brdf, nv, &emission);
                 let g = (ks.data[px.pixel as usize * 3] > 0.2) as usize;
                 acc[g][0] += (pred - px.target).abs().element_sum() as f64 / 3.0;
                 acc[g][1] += 1.0;

@@ -80,6 +80,10 @@ pub struct Stage2Config {
     pub cache_samples: usize,
     /// Cached pixels whose samples are re-traced each iteration (0: the cache is traced once).
     pub refresh_pixels: usize,
+    /// Keep each cached pixel's specular sums at fixed roughness levels instead of its samples
+    /// (`surface_cache::SpecularBake`; ρ interpolated between levels): memory and loop time no
+    /// longer grow with `cache_samples`.
+    pub specular_bake: bool,
     /// Shade training pixels with the dataset's normal maps where it has them (else the SDF's).
     pub input_normals: bool,
     /// Hits inside an emitter's sphere that no training camera saw are that emitter (F_e was
@@ -109,6 +113,14 @@ pub struct Stage2Config {
     pub energy: f32,
     /// ε of the smoothness term, in normalized units.
     pub smooth_epsilon: f32,
+    /// Weight of the roughness prior w(Ks)·(ρ − `rho_prior_target`)², w = exp(−lum(Ks)/0.04)
+    /// (`losses::material_regularizers`): ρ goes to the target where no highlight shows it.
+    pub rho_prior: f32,
+    /// The roughness of surfaces without a visible specular lobe.
+    pub rho_prior_target: f32,
+    /// Fraction of the iterations after which the roughness prior acts: glossy surfaces must
+    /// first have found their Ks (the prior would hold a still-small Ks's ρ high).
+    pub rho_prior_from: f32,
     /// Number of emitters K (0 = automatic: the smallest K whose clusters are connected).
     pub emitters: usize,
     /// Largest K of the automatic choice.
@@ -130,9 +142,10 @@ impl Default for Stage2Config {
             pixels: 4096,
             estimator: Stage2Estimator::Cached,
             loss: Stage2Loss::L1,
-            cache_pixels: 262_144,
-            cache_samples: 64,
+            cache_pixels: 393_216,
+            cache_samples: 128,
             refresh_pixels: 0,
+            specular_bake: true,
             bake_resolution: 256,
             irradiance_radius: 0.024,
             input_normals: true,
@@ -146,6 +159,9 @@ impl Default for Stage2Config {
             smooth: 0.05,
             energy: 1.0,
             smooth_epsilon: 0.01,
+            rho_prior: 0.05,
+            rho_prior_target: 0.9,
+            rho_prior_from: 0.5,
             emitters: 0,
             max_emitters: 16,
             emitter_link: 0.05,
@@ -361,6 +377,12 @@ impl TrainConfig {
                 s2.refresh_pixels, s2.irradiance_radius
             ));
         }
+        if s2.refresh_pixels > 0 && s2.specular_bake {
+            return Err(format!(
+                "stage2.refresh_pixels = {} needs stage2.specular_bake = false: baked pixels keep no samples to replace",
+                s2.refresh_pixels
+            ));
+        }
         if s2.bake_resolution != 0 {
             int("stage2.bake_resolution", s2.bake_resolution, 16, 1024)?;
         }
@@ -372,6 +394,9 @@ impl TrainConfig {
         real("stage2.smooth", s2.smooth, 0.0, 1e4)?;
         real("stage2.energy", s2.energy, 0.0, 1e4)?;
         positive("stage2.smooth_epsilon", s2.smooth_epsilon, 1.0)?;
+        real("stage2.rho_prior", s2.rho_prior, 0.0, 1e4)?;
+        real("stage2.rho_prior_target", s2.rho_prior_target, 0.0, 1.0)?;
+        real("stage2.rho_prior_from", s2.rho_prior_from, 0.0, 1.0)?;
         int("stage2.emitters", s2.emitters, 0, 64)?;
         int("stage2.max_emitters", s2.max_emitters, 1, 64)?;
         positive("stage2.emitter_link", s2.emitter_link, 2.0)?;
@@ -511,6 +536,9 @@ mod tests {
             ("schedule.warmup_fraction=nan", "warmup_fraction"),
             ("stage2.pixels=0", "stage2.pixels"),
             ("stage2.smooth=-1", "stage2.smooth"),
+            ("stage2.rho_prior=-0.1", "stage2.rho_prior"),
+            ("stage2.rho_prior_target=1.5", "stage2.rho_prior_target"),
+            ("stage2.rho_prior_from=2", "stage2.rho_prior_from"),
             ("stage2.emitter_threshold=2", "stage2.emitter_threshold"),
             ("stage2.cache_samples=0", "stage2.cache_samples"),
         ] {
@@ -527,6 +555,18 @@ mod tests {
             let overrides = vec![ok.to_string(), "train.iterations=5".to_string()];
             assert!(TrainConfig::load(None, &overrides).is_ok(), "{ok}");
         }
+        // Refreshed samples need kept samples: the bake holds none.
+        let sets = ["stage2.refresh_pixels=5", "stage2.irradiance_radius=0"].map(String::from);
+        let e = TrainConfig::load(None, &sets)
+            .expect_err("refresh with the bake")
+            .to_string();
+        assert!(
+            e.contains("stage2.refresh_pixels") && e.contains("stage2.specular_bake"),
+            "{e}"
+        );
+        let mut kept = sets.to_vec();
+        kept.push("stage2.specular_bake=false".into());
+        assert!(TrainConfig::load(None, &kept).is_ok());
     }
 
     #[test]

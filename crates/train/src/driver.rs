@@ -388,11 +388,14 @@ pub fn train_materials(
         checkpoint_every: config.train.checkpoint_every,
         log_every: config.train.log_every,
     };
+    let built = Instant::now();
     let stage = if resume && ckpt.is_file() {
         Stage2::resume(config, scene, &views, rm, &ckpt, progress)?
     } else {
         Stage2::new(config, scene, &views, rm, None, progress)?
     };
+    // Building the cache is stage-2 time (most of it): `time_s.stage2` counts it with the loop.
+    info.stage_mut("stage2")?.seconds += built.elapsed().as_secs_f64();
     stage.fields.emitters.write_json(&run.emitters_path(), rm.exposure)?;
     let mut trainer = Trainer::new(stage);
     drive(run, &mut info, &mut trainer, options, on_event)?;

@@ -14,4 +14,5 @@ pub mod schedule;
 pub mod shading;
 pub mod stage1;
 pub mod stage2;
+pub mod surface_cache;
 pub mod targets;

@@ -10,8 +10,9 @@
 //!   (encoding, its Jacobian and the double-backward buffers) and per ray sample F_c's and F_e's;
 //! - stage 2 ([`crate::stage2`]): the frozen stage-1 fields; the material field's parameters four
 //!   times; per cached pixel its cast (ray, hit) and [`crate::stage2::CachedPixel`]; the
-//!   incident-radiance cache (`cache_pixels × cache_samples` samples of 32 bytes) with the rays
-//!   and hits of one traced block; the pooled diffuse sums; the baked surface (marching-cubes
+//!   incident-radiance cache (`cache_pixels × cache_samples` samples of 32 bytes, or with
+//!   `specular_bake` each pixel's specular sums at the bake's roughness levels) with the rays and
+//!   hits of one traced block; the pooled diffuse sums; the baked surface (marching-cubes
 //!   mesh and its BVH); the batch's material activations.
 //!
 //! Checked against the peak RSS of 50-iteration runs on the default room (`/usr/bin/time -v`):
@@ -254,7 +255,13 @@ fn stage2(shape: &DatasetShape, config: &TrainConfig) -> StageMemory {
     // The first cast (pixel order 8, ray 32, hit 36 bytes) and the cached pixels (72 bytes).
     s.add("cached pixels", pixels * (8.0 + 32.0 + 36.0 + 72.0));
     let m = c2.cache_samples as f64;
-    s.add("incident-radiance cache", pixels * m * 32.0);
+    if c2.specular_bake {
+        // Each pixel's specular sums at the bake's levels (emitters as for the pooled sums).
+        let per = crate::surface_cache::SpecularBake::bytes_per_pixel(c2.max_emitters.min(8)) as f64;
+        s.add("specular bake", pixels * per);
+    } else {
+        s.add("incident-radiance cache", pixels * m * 32.0);
+    }
     // One traced block of 8192 pixels: its rays, hits and samples.
     s.add("tracing block", 8192.0 * m * (32.0 + 36.0 + 32.0));
     if c2.irradiance_radius > 0.0 {
@@ -269,7 +276,8 @@ fn stage2(shape: &DatasetShape, config: &TrainConfig) -> StageMemory {
         s.add("baked surface", vertices * (28.0 + 2.0 * (12.0 + 32.0 + 4.0 + 36.0)));
     }
     // One step's batch: the material field's activations and the samples' BRDF terms.
-    let per_pixel = 4.0 * (enc as f64 * 4.0 + 4.0 * (mat.hidden_dim * mat.hidden_layers) as f64) + m * 48.0;
+    let per_pixel = 4.0 * (enc as f64 * 4.0 + 4.0 * (mat.hidden_dim * mat.hidden_layers) as f64)
+        + if c2.specular_bake { 0.0 } else { m * 48.0 };
     let mut batch = c2.pixels as f64 * per_pixel;
     if c2.estimator == crate::config::Stage2Estimator::Live {
         batch += c2.pixels as f64 * c2.samples as f64 * (32.0 + 36.0 + 32.0);
@@ -331,7 +339,9 @@ mod tests {
         // Up to 32 levels × 2^24 entries × 2 features × 16 bytes (the coarse levels are dense
         // and smaller): 8.5 GB.
         assert!(e.stage1.total > 8e9, "{}", e.stage1.describe());
+        // Kept samples grow with their count; the baked default holds a fixed size per pixel.
         let mut cache = c.clone();
+        cache.stage2.specular_bake = false;
         cache.stage2.cache_samples = 256;
         assert!(estimate(&room(), &cache).stage2.total > base.stage2.total + 0.7e9);
         assert!(base.peak() >= base.stage1.total && base.peak() >= base.stage2.total);

@@ -215,8 +215,19 @@ impl DiffuseSums {
         d
     }
 
-    fn irradiance(&self, emission: &[Vec3]) -> Vec3 {
+    pub(crate) fn irradiance(&self, emission: &[Vec3]) -> Vec3 {
         self.field + self.emit.iter().zip(emission).map(|(w, l)| *l * *w).sum::<Vec3>()
+    }
+
+    /// The diffuse part Kd/π ⊙ E and the gradient of ⟨g, ·⟩ with respect to Kd (returned) and
+    /// to each emission (added to `d_emission`).
+    pub(crate) fn backward(&self, kd: Vec3, emission: &[Vec3], g: Vec3, d_emission: &mut [Vec3]) -> (Vec3, Vec3) {
+        use std::f32::consts::FRAC_1_PI;
+        let e = self.irradiance(emission);
+        for (d, w) in d_emission.iter_mut().zip(&self.emit) {
+            *d += g * kd * (FRAC_1_PI * w);
+        }
+        (kd * FRAC_1_PI * e, g * e * FRAC_1_PI)
     }
 }
 
@@ -246,18 +257,14 @@ pub fn shade_pooled_backward(
     g: Vec3,
     d_emission: &mut [Vec3],
 ) -> (Vec3, GgxGrad) {
-    use std::f32::consts::FRAC_1_PI;
     let spec = GgxBrdf {
         kd: Vec3::ZERO,
         ..*brdf
     };
     let (s, mut grad) = shade_backward(&spec, n_dot_v, samples, emission, g, d_emission);
-    let e = diffuse.irradiance(emission);
-    grad.kd = g * e * FRAC_1_PI;
-    for (d, w) in d_emission.iter_mut().zip(&diffuse.emit) {
-        *d += g * brdf.kd * (FRAC_1_PI * w);
-    }
-    (brdf.kd * FRAC_1_PI * e + s, grad)
+    let (d, kd) = diffuse.backward(brdf.kd, emission, g, d_emission);
+    grad.kd = kd;
+    (d + s, grad)
 }
 
 /// Averages each surface pixel's [`DiffuseSums`] over the surface pixels within `radius` (world)

@@ -1,0 +1,381 @@
+//! What stage 2 keeps of each cached pixel's traced samples, and how it shades a pixel from it.
+//!
+//! The samples of a pixel (`shading::trace_incident`, the fixed proposal `stage2::cache_mixture`)
+//! never change, and for a given material only two sums of them matter:
+//!
+//! - the diffuse sums Σ w L ([`DiffuseSums`]), pooled over nearby pixels;
+//! - the specular sums, which depend on ρ through D·G2. [`SpecularBake`] evaluates them at
+//!   [`BAKE_RHO`]'s roughness levels when the cache is built and interpolates linearly in ρ
+//!   between levels. With Schlick's F = Ks (1 − m) + F90 m, m = (1 − d·h)⁵, the specular part
+//!   at level j is exactly `Ks ⊙ A_j + F90(Ks) B_j` with
+//!   A_j = Σ w D_j G2_j (1 − m) L and B_j = Σ w D_j G2_j m L (each split into F_c's radiance and
+//!   a weight per emitter, to multiply by the learnable L[k]).
+//!
+//! Baked, a pixel costs a few hundred bytes whatever its sample count, and the loop's cost does
+//! not grow with it: the cache can hold every training pixel with many samples (FIPT's baked
+//! shading at a few roughness levels, ICCV 2023). The price is the interpolation in ρ between
+//! levels; at a level the baked estimate *is* the samples' estimate (test
+//! `baked_estimate_equals_the_samples_at_every_level`).
+
+use crate::shading::{shade, shade_backward, shade_pooled, shade_pooled_backward, DiffuseSums, IncidentSample};
+use glam::Vec3;
+use i2sdf_render::brdf::{fresnel_f90, ggx_d, smith_g2_visibility, ALPHA_MIN};
+use i2sdf_render::{luminance, GgxBrdf, GgxGrad};
+use rayon::prelude::*;
+use std::f32::consts::FRAC_1_PI;
+
+/// The roughness levels of the bake: dense where a lobe's integral changes fastest with ρ.
+pub const BAKE_RHO: [f32; 11] = [0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.45, 0.6, 0.8, 1.0];
+const LEVELS: usize = BAKE_RHO.len();
+
+/// Per pixel and level: A (RGB), B (RGB), then A's and B's weight of each emitter.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SpecularBake {
+    emitters: usize,
+    data: Vec<f32>,
+}
+
+/// The level segment of ρ: (j, t, 1/(ρ_{j+1} − ρ_j)) with ρ = (1 − t) ρ_j + t ρ_{j+1}; ρ outside
+/// the levels is clamped (t = 0 or 1, no slope).
+fn segment(rho: f32) -> (usize, f32, f32) {
+    if !(rho > BAKE_RHO[0]) {
+        return (0, 0.0, 0.0);
+    }
+    for j in 0..LEVELS - 1 {
+        if rho <= BAKE_RHO[j + 1] {
+            let inv = 1.0 / (BAKE_RHO[j + 1] - BAKE_RHO[j]);
+            return (j, (rho - BAKE_RHO[j]) * inv, inv);
+        }
+    }
+    (LEVELS - 2, 1.0, 0.0)
+}
+
+impl SpecularBake {
+    fn stride(emitters: usize) -> usize {
+        6 + 2 * emitters
+    }
+
+    /// Bytes per pixel (for the memory estimate).
+    pub fn bytes_per_pixel(emitters: usize) -> usize {
+        4 * LEVELS * Self::stride(emitters)
+    }
+
+    pub fn new(emitters: usize) -> Self {
+        SpecularBake {
+            emitters,
+            data: Vec::new(),
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.data.len() / (LEVELS * Self::stride(self.emitters))
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.data.is_empty()
+    }
+
+    /// Bakes the pixels whose samples are `samples` (`m` per pixel, in order) and N·v.
+    pub fn extend(&mut self, n_dot_v: &[f32], samples: &[IncidentSample], m: usize) {
+        let (k, stride) = (self.emitters, Self::stride(self.emitters));
+        let old = self.data.len();
+        self.data.resize(old + n_dot_v.len() * LEVELS * stride, 0.0);
+        self.data[old..]
+            .par_chunks_mut(LEVELS * stride)
+            .zip(samples.par_chunks(m))
+            .zip(n_dot_v.par_iter())
+            .for_each(|((out, smp), &nv)| {
+                for (j, lv) in out.chunks_exact_mut(stride).enumerate() {
+                    let alpha = (BAKE_RHO[j] * BAKE_RHO[j]).max(ALPHA_MIN);
+                    for s in smp {
+                        if s.weight == 0.0 {
+                            continue;
+                        }
+                        let spec = ggx_d(alpha, s.n_dot_h) * smith_g2_visibility(alpha, nv, s.n_dot_d) * s.weight;
+                        if spec == 0.0 {
+                            continue;
+                        }
+                        let fm = (1.0 - s.d_dot_h.clamp(0.0, 1.0)).powi(5);
+                        let (a, b) = (spec * (1.0 - fm), spec * fm);
+                        if s.emitter >= 0 {
+                            lv[6 + s.emitter as usize] += a;
+                            lv[6 + k + s.emitter as usize] += b;
+                        } else {
+                            for c in 0..3 {
+                                lv[c] += a * s.radiance[c];
+                                lv[3 + c] += b * s.radiance[c];
+                            }
+                        }
+                    }
+                }
+            });
+    }
+
+    /// (A, B) of pixel `p` at level `j` under emissions `emission`.
+    fn level(&self, p: usize, j: usize, emission: &[Vec3]) -> (Vec3, Vec3) {
+        let stride = Self::stride(self.emitters);
+        let lv = &self.data[(p * LEVELS + j) * stride..(p * LEVELS + j + 1) * stride];
+        let (mut a, mut b) = (Vec3::from_slice(&lv[0..3]), Vec3::from_slice(&lv[3..6]));
+        for (k, l) in emission.iter().enumerate().take(self.emitters) {
+            a += *l * lv[6 + k];
+            b += *l * lv[6 + self.emitters + k];
+        }
+        (a, b)
+    }
+
+    /// The specular part of pixel `p`'s estimate for `brdf` (its Kd plays no part).
+    pub fn shade(&self, p: usize, brdf: &GgxBrdf, emission: &[Vec3]) -> Vec3 {
+        let (j, t, _) = segment(brdf.rho);
+        let f90 = fresnel_f90(brdf.ks);
+        let (a0, b0) = self.level(p, j, emission);
+        let (a1, b1) = self.level(p, j + 1, emission);
+        let (a, b) = (a0.lerp(a1, t), b0.lerp(b1, t));
+        brdf.ks * a + b * f90
+    }
+
+    /// [`SpecularBake::shade`] and the gradient of ⟨g, ·⟩ with respect to Ks and ρ (returned;
+    /// Kd's is zero) and to each emission (added to `d_emission`).
+    pub fn shade_backward(
+        &self,
+        p: usize,
+        brdf: &GgxBrdf,
+        emission: &[Vec3],
+        g: Vec3,
+        d_emission: &mut [Vec3],
+    ) -> (Vec3, GgxGrad) {
+        let (j, t, inv) = segment(brdf.rho);
+        let lum = luminance(brdf.ks);
+        let f90 = (lum / 0.04).min(1.0);
+        let (a0, b0) = self.level(p, j, emission);
+        let (a1, b1) = self.level(p, j + 1, emission);
+        let (a, b) = (a0.lerp(a1, t), b0.lerp(b1, t));
+        let value = brdf.ks * a + b * f90;
+        let mut ks = g * a;
+        if lum < 0.04 {
+            // F90 = lum(Ks)/0.04 is shared by the channels: each channel of Ks moves all three.
+            let s = g.dot(b) / 0.04;
+            ks += Vec3::new(0.213, 0.715, 0.072) * s;
+        }
+        let d_value = brdf.ks * (a1 - a0) + (b1 - b0) * f90;
+        let rho = g.dot(d_value) * inv;
+        let stride = Self::stride(self.emitters);
+        let (l0, l1) = (
+            &self.data[(p * LEVELS + j) * stride..(p * LEVELS + j + 1) * stride],
+            &self.data[(p * LEVELS + j + 1) * stride..(p * LEVELS + j + 2) * stride],
+        );
+        let k = self.emitters;
+        for (e, d) in d_emission.iter_mut().enumerate().take(k) {
+            let wa = l0[6 + e] + t * (l1[6 + e] - l0[6 + e]);
+            let wb = l0[6 + k + e] + t * (l1[6 + k + e] - l0[6 + k + e]);
+            *d += g * (brdf.ks * wa + Vec3::splat(f90 * wb));
+        }
+        (
+            value,
+            GgxGrad {
+                kd: Vec3::ZERO,
+                ks,
+                rho,
+            },
+        )
+    }
+}
+
+/// The cache of stage 2's surface pixels (in cache order): either their samples (`m` each, for
+/// `stage2.specular_bake = false`) or their [`SpecularBake`]; the diffuse sums, pooled or each
+/// pixel's own (empty when samples are kept and pooling is off).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ShadingCache {
+    pub samples: Vec<IncidentSample>,
+    pub per_pixel: usize,
+    pub diffuse: Vec<DiffuseSums>,
+    pub bake: Option<SpecularBake>,
+}
+
+impl ShadingCache {
+    fn samples_of(&self, s: usize) -> &[IncidentSample] {
+        &self.samples[s * self.per_pixel..(s + 1) * self.per_pixel]
+    }
+
+    /// The estimate of eq:render for surface pixel `s` and material `brdf`.
+    pub fn shade(&self, s: usize, brdf: &GgxBrdf, n_dot_v: f32, emission: &[Vec3]) -> Vec3 {
+        match (&self.bake, self.diffuse.get(s)) {
+            (Some(bake), Some(d)) => brdf.kd * FRAC_1_PI * d.irradiance(emission) + bake.shade(s, brdf, emission),
+            (_, Some(d)) => shade_pooled(brdf, n_dot_v, self.samples_of(s), emission, d),
+            _ => shade(brdf, n_dot_v, self.samples_of(s), emission),
+        }
+    }
+
+    /// [`ShadingCache::shade`] and the gradient of ⟨g, ·⟩ with respect to the material
+    /// (returned) and to each emission (added to `d_emission`).
+    pub fn shade_backward(
+        &self,
+        s: usize,
+        brdf: &GgxBrdf,
+        n_dot_v: f32,
+        emission: &[Vec3],
+        g: Vec3,
+        d_emission: &mut [Vec3],
+    ) -> (Vec3, GgxGrad) {
+        match (&self.bake, self.diffuse.get(s)) {
+            (Some(bake), Some(d)) => {
+                let (spec, mut grad) = bake.shade_backward(s, brdf, emission, g, d_emission);
+                let (diffuse, kd) = d.backward(brdf.kd, emission, g, d_emission);
+                grad.kd = kd;
+                (diffuse + spec, grad)
+            }
+            (_, Some(d)) => shade_pooled_backward(brdf, n_dot_v, self.samples_of(s), emission, d, g, d_emission),
+            _ => shade_backward(brdf, n_dot_v, self.samples_of(s), emission, g, d_emission),
+        }
+    }
+
+    /// Surface pixels held.
+    pub fn len(&self) -> usize {
+        match &self.bake {
+            Some(b) => b.len(),
+            None => self.samples.len() / self.per_pixel.max(1),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_pcg::Pcg32;
+
+    fn random_pixel(rng: &mut Pcg32, n: usize) -> (f32, Vec<IncidentSample>) {
+        let nv = 0.2 + 0.8 * rng.gen::<f32>();
+        let v = Vec3::new((1.0 - nv * nv).sqrt(), 0.0, nv);
+        let samples = (0..n)
+            .map(|i| {
+                // Half the directions near the mirror direction, so that narrow lobes see some.
+                let d = if i % 2 == 0 {
+                    (Vec3::new(-v.x, 0.0, v.z) + 0.2 * Vec3::new(rng.gen::<f32>() - 0.5, rng.gen::<f32>() - 0.5, 0.0))
+                        .normalize()
+                } else {
+                    let (a, b): (f32, f32) = (rng.gen::<f32>() * 6.283, rng.gen::<f32>().max(0.05));
+                    let r = (1.0 - b * b).sqrt();
+                    Vec3::new(r * a.cos(), r * a.sin(), b)
+                };
+                let h = (v + d).normalize();
+                IncidentSample {
+                    n_dot_d: d.z,
+                    n_dot_h: h.z,
+                    d_dot_h: d.dot(h),
+                    weight: if d.z > 0.0 { rng.gen::<f32>() * 0.2 } else { 0.0 },
+                    radiance: [rng.gen(), rng.gen(), rng.gen()],
+                    emitter: if rng.gen::<f32>() < 0.3 {
+                        rng.gen_range(0..2)
+                    } else {
+                        -1
+                    },
+                }
+            })
+            .collect();
+        (nv, samples)
+    }
+
+    /// At a level the bake is the samples' own specular estimate; between levels it lies
+    /// between the two levels' estimates.
+    #[test]
+    fn baked_estimate_equals_the_samples_at_every_level() {
+        let mut rng = Pcg32::seed_from_u64(3);
+        let emission = [Vec3::new(4.0, 3.0, 2.0), Vec3::new(1.0, 6.0, 0.5)];
+        for _ in 0..20 {
+            let (nv, samples) = random_pixel(&mut rng, 48);
+            let mut bake = SpecularBake::new(2);
+            bake.extend(&[nv], &samples, samples.len());
+            for ks in [Vec3::new(0.5, 0.4, 0.3), Vec3::splat(0.02)] {
+                for &rho in &BAKE_RHO {
+                    let b = GgxBrdf::new(Vec3::ZERO, ks, rho);
+                    let exact = shade(&b, nv, &samples, &emission);
+                    let baked = bake.shade(0, &b, &emission);
+                    assert!(
+                        (exact - baked).abs().max_element() <= 1e-4 * (1.0 + exact.abs().max_element()),
+                        "ρ {rho}: samples {exact}, baked {baked}"
+                    );
+                }
+                let mid = GgxBrdf::new(Vec3::ZERO, ks, 0.4);
+                let (lo, hi) = (
+                    shade(&GgxBrdf { rho: 0.35, ..mid }, nv, &samples, &emission),
+                    shade(&GgxBrdf { rho: 0.45, ..mid }, nv, &samples, &emission),
+                );
+                let v = bake.shade(0, &mid, &emission);
+                for c in 0..3 {
+                    assert!(v[c] >= lo[c].min(hi[c]) - 1e-5 && v[c] <= lo[c].max(hi[c]) + 1e-5);
+                }
+            }
+        }
+    }
+
+    /// The baked estimator's gradient (Kd, Ks on both sides of the F90 clamp, ρ inside a
+    /// segment, every L[k]) matches central differences; with pooled diffuse sums through
+    /// [`ShadingCache`].
+    #[test]
+    fn baked_gradient_matches_finite_differences() {
+        let mut rng = Pcg32::seed_from_u64(8);
+        for trial in 0..30 {
+            let (nv, samples) = random_pixel(&mut rng, 32);
+            let mut bake = SpecularBake::new(2);
+            bake.extend(&[nv], &samples, samples.len());
+            let cache = ShadingCache {
+                samples: Vec::new(),
+                per_pixel: samples.len(),
+                diffuse: vec![DiffuseSums::of(&samples, 2)],
+                bake: Some(bake),
+            };
+            let ks_scale = if trial % 3 == 0 { 0.03 } else { 0.6 };
+            // ρ away from the levels (the slope jumps there).
+            let rho = loop {
+                let r = 0.06 + 0.9 * rng.gen::<f32>();
+                if BAKE_RHO.iter().all(|l| (l - r).abs() > 0.01) {
+                    break r;
+                }
+            };
+            let brdf = GgxBrdf::new(
+                Vec3::new(rng.gen(), rng.gen(), rng.gen()) * 0.8,
+                Vec3::new(rng.gen(), rng.gen(), rng.gen()) * ks_scale,
+                rho,
+            );
+            let emission = vec![Vec3::new(3.0, 2.0, 1.0), Vec3::new(0.5, 8.0, 2.0)];
+            let g = Vec3::new(rng.gen::<f32>() - 0.5, rng.gen::<f32>() - 0.5, rng.gen::<f32>() - 0.5);
+            let mut d_em = vec![Vec3::ZERO; 2];
+            let (value, grad) = cache.shade_backward(0, &brdf, nv, &emission, g, &mut d_em);
+            assert!((value - cache.shade(0, &brdf, nv, &emission)).abs().max_element() < 1e-5);
+            let loss = |b: &GgxBrdf, e: &[Vec3]| g.dot(cache.shade(0, b, nv, e)) as f64;
+            let h = 2e-3f32;
+            let check = |name: &str, analytic: f32, plus: f64, minus: f64| {
+                let fd = (plus - minus) / (2.0 * h as f64);
+                let tol = 2e-3 + 2e-2 * fd.abs().max(analytic.abs() as f64);
+                assert!(
+                    (fd - analytic as f64).abs() < tol,
+                    "trial {trial} {name}: analytic {analytic}, finite difference {fd}"
+                );
+            };
+            for c in 0..3 {
+                let (mut p, mut m) = (brdf, brdf);
+                p.kd[c] += h;
+                m.kd[c] -= h;
+                check("kd", grad.kd[c], loss(&p, &emission), loss(&m, &emission));
+                let (mut p, mut m) = (brdf, brdf);
+                p.ks[c] += h;
+                m.ks[c] -= h;
+                check("ks", grad.ks[c], loss(&p, &emission), loss(&m, &emission));
+                for k in 0..2 {
+                    let (mut ep, mut em) = (emission.clone(), emission.clone());
+                    ep[k][c] += h;
+                    em[k][c] -= h;
+                    check("emission", d_em[k][c], loss(&brdf, &ep), loss(&brdf, &em));
+                }
+            }
+            let (mut p, mut m) = (brdf, brdf);
+            p.rho += h;
+            m.rho -= h;
+            check("rho", grad.rho, loss(&p, &emission), loss(&m, &emission));
+        }
+    }
+}
