@@ -317,6 +317,49 @@ pub fn pool_diffuse(points: &[ShadingPoint], sums: &[DiffuseSums], radius: f32) 
         .collect()
 }
 
+/// Test support: the analytic gradient of ⟨g, R̂⟩ (material `grad`, emissions `d_emission`)
+/// against central differences of `loss` with step `h` in every channel of Kd and Ks, in ρ and
+/// in every channel of every L[k]; the tolerance is relative, for f32.
+#[cfg(test)]
+pub(crate) fn check_gradient_by_differences(
+    trial: usize,
+    brdf: &GgxBrdf,
+    emission: &[Vec3],
+    grad: &GgxGrad,
+    d_emission: &[Vec3],
+    h: f32,
+    loss: &dyn Fn(&GgxBrdf, &[Vec3]) -> f64,
+) {
+    let check = |name: &str, analytic: f32, plus: f64, minus: f64| {
+        let fd = (plus - minus) / (2.0 * h as f64);
+        let tol = 2e-3 + 2e-2 * fd.abs().max(analytic.abs() as f64);
+        assert!(
+            (fd - analytic as f64).abs() < tol,
+            "trial {trial} {name}: analytic {analytic}, finite difference {fd}"
+        );
+    };
+    for c in 0..3 {
+        let (mut p, mut m) = (*brdf, *brdf);
+        p.kd[c] += h;
+        m.kd[c] -= h;
+        check("kd", grad.kd[c], loss(&p, emission), loss(&m, emission));
+        let (mut p, mut m) = (*brdf, *brdf);
+        p.ks[c] += h;
+        m.ks[c] -= h;
+        check("ks", grad.ks[c], loss(&p, emission), loss(&m, emission));
+        for k in 0..emission.len() {
+            let (mut ep, mut em) = (emission.to_vec(), emission.to_vec());
+            ep[k][c] += h;
+            em[k][c] -= h;
+            check("emission", d_emission[k][c], loss(brdf, &ep), loss(brdf, &em));
+        }
+    }
+    let (mut p, mut m) = (*brdf, *brdf);
+    p.rho += h;
+    m.rho -= h;
+    check("rho", grad.rho, loss(&p, emission), loss(&m, emission));
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -368,36 +411,7 @@ mod tests {
             let (value, grad) = shade_backward(&brdf, nv, &samples, &emission, g, &mut d_em);
             assert!((value - shade(&brdf, nv, &samples, &emission)).abs().max_element() < 1e-5);
             let loss = |b: &GgxBrdf, e: &[Vec3]| g.dot(shade(b, nv, &samples, e)) as f64;
-            let h = 1e-3f32;
-            let check = |name: &str, analytic: f32, plus: f64, minus: f64| {
-                let fd = (plus - minus) / (2.0 * h as f64);
-                let tol = 2e-3 + 2e-2 * fd.abs().max(analytic.abs() as f64);
-                assert!(
-                    (fd - analytic as f64).abs() < tol,
-                    "trial {trial} {name}: analytic {analytic}, finite difference {fd}"
-                );
-            };
-            for c in 0..3 {
-                let mut p = brdf;
-                let mut m = brdf;
-                p.kd[c] += h;
-                m.kd[c] -= h;
-                check("kd", grad.kd[c], loss(&p, &emission), loss(&m, &emission));
-                let (mut p, mut m) = (brdf, brdf);
-                p.ks[c] += h;
-                m.ks[c] -= h;
-                check("ks", grad.ks[c], loss(&p, &emission), loss(&m, &emission));
-                for k in 0..2 {
-                    let (mut ep, mut em) = (emission.clone(), emission.clone());
-                    ep[k][c] += h;
-                    em[k][c] -= h;
-                    check("emission", d_em[k][c], loss(&brdf, &ep), loss(&brdf, &em));
-                }
-            }
-            let (mut p, mut m) = (brdf, brdf);
-            p.rho += h;
-            m.rho -= h;
-            check("rho", grad.rho, loss(&p, &emission), loss(&m, &emission));
+            check_gradient_by_differences(trial, &brdf, &emission, &grad, &d_em, 1e-3f32, &loss);
             // The pooled form with the samples' own sums is the same estimator, gradients included.
             let own = DiffuseSums::of(&samples, 2);
             let mut d_em2 = vec![Vec3::ZERO; 2];

@@ -347,35 +347,7 @@ mod tests {
             let (value, grad) = cache.shade_backward(0, &brdf, nv, &emission, g, &mut d_em);
             assert!((value - cache.shade(0, &brdf, nv, &emission)).abs().max_element() < 1e-5);
             let loss = |b: &GgxBrdf, e: &[Vec3]| g.dot(cache.shade(0, b, nv, e)) as f64;
-            let h = 2e-3f32;
-            let check = |name: &str, analytic: f32, plus: f64, minus: f64| {
-                let fd = (plus - minus) / (2.0 * h as f64);
-                let tol = 2e-3 + 2e-2 * fd.abs().max(analytic.abs() as f64);
-                assert!(
-                    (fd - analytic as f64).abs() < tol,
-                    "trial {trial} {name}: analytic {analytic}, finite difference {fd}"
-                );
-            };
-            for c in 0..3 {
-                let (mut p, mut m) = (brdf, brdf);
-                p.kd[c] += h;
-                m.kd[c] -= h;
-                check("kd", grad.kd[c], loss(&p, &emission), loss(&m, &emission));
-                let (mut p, mut m) = (brdf, brdf);
-                p.ks[c] += h;
-                m.ks[c] -= h;
-                check("ks", grad.ks[c], loss(&p, &emission), loss(&m, &emission));
-                for k in 0..2 {
-                    let (mut ep, mut em) = (emission.clone(), emission.clone());
-                    ep[k][c] += h;
-                    em[k][c] -= h;
-                    check("emission", d_em[k][c], loss(&brdf, &ep), loss(&brdf, &em));
-                }
-            }
-            let (mut p, mut m) = (brdf, brdf);
-            p.rho += h;
-            m.rho -= h;
-            check("rho", grad.rho, loss(&p, &emission), loss(&m, &emission));
+            crate::shading::check_gradient_by_differences(trial, &brdf, &emission, &grad, &d_em, 2e-3f32, &loss);
         }
     }
 }
