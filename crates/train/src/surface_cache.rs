@@ -145,7 +145,7 @@ impl SpecularBake {
     ) -> (Vec3, GgxGrad) {
         let (j, t, inv) = segment(brdf.rho);
         let lum = luminance(brdf.ks);
-        let f90 = (lum / 0.04).min(1.0);
+        let f90 = fresnel_f90(brdf.ks);
         let (a0, b0) = self.level(p, j, emission);
         let (a1, b1) = self.level(p, j + 1, emission);
         let (a, b) = (a0.lerp(a1, t), b0.lerp(b1, t));
@@ -154,7 +154,7 @@ impl SpecularBake {
         if lum < 0.04 {
             // F90 = lum(Ks)/0.04 is shared by the channels: each channel of Ks moves all three.
             let s = g.dot(b) / 0.04;
-            ks += Vec3::new(0.213, 0.715, 0.072) * s;
+            ks += Vec3::new(luminance(Vec3::X), luminance(Vec3::Y), luminance(Vec3::Z)) * s;
         }
         let d_value = brdf.ks * (a1 - a0) + (b1 - b0) * f90;
         let rho = g.dot(d_value) * inv;
