@@ -64,3 +64,57 @@ fn main() -> ExitCode {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::Cli;
+    use clap::CommandFactory;
+
+    /// Every flag of every command says what it is for in `--help`.
+    #[test]
+    fn every_flag_has_a_help_line() {
+        let cli = Cli::command();
+        let mut missing = Vec::new();
+        for sub in cli.get_subcommands() {
+            for arg in sub.get_arguments() {
+                let Some(long) = arg.get_long() else { continue };
+                if matches!(long, "help" | "version") {
+                    continue;
+                }
+                if arg.get_help().is_none_or(|h| h.to_string().trim().is_empty()) {
+                    missing.push(format!("{} --{long}", sub.get_name()));
+                }
+            }
+        }
+        assert!(missing.is_empty(), "flags without a --help line: {missing:?}");
+    }
+
+    /// The README's command table names every flag of each command in that command's row.
+    #[test]
+    fn the_readme_command_table_matches_the_flags() {
+        let readme = include_str!("../../../README.md");
+        let cli = Cli::command();
+        let mut missing = Vec::new();
+        for sub in cli.get_subcommands() {
+            let name = sub.get_name();
+            let Some(row) = readme.lines().find(|l| l.starts_with(&format!("| `i2sdf {name}"))) else {
+                missing.push(format!("no row for `i2sdf {name}`"));
+                continue;
+            };
+            for arg in sub.get_arguments() {
+                let Some(long) = arg.get_long() else { continue };
+                if matches!(long, "help" | "version") {
+                    continue;
+                }
+                let flag = format!("--{long}");
+                let named = row
+                    .match_indices(&flag)
+                    .any(|(i, _)| !row[i + flag.len()..].starts_with(|c: char| c.is_ascii_alphanumeric() || c == '-'));
+                if !named {
+                    missing.push(format!("`i2sdf {name}` row lacks {flag}"));
+                }
+            }
+        }
+        assert!(missing.is_empty(), "README command table: {missing:?}");
+    }
+}

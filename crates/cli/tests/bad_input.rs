@@ -446,3 +446,313 @@ fn bad_input_table() {
     );
     table.finish(&[root, t._dir.path()]);
 }
+
+/// Every file below `dir` (recursively) with its bytes: what "byte-identical" is checked against.
+fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
+    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<String, Vec<u8>>) {
+        for e in std::fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            let rel = p.strip_prefix(root).unwrap().display().to_string();
+            if p.is_dir() {
+                out.insert(format!("{rel}/"), Vec::new());
+                walk(root, &p, out);
+            } else {
+                out.insert(rel, std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    let mut out = BTreeMap::new();
+    walk(dir, dir, &mut out);
+    out
+}
+
+/// What differs between two trees, in words (empty: byte-identical).
+fn tree_diff(before: &BTreeMap<String, Vec<u8>>, after: &BTreeMap<String, Vec<u8>>) -> Vec<String> {
+    let mut out = Vec::new();
+    for (k, v) in before {
+        match after.get(k) {
+            None => out.push(format!("{k} removed")),
+            Some(w) if w != v => out.push(format!("{k} changed")),
+            _ => {}
+        }
+    }
+    out.extend(
+        after
+            .keys()
+            .filter(|k| !before.contains_key(*k))
+            .map(|k| format!("{k} added")),
+    );
+    out
+}
+
+/// Issue 23's rows: commands aimed at a user's data, false successes, and messages that showed
+/// internals. Each row runs the real binary and must exit with its code and name what is at
+/// fault; after every row the dataset folder, both runs and the working folder are byte-identical
+/// to before (every file hashed by its bytes), except for what a row is meant to write.
+#[test]
+fn nothing_a_user_has_is_overwritten() {
+    let t = trained();
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    // A dataset of the user's own, a stage-1 run and a stage-2 run, each a copy (so the shared
+    // fixtures stay clean whatever happens here).
+    let data = root.join("scene");
+    i2sdf_data::fixture::write_native(&data, &i2sdf_data::fixture::FixtureOptions::default());
+    let run1 = root.join("run1");
+    copy_stage1(&t.stage1, &run1);
+    let run2 = root.join("run2");
+    copy_stage1(&t.stage2, &run2);
+    for f in ["stage2.safetensors", "emitters.json"] {
+        std::fs::copy(t.stage2.join(f), run2.join(f)).unwrap();
+    }
+    // Both runs point at this dataset (run.json records an absolute path).
+    for run in [&run1, &run2] {
+        let text = std::fs::read_to_string(run.join("run.json")).unwrap();
+        let mut info: serde_json::Value = serde_json::from_str(&text).unwrap();
+        info["data"] = serde_json::Value::String(data.display().to_string());
+        std::fs::write(run.join("run.json"), serde_json::to_string_pretty(&info).unwrap()).unwrap();
+    }
+    let existing = root.join("metrics.json");
+    std::fs::write(&existing, b"{\"mine\": true}").unwrap();
+    let existing_ply = root.join("mine.ply");
+    std::fs::write(&existing_ply, b"ply\n").unwrap();
+    let a_file = root.join("notes.txt");
+    std::fs::write(&a_file, b"a user's file").unwrap();
+    let user_dir = root.join("photos");
+    std::fs::create_dir(&user_dir).unwrap();
+    std::fs::write(user_dir.join("a.jpg"), b"jpeg").unwrap();
+    let spec = root.join("relight.toml");
+    std::fs::write(&spec, "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = 2\n").unwrap();
+    let fixture_pose = root.join("pose");
+    let fixture_flx = root.join("flx");
+    for (d, edit) in [(&fixture_pose, "pose" as &str), (&fixture_flx, "flx")] {
+        i2sdf_data::fixture::write_native(d, &i2sdf_data::fixture::FixtureOptions::default());
+        let p = d.join("transforms.json");
+        let mut v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+        match edit {
+            "pose" => v["frames"][0]["transform_matrix"][3] = serde_json::json!([0.0, 0.0, 0.0, 0.0]),
+            _ => {
+                v["fl_x"] = serde_json::json!(0.0);
+                if let Some(frames) = v["frames"].as_array_mut() {
+                    for f in frames {
+                        if let Some(o) = f.as_object_mut() {
+                            o.remove("fl_x");
+                        }
+                    }
+                }
+            }
+        }
+        std::fs::write(&p, serde_json::to_string(&v).unwrap()).unwrap();
+    }
+    // A run whose run.json names a dataset that is no longer there.
+    let moved = root.join("moved_run");
+    copy_stage1(&run1, &moved);
+    let text = std::fs::read_to_string(moved.join("run.json")).unwrap();
+    let mut info: serde_json::Value = serde_json::from_str(&text).unwrap();
+    info["data"] = serde_json::Value::String(root.join("gone").display().to_string());
+    std::fs::write(moved.join("run.json"), serde_json::to_string_pretty(&info).unwrap()).unwrap();
+    let moved_run = moved.display().to_string();
+    let before = tree(root);
+    let (d, r1, r2) = (s(&data), s(&run1), s(&run2));
+    // Paths as the rows' arguments (a test's strings may live to its end).
+    let leak = |p: &Path| -> &'static str { Box::leak(p.display().to_string().into_boxed_str()) };
+    let p = |name: &str| leak(&root.join(name));
+    let file_in_data = data.join("mesh.json").display().to_string();
+    let below_file = a_file.join("m.json").display().to_string();
+    let run_json = run1.join("run.json").display().to_string();
+    let in_data = data.join("run").display().to_string();
+    let e = s(&existing);
+    let u = s(&user_dir);
+    let nf = s(&a_file);
+    let sp = s(&spec);
+    #[rustfmt::skip]
+    let rows: Vec<(&str, Vec<&str>, i32, Vec<&str>)> = vec![
+        ("eval --out into the dataset", vec!["eval", "--run", r1, "--data", d, "--out", &file_in_data], 2, vec!["never writes into a dataset"]),
+        ("eval --out a .ply", vec!["eval", "--run", r1, "--out", p("m.ply")], 2, vec!["--out", "must end in .json"]),
+        ("eval --out an existing folder", vec!["eval", "--run", r1, "--out", u], 2, vec!["--out", "is a folder"]),
+        ("eval --out below a file (before the work)", vec!["eval", "--run", r1, "--out", &below_file], 1, vec!["--out", "is a file"]),
+        ("eval --out an existing file", vec!["eval", "--run", r1, "--out", e], 2, vec!["--out", "exists", "--force"]),
+        ("eval --mesh-out into the dataset", vec!["eval", "--run", r1, "--out", p("new.json"), "--mesh-out", leak(&data.join("mesh.ply")), "--force"], 2, vec!["--mesh-out", "never writes into a dataset"]),
+        ("eval --out the run's own file", vec!["eval", "--run", r1, "--out", &run_json, "--force"], 2, vec!["run's own file"]),
+        ("render --out the dataset", vec!["render", "--run", r1, "--out", d], 2, vec!["--out", "is a dataset"]),
+        ("render --out the dataset --force", vec!["render", "--run", r1, "--out", d, "--force"], 2, vec!["--out", "is a dataset"]),
+        ("render --out a folder inside the dataset", vec!["render", "--run", r1, "--out", leak(&data.join("depth")), "--force"], 2, vec!["never writes into a dataset"]),
+        ("render --out the run", vec!["render", "--run", r1, "--out", r1, "--force"], 2, vec!["is a training run"]),
+        ("render --out a user's folder", vec!["render", "--run", r1, "--out", u], 2, vec!["not empty", "--force"]),
+        ("render --out a user's folder --force", vec!["render", "--run", r1, "--out", u, "--force"], 2, vec!["not a render"]),
+        ("render --what ''", vec!["render", "--run", r1, "--out", p("r"), "--what", ""], 2, vec!["--what", "names no map"]),
+        ("render --out a file", vec!["render", "--run", r1, "--out", nf], 2, vec!["is a file"]),
+        ("edit --out a file", vec!["edit", "--run", r2, "--spec", sp, "--out", nf], 2, vec!["--out", "is a file"]),
+        ("edit --view -1", vec!["edit", "--run", r2, "--spec", sp, "--out", p("e"), "--view", "-1"], 2, vec!["--view", "0 or more"]),
+        ("report --view -1", vec!["report", "--run", r2, "--out", p("rep"), "--view", "-1"], 2, vec!["--view", "0 or more"]),
+        ("report --out the dataset", vec!["report", "--run", r2, "--out", d, "--force"], 2, vec!["is a dataset"]),
+        ("synth --out a user's folder", vec!["synth", "--out", u], 2, vec!["--out", "not empty", "--force"]),
+        ("synth --out a user's folder --force", vec!["synth", "--out", u, "--force"], 2, vec!["not a dataset made by synth"]),
+        ("synth --out the dataset (not synth's)", vec!["synth", "--out", d, "--force"], 2, vec!["is a dataset"]),
+        ("synth --out a file", vec!["synth", "--out", nf], 2, vec!["is a file"]),
+        ("synth --max-depth 0", vec!["synth", "--out", p("s"), "--max-depth", "0"], 2, vec!["--max-depth 0", "1..="]),
+        ("synth --views 100000000", vec!["synth", "--out", p("s"), "--views", "100000000"], 2, vec!["--views 100000000", "2..="]),
+        ("mesh --out m.obj", vec!["mesh", "--run", r1, "--out", p("m.obj")], 2, vec!["--out", "must end in .ply"]),
+        ("mesh --out an existing file", vec!["mesh", "--run", r1, "--out", leak(&existing_ply)], 2, vec!["--out", "exists", "--force"]),
+        ("train --out inside the dataset", vec!["train", "--data", d, "--out", &in_data], 2, vec!["never writes into a dataset"]),
+        ("train --out a user's folder", vec!["train", "--data", d, "--out", u], 2, vec!["not a run"]),
+        ("train over the machine's memory", vec!["train", "--data", d, "--out", p("big"), "--set", "train.rays=1048576"], 2, vec!["train.rays", "1048576", "GiB", "--ignore-memory"]),
+        ("train --stage material over the memory", vec!["train", "--stage", "material", "--out", r1, "--set", "stage2.pixels=1048576", "--set", "stage2.samples=256", "--set", "material.hidden_dim=256", "--set", "material.hidden_layers=8"], 2, vec!["stage 2 needs", "stage2.pixels × stage2.samples", "--ignore-memory"]),
+        ("bench --rays 0", vec!["bench", "--rays", "0"], 2, vec!["--rays 0"]),
+        ("bench --iterations 0", vec!["bench", "--iterations", "0"], 2, vec!["--iterations 0"]),
+        ("check --data a file", vec!["check", "--data", leak(&data.join("transforms.json"))], 2, vec!["is a file, not a dataset folder"]),
+        ("check: a pose's last row", vec!["check", "--data", s(&fixture_pose)], 2, vec!["transform_matrix", "[0, 0, 0, 0]"]),
+        ("check: fl_x = 0", vec!["check", "--data", s(&fixture_flx)], 2, vec!["fl_x", "must be positive"]),
+        ("--set log_every=0", vec!["check", "--data", d, "--set", "train.log_every=0"], 2, vec!["train.log_every", "1..=100000000"]),
+        ("--set a number too large", vec!["check", "--data", d, "--set", "train.iterations=99999999999999999999999"], 2, vec!["train.iterations", "not a number this key can hold"]),
+        // The fixture's views see no emitter: its stage 2 found none.
+        ("edit: relight on a run without emitters", vec!["edit", "--run", r2, "--spec", sp, "--out", p("e")], 2, vec!["op[0]", "no emitters"]),
+        ("render: the run's dataset is gone", vec!["render", "--run", &moved_run, "--out", p("rm")], 2, vec!["run.json", "data", "--data"]),
+    ];
+    let mut table = Table::default();
+    for (case, args, code, needles) in rows {
+        let o = i2sdf(&args);
+        let diff = tree_diff(&before, &tree(root));
+        let untouched = if diff.is_empty() {
+            Ok(())
+        } else {
+            Err(format!("changed: {}", diff.join(", ")))
+        };
+        // Never a message that shows internals.
+        let internals = ["DVec4", "18446744073709551615", "invalid type: string", "os error 17"];
+        let mut needles = needles;
+        let shown: Vec<&&str> = internals.iter().filter(|n| o.stderr.contains(**n)).collect();
+        if !shown.is_empty() {
+            needles.push("<no internals in the message>");
+        }
+        table.record(case, o, code, &needles, untouched);
+    }
+    table.finish(&[root]);
+}
+
+/// The other side of the rows above: what the commands do write. `synth --force` replaces its
+/// own earlier dataset whole (no file of a larger one left behind); `eval` writes its JSON and,
+/// only when asked, the mesh; a run trained with a relative `--data` opens from another folder
+/// (run.json holds the absolute path), and one whose dataset moved opens with `--data`; stage 2
+/// without emitters says so.
+#[test]
+fn outputs_go_only_where_asked_and_runs_travel() {
+    let t = trained();
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    let synth = |views: &str, force: bool| {
+        let out = root.join("room");
+        let mut args = vec![
+            "synth",
+            "--out",
+            s(&out),
+            "--width",
+            "16",
+            "--height",
+            "12",
+            "--views",
+            views,
+            "--spp",
+            "1",
+        ];
+        if force {
+            args.push("--force");
+        }
+        i2sdf(&args)
+    };
+    expect(synth("6", false), 0, &[]);
+    let six = tree(&root.join("room"));
+    expect(synth("2", false), 2, &["--force"]);
+    assert!(
+        tree_diff(&six, &tree(&root.join("room"))).is_empty(),
+        "a refused synth changed the room"
+    );
+    expect(synth("2", true), 0, &[]);
+    let two = tree(&root.join("room"));
+    assert!(
+        two.len() < six.len(),
+        "the larger dataset's files are gone: {} vs {}",
+        two.len(),
+        six.len()
+    );
+    assert!(
+        !two.keys().any(|k| k.contains("0005")),
+        "{:?}",
+        two.keys().collect::<Vec<_>>()
+    );
+    assert_eq!(
+        i2sdf_data::output::entries(root),
+        vec!["room".to_string()],
+        "no staging left"
+    );
+
+    // eval: the JSON only, the mesh with --mesh-out, an existing JSON replaced with --force.
+    let out = root.join("m.json");
+    let o = i2sdf(&eval_args(&t.stage1, &t.data, &out, &["--mesh-resolution", "32"]));
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert!(v["notes"].is_array(), "{v}");
+    let mut names = i2sdf_data::output::entries(root);
+    names.sort();
+    assert_eq!(names, ["m.json", "room"], "eval wrote only its JSON");
+    let mesh = root.join("scored.ply");
+    let o = i2sdf(&eval_args(
+        &t.stage1,
+        &t.data,
+        &out,
+        &["--mesh-resolution", "32", "--mesh-out", s(&mesh), "--force"],
+    ));
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    assert!(i2sdf_data::ply::read_ply(&mesh).is_ok_and(|m| m.num_faces() > 0));
+
+    // A run trained with a relative --data, used from another folder, then its dataset moved.
+    let work = root.join("work");
+    std::fs::create_dir(&work).unwrap();
+    i2sdf_data::fixture::write_native(&work.join("data"), &i2sdf_data::fixture::FixtureOptions::default());
+    let mut args = vec!["train", "--quiet", "--data", "data", "--out", "run"];
+    args.extend_from_slice(&TINY);
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_i2sdf"))
+        .args(&args)
+        .current_dir(&work)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let info: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(work.join("run/run.json")).unwrap()).unwrap();
+    assert!(Path::new(info["data"].as_str().unwrap()).is_absolute(), "{info}");
+    assert!(info["data_fingerprint"]["cameras"].is_string(), "{info}");
+    let render = |run: &Path, out: &Path, extra: &[&str]| {
+        let mut args = vec!["render", "--run", s(run), "--out", s(out), "--what", "rgb"];
+        args.extend_from_slice(extra);
+        i2sdf(&args)
+    };
+    expect(render(&work.join("run"), &root.join("r1"), &[]), 0, &[]);
+    std::fs::rename(work.join("data"), root.join("data_moved")).unwrap();
+    expect(
+        render(&work.join("run"), &root.join("r2"), &[]),
+        2,
+        &["run.json", "--data"],
+    );
+    assert!(!root.join("r2").exists());
+    let moved = root.join("data_moved");
+    expect(
+        render(&work.join("run"), &root.join("r2"), &["--data", s(&moved)]),
+        0,
+        &[],
+    );
+    // Another dataset under --data is said (a warning), not refused.
+    let o = render(&work.join("run"), &root.join("r3"), &["--data", s(&root.join("room"))]);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    assert!(
+        o.stderr.contains("not the dataset the run was trained on"),
+        "{}",
+        o.stderr
+    );
+
+    // Stage 2 that finds no emitters says so (the fixture's views see none).
+    let run2 = root.join("run_s2");
+    copy_stage1(&t.stage1, &run2);
+    let o = train_material(&t.data, &run2, &TINY_STAGE2);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    assert!(o.stderr.contains("stage 2 found no emitters"), "{}", o.stderr);
+}

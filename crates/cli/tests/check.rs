@@ -227,7 +227,10 @@ fn training_memory_is_estimated_and_warned_about() {
     let (code, _, err) = check_with(dir.path(), &huge);
     assert_eq!(code, 0, "{err}");
     assert!(
-        err.contains("warning: training needs about") && err.contains("of memory available (of"),
+        err.contains("warning: stage 1 needs about")
+            && err.contains("GiB available")
+            && err.contains("train.rays: 1024 → 1048576")
+            && err.contains("--ignore-memory"),
         "{err}"
     );
     let (code, out, err) = check_with(dir.path(), &[&huge[..], &["--json"][..]].concat());

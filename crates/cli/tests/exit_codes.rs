@@ -389,11 +389,18 @@ fn edit_bad_input_exits_2_and_good_specs_render() {
     }
     expect(edit(stage1, &empty, &[]), 2, &["stage2.safetensors", "no stage 2"]);
     assert!(!out.exists());
-    // Every op kind at once: a relight, a mirror region, an emitting inserted sphere, a box.
+    // The fixture's views see no emitter, so its stage 2 found none: a relight op has nothing to
+    // change and is refused, naming the op.
+    let relight = spec(
+        "relight.toml",
+        "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = 2\n",
+    );
+    expect(edit(run, &relight, &["--view", "0"]), 2, &["op[0]", "no emitters"]);
+    assert!(!out.exists());
+    // Every other op kind at once: a mirror region, an emitting inserted sphere, a box.
     let full = spec(
         "full.toml",
-        "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = 2\ncolor = [1, 0.8, 0.6]\n\
-         [[op]]\nkind = \"material\"\nbelow = { point = [0, 0, 0], normal = [0, 1, 0] }\npreset = \"mirror\"\n\
+        "[[op]]\nkind = \"material\"\nbelow = { point = [0, 0, 0], normal = [0, 1, 0] }\npreset = \"mirror\"\n\
          [[op]]\nkind = \"insert\"\nsphere = { centre = [0, 0.5, 0], radius = 0.1 }\npreset = \"matte\"\nemission = [5, 5, 5]\n\
          [[op]]\nkind = \"insert\"\nbox = { lo = [-0.2, 0, -0.2], hi = [0.2, 0.1, 0.2] }\nkd = [0.2, 0.5, 0.2]\n",
     );
@@ -555,7 +562,17 @@ fn camera_paths_render_frames_and_an_animation() {
     }
     let gif = std::fs::read(out.join("rgb.gif")).unwrap();
     assert!(gif.starts_with(b"GIF89a"));
-    let o = render(&["--path", "interpolate", "--keyframes", "0,1", "--frames", "2"]);
+    // The same folder again: refused without --force, replaced with it.
+    expect(render(&["--path", "orbit", "--frames", "3"]), 2, &["--force"]);
+    let o = render(&[
+        "--path",
+        "interpolate",
+        "--keyframes",
+        "0,1",
+        "--frames",
+        "2",
+        "--force",
+    ]);
     assert_eq!(o.code, 0, "{}", o.stderr);
 
     let (_, run2) = trained_stage2();
@@ -618,17 +635,12 @@ fn eval_scores_the_mesh_of_a_paper_format_dataset() {
         serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(out).unwrap()).unwrap()
     };
     assert!(metrics("none.json")["geometry"]["mesh"]["fscore"].is_null());
-    // Any mesh in world units will do: the run's own.
-    let o = i2sdf(&[
-        "mesh",
-        "--run",
-        s(&run),
-        "--out",
-        s(&data.join("mesh.ply")),
-        "--resolution",
-        "32",
-    ]);
+    // Any mesh in world units will do: the run's own, put into the dataset by hand (no command
+    // writes into a dataset).
+    let ply = dir.path().join("gt.ply");
+    let o = i2sdf(&["mesh", "--run", s(&run), "--out", s(&ply), "--resolution", "32"]);
     assert_eq!(o.code, 0, "{}", o.stderr);
+    std::fs::copy(&ply, data.join("mesh.ply")).unwrap();
     let m = metrics("scored.json");
     assert!(
         m["geometry"]["mesh"]["fscore"].as_f64().is_some_and(|f| f > 0.5),

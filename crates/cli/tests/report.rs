@@ -117,8 +117,9 @@ fn stage1_and_stage2_reports_are_valid_and_complete() {
     ] {
         assert!(out2.join(format!("img/{name}.png")).is_file(), "{name}");
     }
-    // A second report into the same directory replaces the first.
-    let o = report(run, &out2, &["--data", s(data)]);
+    // A second report into the same directory: refused, then with --force it replaces the first.
+    expect(report(run, &out2, &["--data", s(data)]), 2, &["--force"]);
+    let o = report(run, &out2, &["--data", s(data), "--force"]);
     assert_eq!(o.code, 0, "{}", o.stderr);
     check_page(&out2);
     assert!(

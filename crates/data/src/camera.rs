@@ -128,21 +128,28 @@ impl Camera {
 
     /// Checks intrinsics and pose; the message says what is wrong (the caller names the file).
     pub fn validate(&self) -> Result<(), String> {
+        self.validate_intrinsics().map_err(|(_, msg)| msg)?;
+        validate_rigid(&self.c2w)
+    }
+
+    /// The image size and intrinsics alone, with the name of the faulty one (`width`, `fx`, `fy`,
+    /// `cx`, `cy`), so that a dataset reader can name its own key for it (`fl_x` …) rather than
+    /// the pose's.
+    pub fn validate_intrinsics(&self) -> Result<(), (&'static str, String)> {
         if self.width == 0 || self.height == 0 {
-            return Err(format!("image size {}×{} is empty", self.width, self.height));
+            return Err(("width", format!("image size {}×{} is empty", self.width, self.height)));
         }
         for (name, v) in [("fx", self.fx), ("fy", self.fy), ("cx", self.cx), ("cy", self.cy)] {
             if !v.is_finite() {
-                return Err(format!("intrinsic {name} = {v} is not finite"));
+                return Err((name, format!("intrinsic {name} = {v} is not finite")));
             }
         }
-        if self.fx <= 0.0 || self.fy <= 0.0 {
-            return Err(format!(
-                "focal lengths must be positive (fx = {}, fy = {})",
-                self.fx, self.fy
-            ));
+        for (name, v) in [("fx", self.fx), ("fy", self.fy)] {
+            if v <= 0.0 {
+                return Err((name, format!("focal length {name} = {v}: must be positive")));
+            }
         }
-        validate_rigid(&self.c2w)
+        Ok(())
     }
 }
 
@@ -182,7 +189,10 @@ pub fn validate_rigid(m: &DMat4) -> Result<(), String> {
     }
     let row3 = m.row(3);
     if (row3 - DVec4::new(0.0, 0.0, 0.0, 1.0)).abs().max_element() > 1e-6 {
-        return Err(format!("pose's last row is {row3:?}, expected [0, 0, 0, 1]"));
+        return Err(format!(
+            "pose's last row is [{}, {}, {}, {}], expected [0, 0, 0, 1]",
+            row3.x, row3.y, row3.z, row3.w
+        ));
     }
     let r = DMat3::from_mat4(*m);
     let det = r.determinant();

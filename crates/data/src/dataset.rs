@@ -182,8 +182,18 @@ impl Dataset {
 /// Reads the dataset in `dir`, detecting its format: `transforms.json` (native) or
 /// `cameras_normalize.npz` / `cameras.npz` (paper release).
 pub fn load(dir: &Path) -> Result<Dataset> {
+    if dir.is_file() {
+        let hint = match dir.file_name().and_then(|n| n.to_str()) {
+            Some("transforms.json" | "cameras_normalize.npz" | "cameras.npz") => " (give the folder that holds it)",
+            _ => "",
+        };
+        return Err(DataError::file(dir, format!("is a file, not a dataset folder{hint}")));
+    }
+    if !dir.exists() {
+        return Err(DataError::file(dir, "dataset folder not found"));
+    }
     if !dir.is_dir() {
-        return Err(DataError::file(dir, "dataset directory not found"));
+        return Err(DataError::file(dir, "not a dataset folder"));
     }
     if dir.join("transforms.json").is_file() {
         crate::native::load(dir)

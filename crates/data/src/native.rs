@@ -12,7 +12,7 @@
 //! `relight: [{spec, frames}]`, `ldr: {transfer: "srgb"|"linear"}`, `objects: [{id, name, tags}]`
 //! (the GT mesh's per-face `object_id`s, named and tagged). Unknown keys are ignored.
 
-use crate::camera::Camera;
+use crate::camera::{validate_rigid, Camera};
 use crate::dataset::{self, Dataset, Format, Frame, GtEmitter, ObjectInfo, RelightSet, Split};
 use crate::error::{DataError, Result};
 use glam::DMat4;
@@ -99,7 +99,16 @@ fn camera_of(obj: &Map<String, Value>, top: &Map<String, Value>, ctx: &Ctx) -> R
     let cy = get_f64(obj, top, "cy", ctx).unwrap_or(h / 2.0);
     let c2w = parse_matrix(obj.get("transform_matrix"), ctx)?;
     let cam = Camera::from_opengl_c2w(w as usize, h as usize, fx, fy, cx, cy, c2w);
-    cam.validate().map_err(|m| ctx.err("transform_matrix", m))?;
+    cam.validate_intrinsics().map_err(|(name, m)| {
+        let key = match name {
+            "fx" => "fl_x",
+            "fy" => "fl_y",
+            "width" => "w",
+            other => other,
+        };
+        ctx.err(key, m)
+    })?;
+    validate_rigid(&cam.c2w).map_err(|m| ctx.err("transform_matrix", m))?;
     Ok(cam)
 }
 

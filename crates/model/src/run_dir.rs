@@ -11,6 +11,7 @@
 //! The configuration is stored as TOML text: its type (the trainer's `TrainConfig`) lives above
 //! this crate, so the trainer parses it back; commands that only read fields never need it.
 
+use i2sdf_data::fingerprint::DatasetFingerprint;
 use i2sdf_data::{imageio, Bounds, DataError, Normalization};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
@@ -30,8 +31,12 @@ pub struct StageProgress {
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(from = "RunInfoFile")]
 pub struct RunInfo {
-    /// The dataset the run was trained on (as given on the command line).
+    /// The dataset the run was trained on: its absolute path (runs written before this was so
+    /// hold the path as typed, relative to where `train` ran).
     pub data: String,
+    /// What identifies that dataset whatever its path (training views, cameras, images), so that
+    /// a `--data` naming other data is said; `None` in runs written before it was kept.
+    pub data_fingerprint: Option<DatasetFingerprint>,
     pub normalization: Option<Normalization>,
     /// The dataset's scene bounds in world units (where `mesh` looks for the surface).
     pub bounds: Option<Bounds>,
@@ -42,6 +47,21 @@ pub struct RunInfo {
 }
 
 impl RunInfo {
+    /// A warning when `dataset` is not the data the run was trained on (by the fingerprint that
+    /// `run.json` keeps; runs without one are not checked).
+    pub fn dataset_mismatch(&self, dataset: &i2sdf_data::Dataset, data: &Path) -> Option<String> {
+        let run = self.data_fingerprint.as_ref()?;
+        let diff = DatasetFingerprint::of(dataset).differences(run);
+        (!diff.is_empty()).then(|| {
+            format!(
+                "warning: {} is not the dataset the run was trained on ({}): {}",
+                data.display(),
+                self.data,
+                diff.join("; ")
+            )
+        })
+    }
+
     /// The progress record of a stage by its key (`"stage1"`, `"stage2"`), created on first use.
     pub fn stage_mut(&mut self, key: &str) -> Result<&mut StageProgress, DataError> {
         match key {
@@ -66,6 +86,8 @@ impl RunInfo {
 #[derive(Deserialize)]
 struct RunInfoFile {
     data: String,
+    #[serde(default)]
+    data_fingerprint: Option<DatasetFingerprint>,
     #[serde(default)]
     normalization: Option<Normalization>,
     #[serde(default)]
@@ -97,6 +119,7 @@ impl From<RunInfoFile> for RunInfo {
         }));
         RunInfo {
             data: f.data,
+            data_fingerprint: f.data_fingerprint,
             normalization: f.normalization,
             bounds: f.bounds,
             stage1,
@@ -149,6 +172,45 @@ impl RunDir {
 
     pub fn exists(&self) -> bool {
         self.info_path().is_file()
+    }
+
+    /// The dataset a command on this run reads: `data` (its `--data`) when given, else the one
+    /// `run.json` records — refused, saying where that path came from and that `--data`
+    /// overrides it, when nothing is there any more.
+    pub fn dataset_path(&self, info: &RunInfo, data: Option<&Path>) -> Result<PathBuf, DataError> {
+        if let Some(d) = data {
+            return Ok(d.to_path_buf());
+        }
+        let recorded = PathBuf::from(&info.data);
+        if recorded.exists() {
+            return Ok(recorded);
+        }
+        Err(DataError::field(
+            self.info_path(),
+            "data",
+            format!(
+                "the dataset the run was trained on, {} (as recorded here), is not there{}: pass --data SCENE to use it where it is now",
+                recorded.display(),
+                if recorded.is_relative() {
+                    " (a relative path, read from the current folder)"
+                } else {
+                    ""
+                }
+            ),
+        ))
+    }
+
+    /// The files of this run that no other command may write ([`i2sdf_data::output::RUN_FILES`]
+    /// lists their names for the output checks).
+    pub fn own_files(&self) -> [PathBuf; 6] {
+        [
+            self.info_path(),
+            self.config_path(),
+            self.checkpoint_path(),
+            self.stage2_checkpoint_path(),
+            self.log_path(),
+            self.emitters_path(),
+        ]
     }
 
     pub fn create(&self) -> Result<(), DataError> {
@@ -221,6 +283,37 @@ mod tests {
         assert_eq!(std::fs::read_to_string(run.log_path()).unwrap().lines().count(), 2);
         let e = RunDir::new(dir.path()).read_info().unwrap_err().to_string();
         assert!(e.contains("run.json"), "{e}");
+    }
+
+    #[test]
+    fn the_output_checks_know_every_run_file() {
+        let run = RunDir::new(Path::new("r"));
+        for p in run.own_files() {
+            let name = p.file_name().unwrap().to_str().unwrap();
+            assert!(i2sdf_data::output::RUN_FILES.contains(&name), "{name}");
+        }
+        assert_eq!(run.own_files().len(), i2sdf_data::output::RUN_FILES.len());
+        assert_eq!(i2sdf_data::output::RUN_MARKER, "run.json");
+    }
+
+    #[test]
+    fn a_missing_dataset_names_run_json_and_the_override() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::new(dir.path());
+        let info = RunInfo {
+            data: dir.path().join("gone").display().to_string(),
+            ..Default::default()
+        };
+        let e = run.dataset_path(&info, None).unwrap_err();
+        let msg = e.to_string();
+        assert!(
+            e.is_bad_input() && msg.contains("run.json") && msg.contains("--data") && msg.contains("gone"),
+            "{msg}"
+        );
+        assert_eq!(
+            run.dataset_path(&info, Some(Path::new("x"))).unwrap(),
+            PathBuf::from("x")
+        );
     }
 
     /// A `run.json` written before the per-stage records still opens.

@@ -57,7 +57,22 @@ impl Default for SynthOptions {
     }
 }
 
+/// Most views of a dataset (the paper's rooms have ~200; a dataset of 10⁴ views at the smallest
+/// size already takes hours to render here).
+pub const MAX_VIEWS: usize = 10_000;
+/// Most paths per pixel and scattering events per path.
+pub const MAX_SPP: u32 = 1 << 16;
+pub const MAX_DEPTH: u32 = 1024;
+
 impl SynthOptions {
+    /// Bytes the dataset will take on disk, roughly: per pixel of each view the LDR PNG, the HDR
+    /// image, depth, normals, the three material maps and the mask (EXRs uncompressed at worst),
+    /// and the relit test views; for the free-space check before rendering.
+    pub fn estimated_bytes(&self) -> u64 {
+        let pixels = (self.width * self.height * self.views) as u64;
+        pixels * 64 + (16 << 20)
+    }
+
     pub fn test_views(&self) -> usize {
         ((self.views as f32 / 6.0).round() as usize).clamp(1, self.views.saturating_sub(1).max(1))
     }
@@ -69,11 +84,24 @@ impl SynthOptions {
                 self.width, self.height
             )));
         }
-        if self.views < 2 {
-            return Err(DataError::invalid("--views must be at least 2 (train and test views)"));
+        if !(2..=MAX_VIEWS).contains(&self.views) {
+            return Err(DataError::invalid(format!(
+                "--views {}: must be in 2..={MAX_VIEWS} (train and test views)",
+                self.views
+            )));
         }
-        if self.spp == 0 {
-            return Err(DataError::invalid("--spp must be at least 1"));
+        if !(1..=MAX_SPP).contains(&self.spp) {
+            return Err(DataError::invalid(format!(
+                "--spp {}: must be in 1..={MAX_SPP}",
+                self.spp
+            )));
+        }
+        // Depth 0 traces no path at all: every image would be black.
+        if !(1..=MAX_DEPTH).contains(&self.max_depth) {
+            return Err(DataError::invalid(format!(
+                "--max-depth {}: must be in 1..={MAX_DEPTH} (scattering events per path)",
+                self.max_depth
+            )));
         }
         Ok(())
     }

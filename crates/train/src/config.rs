@@ -329,8 +329,8 @@ impl TrainConfig {
         positive("train.lr_beta", t.lr_beta, 1.0)?;
         positive("train.lr_final_fraction", t.lr_final_fraction, 1.0)?;
         int("train.lr_warmup", t.lr_warmup, 0, 100_000_000)?;
-        int("train.checkpoint_every", t.checkpoint_every, 1, u64::MAX)?;
-        int("train.log_every", t.log_every, 1, u64::MAX)?;
+        int("train.checkpoint_every", t.checkpoint_every, 1, 100_000_000)?;
+        int("train.log_every", t.log_every, 1, 100_000_000)?;
         int("train.threads", t.threads, 0, 1024)?;
         let s = &self.sampling;
         int("sampling.samples", s.samples, 2, 1024)?;
@@ -452,6 +452,14 @@ fn file_error(path: &Path, text: &str, e: &toml::de::Error) -> DataError {
     )
 }
 
+/// Digits with at most a sign, a point and an exponent: a number as a user types one.
+fn looks_numeric(value: &str) -> bool {
+    value.chars().any(|c| c.is_ascii_digit())
+        && value
+            .chars()
+            .all(|c| c.is_ascii_digit() || matches!(c, '+' | '-' | '.' | '_' | 'e' | 'E'))
+}
+
 fn apply_override(table: &mut toml::Table, o: &str) -> Result<(), DataError> {
     let (key, value) = o
         .split_once('=')
@@ -460,6 +468,13 @@ fn apply_override(table: &mut toml::Table, o: &str) -> Result<(), DataError> {
     let value = value.trim();
     let parsed: toml::Value = match format!("v = {value}").parse::<toml::Table>() {
         Ok(mut t) => t.remove("v").expect("key v"),
+        // What looks like a number but is not one TOML can hold (an integer past 64 bits) is
+        // said as such, not passed on as a string for serde to call "invalid type: string".
+        Err(_) if looks_numeric(value) => {
+            return Err(DataError::invalid(format!(
+                "--set {o}: '{value}' is not a number this key can hold (integers must fit in 64 bits)"
+            )))
+        }
         Err(_) => toml::Value::String(value.to_string()),
     };
     let parts: Vec<&str> = key.split('.').collect();

@@ -232,6 +232,14 @@ fn check_same_dataset(run: &RunDir, info: &RunInfo, data_arg: &str, dataset: &Da
     Ok(())
 }
 
+/// Records in `info` where the dataset (checked to be the run's) is now, as an absolute path, and
+/// its fingerprint: a run trained from one folder opens from any other, and follows its dataset
+/// when a resume or stage 2 names it at a new place.
+fn record_dataset(info: &mut RunInfo, data_arg: &str, dataset: &Dataset) {
+    info.data = i2sdf_data::output::absolute(Path::new(data_arg)).display().to_string();
+    info.data_fingerprint = Some(i2sdf_data::fingerprint::DatasetFingerprint::of(dataset));
+}
+
 /// The run's configuration, as `RUN/config.toml` holds it.
 pub fn read_run_config(run: &RunDir) -> Result<TrainConfig, DataError> {
     TrainConfig::load(Some(&run.config_path()), &[])
@@ -264,8 +272,9 @@ pub fn open_run(
         if !run.checkpoint_path().is_file() && !unstarted {
             return Err(DataError::file(run.checkpoint_path(), "no checkpoint to resume from"));
         }
-        let info = run.read_info()?;
+        let mut info = run.read_info()?;
         check_same_dataset(run, &info, data_arg, dataset)?;
+        record_dataset(&mut info, data_arg, dataset);
         let own = read_run_config(run)?;
         let config = match config {
             Some(c) => {
@@ -284,12 +293,12 @@ pub fn open_run(
             ));
         }
         run.create()?;
-        let info = RunInfo {
-            data: data_arg.to_string(),
+        let mut info = RunInfo {
             normalization: Some(dataset.normalization),
             bounds: Some(dataset.bounds),
             ..Default::default()
         };
+        record_dataset(&mut info, data_arg, dataset);
         (config.unwrap_or_default(), info)
     };
     write_if_changed(&run.config_path(), &config.to_toml())?;
@@ -355,6 +364,7 @@ pub fn train_materials(
         ));
     }
     check_same_dataset(run, &info, data_arg, dataset)?;
+    record_dataset(&mut info, data_arg, dataset);
     let ckpt = run.stage2_checkpoint_path();
     if ckpt.is_file() && !resume {
         return Err(DataError::file(

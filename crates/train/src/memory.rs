@@ -109,6 +109,57 @@ impl TrainingMemory {
     pub fn peak(&self) -> f64 {
         self.stage1.total.max(self.stage2.total)
     }
+
+    /// Why training `stages` ("stage 1", "stage 2" or both) would not fit in `available` bytes,
+    /// or `None` when it fits: the estimate, its largest items with the keys that size them, and
+    /// the keys `config` sets away from the defaults (the likely culprits). `check` warns with
+    /// it; `train` refuses with it unless forced.
+    pub fn over(&self, config: &TrainConfig, stage1: bool, stage2: bool, available: u64) -> Option<String> {
+        let stages: Vec<(&str, &StageMemory)> = [("stage 1", &self.stage1, stage1), ("stage 2", &self.stage2, stage2)]
+            .into_iter()
+            .filter(|(_, m, on)| *on && m.total > available as f64)
+            .map(|(name, m, _)| (name, m))
+            .collect();
+        let (name, worst) = *stages.iter().max_by(|a, b| a.1.total.total_cmp(&b.1.total))?;
+        let mut items: Vec<&(String, f64)> = worst.items.iter().collect();
+        items.sort_by(|a, b| b.1.total_cmp(&a.1));
+        let largest: Vec<String> = items
+            .iter()
+            .take(2)
+            .map(|(w, b)| match item_keys(w) {
+                Some(keys) => format!("{w} {} ({keys})", gib(*b)),
+                None => format!("{w} {}", gib(*b)),
+            })
+            .collect();
+        let changed = crate::resume::config_changes(&TrainConfig::default(), config, true);
+        let changed = if changed.is_empty() {
+            String::new()
+        } else {
+            format!("; set away from the defaults: {}", changed.join(", "))
+        };
+        Some(format!(
+            "{name} needs about {} of memory, more than the {} available: largest {}{changed}",
+            gib(worst.total),
+            gib(available as f64),
+            largest.join(", ")
+        ))
+    }
+}
+
+/// The configuration keys that size an estimate's item.
+fn item_keys(item: &str) -> Option<&'static str> {
+    Some(match item {
+        "batch activations" => "train.rays × sampling.samples, train.eikonal_points, train.bubble_points",
+        "PDF-map pass" => "sampling.samples, adaptive.enabled",
+        "fields + Adam" | "frozen stage-1 fields" => "model.hash_levels, model.hash_log2_table",
+        "material field + Adam" => "material.hash_levels, material.hash_log2_table",
+        "cached pixels" | "pooled irradiance" => "stage2.cache_pixels",
+        "specular bake" | "incident-radiance cache" | "tracing block" => "stage2.cache_pixels × stage2.cache_samples",
+        "baked surface" => "stage2.bake_resolution",
+        "batch" => "stage2.pixels × stage2.samples, material.hidden_dim × material.hidden_layers",
+        "dataset" | "training rays" | "targets" => "the dataset's views and resolution",
+        _ => return None,
+    })
 }
 
 /// Entries of a multiresolution hash grid (as `i2sdf_nn::HashGrid::new` lays it out: a level is

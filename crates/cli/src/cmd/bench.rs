@@ -28,10 +28,31 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        args.rays > 0 && args.samples > 0,
-        "--rays and --samples must be positive"
-    );
+    let bad = |flag: &str, v: usize, lo: usize, hi: usize| {
+        (!(lo..=hi).contains(&v)).then(|| i2sdf_data::DataError::invalid(format!("{flag} {v}: must be in {lo}..={hi}")))
+    };
+    // Limits: what one iteration of the representative configuration can hold in memory here
+    // (the product rays × samples, checked below) and what finishes in minutes.
+    let checks = [
+        bad("--rays", args.rays, 1, 1 << 20),
+        bad("--samples", args.samples, 1, 1024),
+        bad("--iterations", args.iterations, 1, 10_000),
+        bad("--paper-points", args.paper_points, 0, 1 << 20),
+        bad("--paper-iterations", args.paper_iterations, 1, 1000),
+    ];
+    if let Some(e) = checks.into_iter().flatten().next() {
+        return Err(e.into());
+    }
+    if args.rays * args.samples > 1 << 21 {
+        return Err(i2sdf_data::DataError::invalid(format!(
+            "--rays {} × --samples {}: {} points per iteration, more than the {} the bench holds",
+            args.rays,
+            args.samples,
+            args.rays * args.samples,
+            1 << 21
+        ))
+        .into());
+    }
     let opts = BenchOptions {
         rays: args.rays,
         samples: args.samples,

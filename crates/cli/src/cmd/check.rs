@@ -32,14 +32,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let estimate = memory::estimate(&DatasetShape::of(&dataset), &config);
     let machine = MachineMemory::read();
     let warning = machine.and_then(|m| {
-        let need = estimate.peak();
-        (need > m.available as f64).then(|| {
+        estimate.over(&config, true, true, m.available).map(|why| {
             format!(
-                "warning: training needs about {} (stage 1 {}, stage 2 {}), more than the {} of memory available (of {} total)",
-                gib(need),
-                gib(estimate.stage1.total),
-                gib(estimate.stage2.total),
-                gib(m.available as f64),
+                "warning: {why} (of {} total); `train` refuses this unless --ignore-memory",
                 gib(m.total as f64)
             )
         })

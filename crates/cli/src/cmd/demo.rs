@@ -32,6 +32,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         minutes(plan.total()),
         minutes(plan.total() * pace)
     ));
+    check_demo_folder(&args.out)?;
     let scene = args.out.join("scene");
     let run_dir = args.out.join("run");
     if !scene.join("transforms.json").is_file() {
@@ -43,6 +44,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         };
         synth::run(synth::Args {
             out: scene.clone(),
+            force: false,
             preset: "livingroom".into(),
             scene: None,
             seed: 0,
@@ -78,13 +80,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Vec::new()
         };
         train::run(train::Args {
-            data: scene.clone(),
+            data: Some(scene.clone()),
             out: run_dir.clone(),
             config: None,
             set,
             stage: train::Stage::Geometry,
             resume: info.checkpoint_path().is_file(),
             quiet: false,
+            ignore_memory: false,
         })?;
     }
     let stage2_done = info
@@ -108,13 +111,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Vec::new()
         };
         train::run(train::Args {
-            data: scene.clone(),
+            data: Some(scene.clone()),
             out: run_dir.clone(),
             config: None,
             set,
             stage: train::Stage::Material,
             resume: info.stage2_checkpoint_path().is_file(),
             quiet: false,
+            ignore_memory: false,
         })?;
     }
     plan.stage(4, "extract the mesh");
@@ -130,11 +134,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         run: run_dir.clone(),
         out: args.out.join("mesh.ply"),
         resolution,
+        force: true,
     })?;
     plan.stage(5, "render the test views");
     render::run(render::Args {
         run: run_dir.clone(),
         out: args.out.join("render"),
+        force: true,
         split: "test".into(),
         what: "rgb,depth,normal,emitter,albedo,specular,roughness,emission,rerender".into(),
         data: Some(scene.clone()),
@@ -144,8 +150,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     plan.stage(6, "evaluate");
     eval::run(eval::Args {
         run: run_dir.clone(),
-        data: scene.clone(),
+        data: Some(scene.clone()),
         out: args.out.join("metrics.json"),
+        mesh_out: None,
+        force: true,
         mesh_resolution: resolution,
         threshold: 0.05,
         spp: if args.quick { 16 } else { 64 },
@@ -164,6 +172,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             run: run_dir.clone(),
             spec,
             out: dir.join(name),
+            force: true,
             split: "test".into(),
             view: Some(0),
             spp: if args.quick { 16 } else { 64 },
@@ -181,6 +190,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     report::run(report::Args {
         run: run_dir.clone(),
         out: args.out.join("report"),
+        force: true,
         data: Some(scene.clone()),
         metrics: Some(args.out.join("metrics.json")),
         view: 0,
@@ -193,6 +203,27 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "open {} in a browser",
         args.out.join("report").join("index.html").display()
     ));
+    Ok(())
+}
+
+/// What the demo writes in its folder; a folder holding anything else is not the demo's, and
+/// the demo refuses it rather than write among a user's files.
+const DEMO_ENTRIES: [&str; 7] = ["scene", "run", "mesh.ply", "render", "metrics.json", "edits", "report"];
+
+fn check_demo_folder(out: &std::path::Path) -> Result<(), i2sdf_data::DataError> {
+    if out.is_file() {
+        return Err(i2sdf_data::DataError::invalid(format!(
+            "--out {}: is a file; give a folder",
+            out.display()
+        )));
+    }
+    if out.exists() && !super::only_entries(out, |name, _| DEMO_ENTRIES.contains(&name)) {
+        return Err(i2sdf_data::DataError::invalid(format!(
+            "--out {}: holds files that are not a demo's (it writes {}): choose a new or empty folder",
+            out.display(),
+            DEMO_ENTRIES.join(", ")
+        )));
+    }
     Ok(())
 }
 

@@ -16,18 +16,23 @@ use std::path::PathBuf;
 
 #[derive(ClapArgs)]
 pub struct Args {
+    /// The stage-2 run to edit.
     #[arg(long)]
     pub run: PathBuf,
-    /// The edit spec (TOML `[[op]]` list; DESIGN.md "Editing and relighting").
+    /// The edit spec (TOML `[[op]]` list of relight, material and insert ops; README "Editing").
     #[arg(long)]
     pub spec: PathBuf,
+    /// Output folder (created; built aside and moved into place when every view is written).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace --out if it holds a previous edit's render.
+    #[arg(long)]
+    pub force: bool,
     /// Which views: test or train.
     #[arg(long, default_value = "test")]
     pub split: String,
     /// Only this view (its index within the split).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true, value_parser = super::view_index)]
     pub view: Option<usize>,
     /// Paths per pixel.
     #[arg(long, default_value_t = EditSettings::default().spp)]
@@ -38,8 +43,10 @@ pub struct Args {
     /// Output width in pixels (with --height; the intrinsics are scaled to it).
     #[arg(long)]
     pub width: Option<usize>,
+    /// Output height in pixels (with --width).
     #[arg(long)]
     pub height: Option<usize>,
+    /// Seed of the path tracer's samples.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Marching-cubes resolution of the recovered surface (samples along the scene's longest side).
@@ -93,10 +100,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let spec = EditSpec::read(&args.spec)?;
     let assets = spec.load_assets()?;
-    let (scene, fields, info) = super::load_run_intrinsic(&args.run)?;
-    let fields = fields.ok_or_else(|| super::no_stage2(&args.run))?;
-    let data = args.data.clone().unwrap_or_else(|| PathBuf::from(&info.data));
-    let dataset = i2sdf_data::load(&data)?;
+    if !i2sdf_model::RunDir::new(&args.run).stage2_checkpoint_path().is_file() {
+        return Err(super::no_stage2(&args.run).into());
+    }
+    let (data, dataset) = super::run_dataset(&args.run, args.data.as_deref())?;
     let frames: Vec<_> = dataset.split(split).collect();
     if args.path.path.is_some() && args.view.is_some() {
         return Err(DataError::invalid("--view and --path: choose one").into());
@@ -133,6 +140,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let threshold = super::run_emitter_threshold(&args.run)?;
     let spec_text = std::fs::read(&args.spec).map_err(|e| DataError::file(&args.spec, e.to_string()))?;
+    let pixels: u64 = shots.iter().map(|(_, c, _)| (c.width * c.height) as u64).sum();
+    let staged = super::output_dir(
+        "--out",
+        &args.out,
+        args.force,
+        "an edit's render",
+        &|dir| super::only_entries(dir, |name, is_dir| !is_dir && previous_edit(name)),
+        &[&data, &args.spec],
+        Some(pixels * 16 + spec_text.len() as u64),
+    )?;
+    let (scene, fields, _) = super::load_run_intrinsic(&args.run)?;
+    let fields = fields.ok_or_else(|| super::no_stage2(&args.run))?;
+    check_relight_ops(&args.spec, &spec, &fields.emitters)?;
 
     eprintln!("extracting the recovered surface at {}…", args.mesh_resolution);
     let train: Vec<Camera> = dataset.split(Split::Train).map(|f| f.camera.clone()).collect();
@@ -158,8 +178,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bounces: args.bounces,
         seed: args.seed,
     };
-    std::fs::create_dir_all(&args.out).map_err(|e| DataError::io(&args.out, e.to_string()))?;
-    imageio::write_bytes_atomic(&args.out.join("edit.toml"), &spec_text)?;
+    let out = staged.path().to_path_buf();
+    imageio::write_bytes_atomic(&out.join("edit.toml"), &spec_text)?;
     let rows: usize = shots.iter().map(|(_, c, _)| c.height).sum();
     let passes = if unedited.is_some() { 2 } else { 1 };
     let bar = crate::progress::bar((rows * passes) as u64);
@@ -178,18 +198,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 hdr_ldr_images(&d, render.width, render.height, rm)
             }
         };
-        imageio::write_exr(&args.out.join(format!("{name}.exr")), &hdr)?;
-        imageio::write_png(&args.out.join(format!("{name}.png")), &ldr)?;
+        imageio::write_exr(&out.join(format!("{name}.exr")), &hdr)?;
+        imageio::write_png(&out.join(format!("{name}.png")), &ldr)?;
         if args.path.path.is_some() {
             anim.push(ldr);
         }
     }
     bar.finish();
-    if args.path.path.is_some() {
+    let written = if args.path.path.is_some() {
         // The frames sit in DIR itself: the animation is DIR/edit.gif (and edit.mp4).
-        for p in args.path.animate_frames(&args.out, &args.out.join("edit"), &anim)? {
-            println!("wrote {}", p.display());
-        }
+        args.path.animate_frames(&out, &out.join("edit"), &anim)?
+    } else {
+        Vec::new()
+    };
+    staged.commit()?;
+    for p in written {
+        println!("wrote {}", args.out.join(p.strip_prefix(&out).unwrap_or(&p)).display());
     }
     println!(
         "rendered {} edited {} view(s) ({} op(s), {} light(s), {}) into {}",
@@ -201,6 +225,32 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// Whether a file of an existing folder is what `edit` writes there: the spec's copy, a view's
+/// PNG and EXR, a path's animation.
+fn previous_edit(name: &str) -> bool {
+    name == "edit.toml" || matches!(name.rsplit_once('.'), Some((_, "png" | "exr" | "gif" | "mp4")))
+}
+
+/// Refuses a relight op when the run has no emitter for it to act on: its renders would be
+/// those of the unedited scene, said nowhere.
+fn check_relight_ops(
+    spec_path: &std::path::Path,
+    spec: &EditSpec,
+    emitters: &i2sdf_model::EmitterTable,
+) -> Result<(), DataError> {
+    if !emitters.is_empty() {
+        return Ok(());
+    }
+    match spec.ops.iter().position(|op| matches!(op, EditOp::Relight(_))) {
+        Some(i) => Err(DataError::field(
+            spec_path,
+            format!("op[{i}]"),
+            "a relight op, but the run's stage 2 found no emitters (RUN/emitters.json lists none): there is no light to change",
+        )),
+        None => Ok(()),
+    }
 }
 
 /// The camera with its image resized to `size` (intrinsics scaled: the same field of view).

@@ -1,5 +1,7 @@
-//! `i2sdf eval --run RUN --data SCENE --out METRICS.json`: the DESIGN.md metrics JSON (every
-//! figure that cannot be computed is null). Also writes the extracted mesh beside the JSON. With
+//! `i2sdf eval --run RUN --data SCENE --out METRICS.json`: the metrics JSON (every figure that
+//! cannot be computed is null; docs/ARCHITECTURE.md). With `--mesh-out FILE.ply` it also writes
+//! the extracted mesh it scored; it writes nothing else. Both outputs are checked before the work
+//! (`i2sdf_data::output`) and an existing one is replaced only with `--force`. With
 //! stage 2 (`RUN/stage2.safetensors`) it fills `rerender`, `material` and `emitters` from a Monte
 //! Carlo re-render of the test views (`--spp` paths per pixel), and `relight` from path-traced
 //! renders of the dataset's relit sets with their specs (`--spp`, `--bounces`), path traced and
@@ -15,13 +17,22 @@ use std::path::PathBuf;
 
 #[derive(ClapArgs)]
 pub struct Args {
+    /// The trained run to evaluate.
     #[arg(long)]
     pub run: PathBuf,
+    /// The dataset to score against (defaults to the one the run was trained on, as its run.json
+    /// records).
     #[arg(long)]
-    pub data: PathBuf,
-    /// Output JSON file.
+    pub data: Option<PathBuf>,
+    /// Output JSON file (.json).
     #[arg(long)]
     pub out: PathBuf,
+    /// Also write the extracted mesh that was scored (binary PLY, world units).
+    #[arg(long)]
+    pub mesh_out: Option<PathBuf>,
+    /// Replace --out (and --mesh-out) if they exist.
+    #[arg(long)]
+    pub force: bool,
     /// Marching-cubes resolution of the evaluated mesh.
     #[arg(long, default_value_t = i2sdf_eval::neural::MESH_RESOLUTION)]
     pub mesh_resolution: usize,
@@ -50,8 +61,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !(1..=1024).contains(&args.bounces) {
         return Err(i2sdf_data::DataError::invalid(format!("--bounces {}: must be in [1, 1024]", args.bounces)).into());
     }
+    let (data, dataset) = super::run_dataset(&args.run, args.data.as_deref())?;
+    let inputs = [data.as_path()];
+    super::output_file("--out", &args.out, &["json"], args.force, &inputs, Some(1 << 20))?;
+    if let Some(mesh) = &args.mesh_out {
+        super::output_file("--mesh-out", mesh, &["ply"], args.force, &inputs, None)?;
+        if i2sdf_data::output::absolute(mesh) == i2sdf_data::output::absolute(&args.out) {
+            return Err(i2sdf_data::DataError::invalid("--mesh-out and --out name the same file").into());
+        }
+    }
     let (scene, fields, info) = super::load_run_intrinsic(&args.run)?;
-    let dataset = i2sdf_data::load(&args.data)?;
     // A mesh resolution that cannot fit is refused now, not after the views are rendered.
     i2sdf_model::marching_cubes::sdf_grid(&scene, &dataset.bounds, args.mesh_resolution, 0.01)?.check_fits(
         &i2sdf_model::McOptions::for_sdf(args.mesh_resolution),
@@ -106,8 +125,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     report.time_s.stage1 = (info.stage1.iterations > 0).then_some(info.stage1.seconds);
     report.time_s.stage2 = info.stage2.filter(|s| s.iterations > 0).map(|s| s.seconds);
     let json = report.to_json();
+    if let Some(path) = &args.mesh_out {
+        i2sdf_eval::write_ply(path, &mesh)?;
+    }
     imageio::write_bytes_atomic(&args.out, json.as_bytes())?;
-    i2sdf_eval::write_ply(&args.out.with_extension("ply"), &mesh)?;
     println!("{json}");
     Ok(())
 }

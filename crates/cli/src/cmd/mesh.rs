@@ -5,17 +5,24 @@ use std::path::PathBuf;
 
 #[derive(ClapArgs)]
 pub struct Args {
+    /// The trained run whose SDF is meshed.
     #[arg(long)]
     pub run: PathBuf,
-    /// Output mesh (binary PLY, world units).
+    /// Output mesh (binary PLY, world units; must end in .ply).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace --out if it exists.
+    #[arg(long)]
+    pub force: bool,
     /// Samples along the longest side of the scene's bounding box.
     #[arg(long, default_value_t = i2sdf_eval::neural::MESH_RESOLUTION)]
     pub resolution: usize,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    let info = i2sdf_model::RunDir::new(&args.run).read_info()?;
+    let data = std::path::PathBuf::from(&info.data);
+    super::output_file("--out", &args.out, &["ply"], args.force, &[&data], None)?;
     let (scene, info) = super::load_run(&args.run)?;
     let bounds = super::run_bounds(&args.run, &info)?;
     let start = std::time::Instant::now();

@@ -23,6 +23,89 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
     }
 }
 
+/// The dataset a command on a run reads, loaded: `data` (its `--data`) when given, else the one
+/// the run's `run.json` records (refused, naming `run.json` and `--data`, when that is gone). A
+/// dataset that is not the run's (by the fingerprint `run.json` keeps) is said on stderr.
+pub fn run_dataset(
+    run: &std::path::Path,
+    data: Option<&std::path::Path>,
+) -> Result<(std::path::PathBuf, i2sdf_data::Dataset), i2sdf_data::DataError> {
+    let dir = i2sdf_model::RunDir::new(run);
+    let info = dir.read_info()?;
+    let path = dir.dataset_path(&info, data)?;
+    let dataset = i2sdf_data::load(&path)?;
+    if let Some(w) = info.dataset_mismatch(&dataset, &path) {
+        crate::progress::line(&w);
+    }
+    Ok((path, dataset))
+}
+
+/// An output folder checked (before any work) and staged: `flag` names it in messages, `what`
+/// says what the command writes ("a render"), `previous` tells a previous output of the same
+/// command (which `--force` may replace) from anything else.
+pub fn output_dir(
+    flag: &str,
+    path: &std::path::Path,
+    force: bool,
+    what: &str,
+    previous: &dyn Fn(&std::path::Path) -> bool,
+    inputs: &[&std::path::Path],
+    bytes: Option<u64>,
+) -> Result<i2sdf_data::output::StagedDir, i2sdf_data::DataError> {
+    i2sdf_data::output::OutputDir {
+        flag,
+        path,
+        force,
+        previous,
+        what,
+        inputs,
+        bytes,
+    }
+    .check()
+}
+
+/// An output file checked before any work (see `i2sdf_data::output`).
+pub fn output_file(
+    flag: &str,
+    path: &std::path::Path,
+    extensions: &[&str],
+    force: bool,
+    inputs: &[&std::path::Path],
+    bytes: Option<u64>,
+) -> Result<(), i2sdf_data::DataError> {
+    i2sdf_data::output::OutputFile {
+        flag,
+        path,
+        extensions,
+        force,
+        inputs,
+        bytes,
+    }
+    .check()
+    .map(|_| ())
+}
+
+/// Whether every entry of `dir` passes `ok` (its name, whether it is a folder): how a command
+/// recognizes its own previous output. Hidden entries (staging leftovers) are ignored.
+pub fn only_entries(dir: &std::path::Path, ok: impl Fn(&str, bool) -> bool) -> bool {
+    std::fs::read_dir(dir).is_ok_and(|d| {
+        d.filter_map(|e| e.ok()).all(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            name.starts_with('.') || ok(&name, e.path().is_dir())
+        })
+    })
+}
+
+/// A parser for a view index that says what is wrong with `-1` (clap would read it as a flag,
+/// or say only "invalid digit").
+pub fn view_index(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<i64>() {
+        Ok(v) if v < 0 => Err(format!("{v}: a view index is 0 or more")),
+        Ok(v) => usize::try_from(v).map_err(|_| format!("{v}: too large")),
+        Err(_) => Err(format!("'{s}' is not a view index (0, 1, 2, …)")),
+    }
+}
+
 /// A trained run's fields (from its checkpoint) and its run info.
 pub fn load_run(
     run: &std::path::Path,

@@ -23,10 +23,15 @@ use std::path::PathBuf;
 
 #[derive(ClapArgs)]
 pub struct Args {
+    /// The trained run to render.
     #[arg(long)]
     pub run: PathBuf,
+    /// Output folder (created; built aside and moved into place when every view is written).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace --out if it holds a previous render.
+    #[arg(long)]
+    pub force: bool,
     /// Which views: test or train.
     #[arg(long, default_value = "test")]
     pub split: String,
@@ -161,6 +166,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let split = Split::parse(&args.split)
         .ok_or_else(|| DataError::invalid(format!("--split {}: expected train or test", args.split)))?;
     let what: Vec<&str> = args.what.split(',').map(str::trim).filter(|s| !s.is_empty()).collect();
+    if what.is_empty() {
+        return Err(DataError::invalid(format!(
+            "--what '{}': names no map (available: {}, {})",
+            args.what,
+            MAPS.join(", "),
+            STAGE2_MAPS.join(", ")
+        ))
+        .into());
+    }
     for w in &what {
         if !MAPS.contains(w) && !STAGE2_MAPS.contains(w) {
             return Err(DataError::invalid(format!(
@@ -176,15 +190,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let stage1 = what.iter().any(|w| MAPS.contains(w));
     let stage2 = what.iter().any(|w| STAGE2_MAPS.contains(w));
-    let (scene, fields, info) = super::load_run_intrinsic(&args.run)?;
-    let fields = match (stage2, fields) {
-        (true, None) => return Err(super::no_stage2(&args.run).into()),
-        (true, f) => f,
-        (false, _) => None,
-    };
-    let data = args.data.clone().unwrap_or_else(|| PathBuf::from(&info.data));
-    let dataset = i2sdf_data::load(&data)?;
+    if stage2 && !i2sdf_model::RunDir::new(&args.run).stage2_checkpoint_path().is_file() {
+        return Err(super::no_stage2(&args.run).into());
+    }
+    let (data, dataset) = super::run_dataset(&args.run, args.data.as_deref())?;
     let frames: Vec<_> = dataset.split(split).collect();
+    let views = args.path.views(&frames, &dataset.bounds)?;
+    // Each map of each view: a PNG, and an EXR of up to 3 floats per pixel.
+    let pixels: u64 = views.iter().map(|(_, c)| (c.width * c.height) as u64).sum();
+    let staged = super::output_dir(
+        "--out",
+        &args.out,
+        args.force,
+        "a render",
+        &|dir| super::only_entries(dir, |name, is_dir| previous_render(name, is_dir)),
+        &[&data],
+        Some(pixels * what.len() as u64 * 16),
+    )?;
+    let (scene, fields, _) = super::load_run_intrinsic(&args.run)?;
+    let fields = if stage2 { fields } else { None };
     let settings = super::run_render_settings(&args.run)?;
     let threshold = if stage2 {
         super::run_emitter_threshold(&args.run)?
@@ -200,13 +224,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             fr.observe(&train);
         }
     }
-    let views = args.path.views(&frames, &dataset.bounds)?;
     let animated = args.path.path.is_some();
     let rows: usize = views.iter().map(|(_, c)| c.height).sum();
     let passes = stage1 as usize + stage2 as usize;
     let bar = crate::progress::bar((rows * passes) as u64);
     let wants = |m: &str| what.contains(&m);
-    let file = |m: &str, name: &str, ext: &str| args.out.join(m).join(format!("{name}.{ext}"));
+    let file = |m: &str, name: &str, ext: &str| staged.path().join(m).join(format!("{name}.{ext}"));
     // Each map's PNG frames of a path, for its animation.
     let mut anim: Vec<(String, Vec<ImageF32>)> = Vec::new();
     let mut png = |m: &str, name: &str, img: &ImageF32| -> Result<(), DataError> {
@@ -275,9 +298,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     }
     bar.finish();
+    let written = if animated {
+        args.path.animate(staged.path(), &anim)?
+    } else {
+        Vec::new()
+    };
+    let stage = staged.path().to_path_buf();
+    staged.commit()?;
     if animated {
-        for p in args.path.animate(&args.out, &anim)? {
-            println!("wrote {}", p.display());
+        for p in written {
+            println!(
+                "wrote {}",
+                args.out.join(p.strip_prefix(&stage).unwrap_or(&p)).display()
+            );
         }
         println!("rendered a {}-frame path into {}", views.len(), args.out.display());
         return Ok(());
@@ -289,6 +322,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// Whether an entry of an existing folder is what `render` writes there: a map's folder, or a
+/// path's animation of one (`MAP.gif`, `MAP.mp4`).
+fn previous_render(name: &str, is_dir: bool) -> bool {
+    let is_map = |m: &str| MAPS.contains(&m) || STAGE2_MAPS.contains(&m);
+    if is_dir {
+        return is_map(name);
+    }
+    matches!(name.rsplit_once('.'), Some((m, "gif" | "mp4")) if is_map(m))
 }
 
 /// Depth scaled to [0, 1] by the view's own 99th percentile, near = bright.

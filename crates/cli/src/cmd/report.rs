@@ -1,7 +1,7 @@
 //! `i2sdf report --run RUN [--data SCENE] [--metrics M.json] --out DIR`: a static HTML report of
 //! the run (`DIR/index.html`, `DIR/img/*.png`, `DIR/*.svg`; see `i2sdf_report`). Everything is
-//! checked (run, dataset, metrics file, arguments) before anything is written; the report is
-//! built in `DIR/.partial` and moved into place at the end.
+//! checked (run, dataset, metrics file, arguments, the output folder) before anything is written;
+//! the report is built in a staging folder beside `DIR` and moved into place at the end.
 
 use clap::Args as ClapArgs;
 use i2sdf_data::DataError;
@@ -10,11 +10,15 @@ use std::path::PathBuf;
 
 #[derive(ClapArgs)]
 pub struct Args {
+    /// The trained run to report on.
     #[arg(long)]
     pub run: PathBuf,
-    /// Output directory (created; a previous report there is replaced).
+    /// Output folder (created; built aside and moved into place at the end).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace --out if it holds a previous report.
+    #[arg(long)]
+    pub force: bool,
     /// Dataset (defaults to the one the run was trained on).
     #[arg(long)]
     pub data: Option<PathBuf>,
@@ -22,7 +26,7 @@ pub struct Args {
     #[arg(long)]
     pub metrics: Option<PathBuf>,
     /// Index of the test view shown.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true, value_parser = super::view_index)]
     pub view: usize,
     /// Paths per pixel of the path-traced images.
     #[arg(long, default_value_t = 32)]
@@ -53,9 +57,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(p) => Some((p.clone(), i2sdf_report::metrics::read_metrics(p)?)),
         None => None,
     };
+    let (data, dataset) = super::run_dataset(&args.run, args.data.as_deref())?;
+    let mut inputs = vec![data.as_path()];
+    if let Some(m) = &args.metrics {
+        inputs.push(m);
+    }
+    let staged = super::output_dir(
+        "--out",
+        &args.out,
+        args.force,
+        "a report",
+        &|dir| {
+            dir.join("index.html").is_file()
+                && super::only_entries(dir, |name, is_dir| {
+                    (is_dir && name == "img") || name == "index.html" || name.ends_with(".svg")
+                })
+        },
+        &inputs,
+        Some(64 << 20),
+    )?;
     let (scene, fields, info) = super::load_run_intrinsic(&args.run)?;
-    let data = args.data.clone().unwrap_or_else(|| PathBuf::from(&info.data));
-    let dataset = i2sdf_data::load(&data)?;
     let run_dir = i2sdf_model::RunDir::new(&args.run);
     let input = RunInputs {
         run: &args.run,
@@ -76,10 +97,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bounces: args.bounces,
         mesh_resolution: args.mesh_resolution,
     };
-    let summary = write_report(&input, &options, &args.out, &|step| eprintln!("report: {step}…"))?;
+    let summary = write_report(&input, &options, staged.path(), &|step| {
+        crate::progress::line(&format!("report: {step}…"))
+    })?;
+    staged.commit()?;
     println!(
         "wrote {} ({} files) in {:.1} s",
-        summary.index.display(),
+        args.out.join("index.html").display(),
         summary.files,
         summary.seconds
     );

@@ -11,9 +11,12 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Output dataset directory (created).
+    /// Output dataset folder (created; built aside and moved into place at the end).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace --out if it holds a dataset made by `synth`.
+    #[arg(long)]
+    pub force: bool,
     /// Room preset: bedroom or livingroom.
     #[arg(long, default_value = "livingroom")]
     pub preset: String,
@@ -23,8 +26,10 @@ pub struct Args {
     /// Seed of the room layout, the cameras and the renderer's samples.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Image width in pixels.
     #[arg(long, default_value_t = 160)]
     pub width: usize,
+    /// Image height in pixels.
     #[arg(long, default_value_t = 120)]
     pub height: usize,
     /// Total number of views; one in six is held out for testing (48 → 40 train + 8 test).
@@ -76,6 +81,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
     };
     opts.validate()?;
+    let inputs: Vec<&std::path::Path> = args.scene.iter().map(PathBuf::as_path).collect();
+    let staged = crate::cmd::output_dir(
+        "--out",
+        &args.out,
+        args.force,
+        "a dataset made by synth",
+        &made_by_synth,
+        &inputs,
+        Some(opts.estimated_bytes()),
+    )?;
     let bar = crate::progress::bar((opts.views * opts.height) as u64);
     bar.set_style(
         ProgressStyle::with_template("{msg} [{elapsed_precise}] {bar:40} {pos}/{len} rows (eta {eta})")
@@ -85,9 +100,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "rendering {} ({} views, {}×{}, {} spp)",
         desc.name, opts.views, opts.width, opts.height, opts.spp
     ));
-    let summary = generate(desc, &opts, &args.out, &|| bar.inc(1))
+    let summary = generate(desc, &opts, staged.path(), &|| bar.inc(1))
         .with_context(|| format!("synthesizing {}", args.out.display()))?;
     bar.finish_and_clear();
+    staged.commit()?;
     println!(
         "wrote {}: {} train + {} test views, {} triangles, {} emitters, exposure {:.4}, rendered in {:.1} s",
         args.out.display(),
@@ -99,4 +115,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         summary.render_seconds
     );
     Ok(())
+}
+
+/// Whether a folder is a dataset `synth` wrote (its transforms.json names the generator), the
+/// only kind `--force` replaces.
+fn made_by_synth(dir: &std::path::Path) -> bool {
+    std::fs::read_to_string(dir.join("transforms.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .is_some_and(|v| v["generator"]["name"] == "i2sdf synth")
 }

@@ -24,10 +24,11 @@ pub enum Stage {
 
 #[derive(ClapArgs)]
 pub struct Args {
-    /// Dataset directory.
+    /// Dataset folder (for --resume and --stage material: defaults to the run's, as its run.json
+    /// records).
     #[arg(long)]
-    pub data: PathBuf,
-    /// Run directory (created; with --resume, continued).
+    pub data: Option<PathBuf>,
+    /// Run folder (created; with --resume or --stage material, continued).
     #[arg(long)]
     pub out: PathBuf,
     /// TOML configuration file (defaults are tuned for the default synthetic room).
@@ -45,6 +46,10 @@ pub struct Args {
     /// Print one line per log step instead of a progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// Train even when the memory estimate (as `i2sdf check` prints it) exceeds the machine's
+    /// available memory.
+    #[arg(long)]
+    pub ignore_memory: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -79,8 +84,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .build_global();
         }
     }
-    eprintln!("loading {}", args.data.display());
-    let dataset = i2sdf_data::load(&args.data)?;
+    let continues = args.resume || args.stage == Stage::Material;
+    let data = match (&args.data, continues) {
+        (Some(d), _) => d.clone(),
+        (None, true) => run.dataset_path(&run.read_info()?, None)?,
+        (None, false) => anyhow::bail!(i2sdf_data::DataError::invalid("--data SCENE is needed to start a run")),
+    };
+    if !continues {
+        check_new_run(&args.out, &data)?;
+    }
+    crate::progress::line(&format!("loading {}", data.display()));
+    let dataset = i2sdf_data::load(&data)?;
+    let geometry = matches!(args.stage, Stage::Geometry | Stage::All);
+    let material = matches!(args.stage, Stage::Material | Stage::All);
+    check_memory(&run, &dataset, config.as_ref(), geometry, material, args.ignore_memory)?;
     let bar = |label: &str| {
         let bar = crate::progress::bar(0);
         bar.set_style(
@@ -95,8 +112,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         bar
     };
-    let geometry = matches!(args.stage, Stage::Geometry | Stage::All);
-    let material = matches!(args.stage, Stage::Material | Stage::All);
     let mut config = config;
     if geometry {
         // A finished stage 1 resumed (--stage all --resume continuing into stage 2, or a finished
@@ -118,7 +133,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             let stage = train_geometry(
                 &run,
                 &dataset,
-                &args.data.display().to_string(),
+                &data.display().to_string(),
                 config.clone(),
                 args.resume,
                 |e| {
@@ -162,7 +177,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let stage = train_materials(
             &run,
             &dataset,
-            &args.data.display().to_string(),
+            &data.display().to_string(),
             config,
             stage2_resume && run.stage2_checkpoint_path().is_file(),
             &progress,
@@ -187,6 +202,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             return Ok(());
         };
         let (surface, emitter) = stage.counts();
+        if stage.fields.emitters.is_empty() {
+            crate::progress::line(&format!(
+                "warning: stage 2 found no emitters: no training pixel's emitter probability passed stage2.emitter_threshold = {} (does the dataset have emitter masks?). The re-render has no direct light, relight ops have nothing to change, and relit renders in edit, eval and the report are black",
+                run_threshold(&run)
+            ));
+        }
         println!(
             "stage 2 done: {} iterations in {:.1} s this session ({} emitters, {} surface and {} emitter pixels cached); run in {}",
             stage.iteration(),
@@ -229,4 +250,79 @@ fn progress_events<'a, T>(
         }
         Event::Checkpoint { .. } => {}
     }
+}
+
+/// A new run's folder: not in a dataset or overlapping `data`, and either absent, empty or a run
+/// already (which `open_run` refuses with its own message).
+fn check_new_run(out: &std::path::Path, data: &std::path::Path) -> Result<(), i2sdf_data::DataError> {
+    use i2sdf_data::output::{absolute, is_dataset, is_run};
+    let abs = absolute(out);
+    if let Some(dataset) = abs.ancestors().find(|a| is_dataset(a)) {
+        return Err(i2sdf_data::DataError::invalid(format!(
+            "--out {}: lies in the dataset {}; i2sdf never writes into a dataset: choose a place outside it",
+            out.display(),
+            dataset.display()
+        )));
+    }
+    let data_abs = absolute(data);
+    if abs.starts_with(&data_abs) || data_abs.starts_with(&abs) {
+        return Err(i2sdf_data::DataError::invalid(format!(
+            "--out {}: overlaps --data {}: choose a run folder of its own",
+            out.display(),
+            data.display()
+        )));
+    }
+    if out.is_file() {
+        return Err(i2sdf_data::DataError::invalid(format!(
+            "--out {}: is a file; give a folder for the run",
+            out.display()
+        )));
+    }
+    if !is_run(&abs) && !i2sdf_data::output::entries(&abs).is_empty() {
+        return Err(i2sdf_data::DataError::invalid(format!(
+            "--out {}: exists and holds files that are not a run: choose a new or empty folder",
+            out.display()
+        )));
+    }
+    Ok(())
+}
+
+/// Refuses (bad input, naming the estimate and the keys) a training that `i2sdf check` would
+/// warn does not fit in the machine's available memory, unless `ignore`: better said now than by
+/// the OOM killer an hour in. `config` is what this command trains with (`None`: the run's own).
+fn check_memory(
+    run: &RunDir,
+    dataset: &i2sdf_data::Dataset,
+    config: Option<&TrainConfig>,
+    stage1: bool,
+    stage2: bool,
+    ignore: bool,
+) -> anyhow::Result<()> {
+    let own;
+    let config = match config {
+        Some(c) => c,
+        None => {
+            own = i2sdf_train::driver::read_run_config(run)?;
+            &own
+        }
+    };
+    let Some(machine) = i2sdf_train::memory::MachineMemory::read() else {
+        return Ok(());
+    };
+    let estimate = i2sdf_train::memory::estimate(&i2sdf_train::memory::DatasetShape::of(dataset), config);
+    let Some(why) = estimate.over(config, stage1, stage2, machine.available) else {
+        return Ok(());
+    };
+    if ignore {
+        crate::progress::line(&format!("warning: {why} (--ignore-memory: training anyway)"));
+        return Ok(());
+    }
+    Err(i2sdf_data::DataError::invalid(format!("{why}: lower them, or pass --ignore-memory to train anyway")).into())
+}
+
+/// The run's `stage2.emitter_threshold`, for the message; `?` when unreadable.
+fn run_threshold(run: &RunDir) -> String {
+    i2sdf_train::driver::read_run_config(run)
+        .map(|c| c.stage2.emitter_threshold.to_string())
+        .unwrap_or_else(|_| "?".into())
 }
