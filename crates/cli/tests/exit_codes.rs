@@ -285,7 +285,10 @@ fn failed_writes_exit_1_and_leave_nothing_half_written() {
     assert_eq!(left, ["not_a_directory"], "{left:?}");
 }
 
-/// A copy of the tiny run with a tiny stage 2, for the commands that need one.
+/// A copy of the tiny run with a tiny stage 2, for the commands that need one. The fixture's
+/// views see no emitter, so at the default threshold stage 2 finds none and every relight would
+/// be refused; at threshold 0 the (untrained) emitter field marks surfaces everywhere and K-means
+/// makes emitters of them: meaningless as lights, but they carry relight ops through edit and eval.
 fn trained_stage2() -> &'static (tempfile::TempDir, PathBuf) {
     static RUN: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
     RUN.get_or_init(|| {
@@ -293,7 +296,11 @@ fn trained_stage2() -> &'static (tempfile::TempDir, PathBuf) {
         let dir = tempfile::tempdir().unwrap();
         let copy = dir.path().join("run2");
         copy_stage1(run, &copy);
-        let o = train_material(data, &copy, &TINY_STAGE2);
+        let o = train_material(
+            data,
+            &copy,
+            &[&TINY_STAGE2[..], &["--set", "stage2.emitter_threshold=0"]].concat(),
+        );
         assert_eq!(o.code, 0, "{}", o.stderr);
         (dir, copy)
     })
@@ -389,18 +396,11 @@ fn edit_bad_input_exits_2_and_good_specs_render() {
     }
     expect(edit(stage1, &empty, &[]), 2, &["stage2.safetensors", "no stage 2"]);
     assert!(!out.exists());
-    // The fixture's views see no emitter, so its stage 2 found none: a relight op has nothing to
-    // change and is refused, naming the op.
-    let relight = spec(
-        "relight.toml",
-        "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = 2\n",
-    );
-    expect(edit(run, &relight, &["--view", "0"]), 2, &["op[0]", "no emitters"]);
-    assert!(!out.exists());
-    // Every other op kind at once: a mirror region, an emitting inserted sphere, a box.
+    // Every op kind at once: a relight, a mirror region, an emitting inserted sphere, a box.
     let full = spec(
         "full.toml",
-        "[[op]]\nkind = \"material\"\nbelow = { point = [0, 0, 0], normal = [0, 1, 0] }\npreset = \"mirror\"\n\
+        "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = 2\ncolor = [1, 0.8, 0.6]\n\
+         [[op]]\nkind = \"material\"\nbelow = { point = [0, 0, 0], normal = [0, 1, 0] }\npreset = \"mirror\"\n\
          [[op]]\nkind = \"insert\"\nsphere = { centre = [0, 0.5, 0], radius = 0.1 }\npreset = \"matte\"\nemission = [5, 5, 5]\n\
          [[op]]\nkind = \"insert\"\nbox = { lo = [-0.2, 0, -0.2], hi = [0.2, 0.1, 0.2] }\nkd = [0.2, 0.5, 0.2]\n",
     );

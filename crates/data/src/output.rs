@@ -1,6 +1,6 @@
 //! Where a command may write, checked before its first second of work.
 //!
-//! The rules every command keeps (docs/ARCHITECTURE.md, "Outputs"):
+//! The rules every command keeps (the README's "Command line" states them for users):
 //! - it writes only where the user said, and never into a dataset folder (one that holds
 //!   `transforms.json`, `cameras_normalize.npz` or `cameras.npz`, at any depth below it);
 //! - never over a run's own files (`run.json`, `config.toml`, the checkpoints, the log, …); a new
@@ -103,20 +103,21 @@ fn existing_ancestor(path: &Path) -> Option<&Path> {
     path.ancestors().find(|a| a.exists())
 }
 
-/// Refuses a `path` (absolute) inside a dataset, or one of the `inputs` a command reads.
-fn check_not_protected(flag: &str, path: &Path, inputs: &[&Path]) -> Result<()> {
-    if let Some(dataset) = dataset_around(path) {
-        return Err(DataError::invalid(format!(
+/// Refuses an output `shown` (as the user wrote it) when `at` (absolute: the output itself, or
+/// the folder it will be created in) is a dataset folder or lies in one.
+pub fn check_outside_datasets(flag: &str, shown: &Path, at: &Path) -> Result<()> {
+    match dataset_around(at) {
+        Some(dataset) => Err(DataError::invalid(format!(
             "{flag} {}: lies in the dataset {}; i2sdf never writes into a dataset: choose a place outside it",
-            path.display(),
+            shown.display(),
             dataset.display()
-        )));
+        ))),
+        None => Ok(()),
     }
-    check_inputs(flag, path, inputs)
 }
 
 /// Refuses a `path` (absolute) that is, contains or lies in one of the `inputs`.
-fn check_inputs(flag: &str, path: &Path, inputs: &[&Path]) -> Result<()> {
+pub fn check_inputs(flag: &str, path: &Path, inputs: &[&Path]) -> Result<()> {
     for input in inputs {
         let input = absolute(input);
         if path.starts_with(&input) || input.starts_with(path) {
@@ -240,7 +241,8 @@ impl OutputFile<'_> {
             }
         }
         let abs = absolute(path);
-        check_not_protected(flag, &abs, self.inputs)?;
+        check_outside_datasets(flag, path, &abs)?;
+        check_inputs(flag, &abs, self.inputs)?;
         if let Some(parent) = abs.parent() {
             let name = abs.file_name().and_then(|n| n.to_str()).unwrap_or("");
             if is_run(parent) && RUN_FILES.contains(&name) {
@@ -291,13 +293,7 @@ impl OutputDir<'_> {
         let abs = absolute(path);
         // The folder itself may be a dataset only to be replaced as a previous output (a
         // `synth --force`); below, the non-empty rules decide that.
-        if let Some(dataset) = abs.parent().and_then(dataset_around) {
-            return Err(DataError::invalid(format!(
-                "{flag} {}: lies in the dataset {}; i2sdf never writes into a dataset: choose a place outside it",
-                path.display(),
-                dataset.display()
-            )));
-        }
+        check_outside_datasets(flag, path, abs.parent().unwrap_or(&abs))?;
         if is_dataset(&abs) && !(self.previous)(&abs) {
             return Err(DataError::invalid(format!(
                 "{flag} {}: is a dataset; i2sdf never writes into a dataset: choose a new folder",
@@ -368,6 +364,7 @@ impl StagedDir {
             .filter(|b| *b != target)
             .unwrap_or_else(|| target.parent().unwrap_or(target));
         let name = target.file_name().and_then(|n| n.to_str()).unwrap_or("out");
+        remove_stale_stages(base, name);
         let stage = base.join(format!(".{name}.{}.partial", std::process::id()));
         if stage.exists() {
             std::fs::remove_dir_all(&stage).map_err(|e| DataError::io(&stage, format!("cannot clear: {e}")))?;
@@ -423,6 +420,23 @@ impl StagedDir {
             let _ = std::fs::remove_dir_all(old);
         }
         Ok(self.shown.clone())
+    }
+}
+
+/// Removes what a killed command left in `base` while staging `name`: `.NAME.PID.partial` and
+/// `.NAME.PID.old` folders of processes that no longer run (a live one's are its own).
+fn remove_stale_stages(base: &Path, name: &str) {
+    for entry in entries(base) {
+        let Some(rest) = entry.strip_prefix(&format!(".{name}.")) else {
+            continue;
+        };
+        let Some(pid) = rest.strip_suffix(".partial").or_else(|| rest.strip_suffix(".old")) else {
+            continue;
+        };
+        let alive = Path::new("/proc").join(pid).exists();
+        if pid.parse::<u32>().is_ok() && !alive {
+            let _ = std::fs::remove_dir_all(base.join(&entry));
+        }
     }
 }
 
@@ -552,6 +566,22 @@ mod tests {
             !dir.path().join("deep").exists(),
             "nothing is created before the commit"
         );
+        drop(staged);
+        // What a killed process left (a PID that does not run) goes when the folder is staged again.
+        let stale = dir.path().join(".out.4294967.partial");
+        std::fs::create_dir(&stale).unwrap();
+        let staged = OutputDir {
+            flag: "--out",
+            path: &fresh,
+            force: false,
+            previous: &never,
+            what: "a render",
+            inputs: &[],
+            bytes: None,
+        }
+        .check()
+        .unwrap();
+        assert!(!stale.exists());
         staged.commit().unwrap();
         assert!(fresh.is_dir());
     }

@@ -8,6 +8,7 @@ pub mod kdtree;
 pub mod mesh;
 pub mod mesh_metrics;
 pub mod neural;
+pub mod progress;
 pub mod relight;
 pub mod report;
 
@@ -19,5 +20,9 @@ pub use i2sdf_model::mc_tables;
 pub use image_metrics::{depth_l1, normal_angular_l1, psnr, ssim, ImageRef};
 pub use intrinsic::{intrinsic_metrics, IntrinsicOptions};
 pub use mesh::TriangleMesh;
-pub use mesh_metrics::{mesh_metrics, visible_from_views, CullingView, MeshMetrics, MeshMetricsOptions, ObjectRecall};
+pub use mesh_metrics::{
+    mesh_metrics, mesh_metrics_with_progress, visible_from_views, CullingView, MeshMetrics, MeshMetricsOptions,
+    ObjectRecall,
+};
+pub use progress::{EvalProgress, NoProgress};
 pub use report::{EmitterMetrics, EvalReport, GeometryMetrics, MaterialMetrics, MeshReport, RerenderMetrics};

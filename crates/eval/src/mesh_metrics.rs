@@ -8,6 +8,7 @@
 
 use crate::kdtree::KdTree;
 use crate::mesh::TriangleMesh;
+use crate::progress::{self, EvalProgress, NoProgress};
 use glam::{DMat4, DVec3};
 use i2sdf_data::{Camera, DataError};
 use rand::{Rng, SeedableRng};
@@ -83,18 +84,38 @@ fn valid_depth(d: f32) -> bool {
 /// discretization at silhouettes and grazing angles, where the point is in fact visible. Using one
 /// rule also makes identical meshes cull identically (F-score exactly 1).
 pub fn visible_from_views(points: &[[f32; 3]], views: &[CullingView], tolerance: f64) -> Result<Vec<bool>, DataError> {
+    visible_reporting(points, views, tolerance, &|_| {})
+}
+
+/// Points per progress report of the sampling, culling and nearest-neighbour steps.
+const REPORT_BATCH: usize = 16_384;
+
+/// [`visible_from_views`], calling `on_done(k)` as each batch of `k` points is tested.
+fn visible_reporting(
+    points: &[[f32; 3]],
+    views: &[CullingView],
+    tolerance: f64,
+    on_done: &(dyn Fn(u64) + Sync),
+) -> Result<Vec<bool>, DataError> {
     let projectors = views
         .iter()
         .enumerate()
         .map(|(i, v)| Projector::new(v, i))
         .collect::<Result<Vec<_>, _>>()?;
     Ok(points
-        .par_iter()
-        .map(|&p| {
-            projectors.iter().any(|proj| {
-                proj.project(p)
-                    .is_some_and(|(z, d)| !valid_depth(d) || z <= d as f64 + tolerance)
-            })
+        .par_chunks(REPORT_BATCH)
+        .flat_map_iter(|batch| {
+            let seen: Vec<bool> = batch
+                .iter()
+                .map(|&p| {
+                    projectors.iter().any(|proj| {
+                        proj.project(p)
+                            .is_some_and(|(z, d)| !valid_depth(d) || z <= d as f64 + tolerance)
+                    })
+                })
+                .collect();
+            on_done(batch.len() as u64);
+            seen
         })
         .collect())
 }
@@ -102,6 +123,12 @@ pub fn visible_from_views(points: &[[f32; 3]], views: &[CullingView], tolerance:
 /// `n` points uniformly distributed by area on the mesh (deterministic for a seed), with the face
 /// each lies on. Empty for a mesh without area.
 pub fn sample_surface(mesh: &TriangleMesh, n: usize, seed: u64) -> (Vec<[f32; 3]>, Vec<u32>) {
+    sample_reporting(mesh, n, seed, &|_| {})
+}
+
+/// [`sample_surface`], calling `on_done(k)` as each batch of `k` of the `n` points is drawn (all
+/// `n` at once for a mesh without area).
+fn sample_reporting(mesh: &TriangleMesh, n: usize, seed: u64, on_done: &dyn Fn(u64)) -> (Vec<[f32; 3]>, Vec<u32>) {
     let mut cdf = Vec::with_capacity(mesh.num_faces());
     let mut total = 0.0f64;
     for f in 0..mesh.num_faces() {
@@ -109,12 +136,16 @@ pub fn sample_surface(mesh: &TriangleMesh, n: usize, seed: u64) -> (Vec<[f32; 3]
         cdf.push(total);
     }
     if total <= 0.0 || !total.is_finite() || n == 0 {
+        on_done(n as u64);
         return (Vec::new(), Vec::new());
     }
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
     let mut points = Vec::with_capacity(n);
     let mut faces = Vec::with_capacity(n);
-    for _ in 0..n {
+    for k in 0..n {
+        if k > 0 && k % REPORT_BATCH == 0 {
+            on_done(REPORT_BATCH as u64);
+        }
         let target = rng.gen::<f64>() * total;
         let f = cdf.partition_point(|&c| c <= target).min(cdf.len() - 1);
         // Uniform on the triangle: barycentrics (1 − √r1, √r1 (1 − r2), √r1 r2).
@@ -127,6 +158,7 @@ pub fn sample_surface(mesh: &TriangleMesh, n: usize, seed: u64) -> (Vec<[f32; 3]
         }));
         faces.push(f as u32);
     }
+    on_done(((n - 1) % REPORT_BATCH + 1) as u64);
     (points, faces)
 }
 
@@ -231,6 +263,18 @@ pub fn mesh_metrics(
     views: &[CullingView],
     options: &MeshMetricsOptions,
 ) -> Result<MeshMetrics, DataError> {
+    mesh_metrics_with_progress(pred, gt, views, options, &NoProgress)
+}
+
+/// [`mesh_metrics`], reporting its steps to `progress`: sampling surfaces, visibility culling
+/// (with views) and nearest neighbours, each counted in points (see [`EvalProgress`]).
+pub fn mesh_metrics_with_progress(
+    pred: &TriangleMesh,
+    gt: &TriangleMesh,
+    views: &[CullingView],
+    options: &MeshMetricsOptions,
+    progress: &dyn EvalProgress,
+) -> Result<MeshMetrics, DataError> {
     if options.threshold <= 0.0 || !options.threshold.is_finite() {
         return Err(DataError::invalid(format!(
             "mesh metrics threshold must be positive, got {}",
@@ -246,15 +290,18 @@ pub fn mesh_metrics(
         }
     }
     let tolerance = options.depth_tolerance.unwrap_or(options.threshold);
+    let on_done = |n: u64| progress.inc(n);
     // The same seed on both meshes: identical meshes give identical samples (distance 0).
-    let (pred_all, _) = sample_surface(pred, options.num_points, options.seed);
-    let (gt_all, gt_faces_all) = sample_surface(gt, options.num_points, options.seed);
+    progress.step(progress::SAMPLING, 2 * options.num_points as u64);
+    let (pred_all, _) = sample_reporting(pred, options.num_points, options.seed, &on_done);
+    let (gt_all, gt_faces_all) = sample_reporting(gt, options.num_points, options.seed, &on_done);
     let (pred_keep, gt_keep) = if views.is_empty() {
         (vec![true; pred_all.len()], vec![true; gt_all.len()])
     } else {
+        progress.step(progress::CULLING, (pred_all.len() + gt_all.len()) as u64);
         (
-            visible_from_views(&pred_all, views, tolerance)?,
-            visible_from_views(&gt_all, views, tolerance)?,
+            visible_reporting(&pred_all, views, tolerance, &on_done)?,
+            visible_reporting(&gt_all, views, tolerance, &on_done)?,
         )
     };
     let pred_points: Vec<[f32; 3]> = pred_all
@@ -270,10 +317,14 @@ pub fn mesh_metrics(
         .filter(|(_, &k)| k)
         .map(|((p, f), _)| (*p, *f))
         .unzip();
-    let pred_tree = KdTree::new(&pred_points);
-    let gt_tree = KdTree::new(&gt_points);
-    let pred_to_gt: Vec<f32> = pred_points.par_iter().map(|&p| gt_tree.nearest_distance(p)).collect();
-    let gt_to_pred: Vec<f32> = gt_points.par_iter().map(|&p| pred_tree.nearest_distance(p)).collect();
+    progress.step(
+        progress::NEAREST_NEIGHBOURS,
+        (pred_points.len() + gt_points.len()) as u64,
+    );
+    let on_answered = |n: usize| progress.inc(n as u64);
+    let (pred_tree, gt_tree) = rayon::join(|| KdTree::new(&pred_points), || KdTree::new(&gt_points));
+    let pred_to_gt = gt_tree.nearest_distances(&pred_points, &on_answered);
+    let gt_to_pred = pred_tree.nearest_distances(&gt_points, &on_answered);
     let t = options.threshold;
     let mut metrics = MeshMetrics {
         accuracy: None,

@@ -5,7 +5,8 @@
 
 use crate::image_metrics::{depth_l1, normal_angular_l1, psnr, ssim, ImageRef};
 use crate::mesh::TriangleMesh;
-use crate::mesh_metrics::{mesh_metrics, CullingView, MeshMetricsOptions, ObjectGroup};
+use crate::mesh_metrics::{mesh_metrics_with_progress, CullingView, MeshMetricsOptions, ObjectGroup};
+use crate::progress::{self, EvalProgress, NoProgress};
 use crate::report::{EvalReport, MeshReport, ThinObjectsReport};
 use i2sdf_data::dataset::ObjectInfo;
 use i2sdf_data::ply::read_ply;
@@ -71,9 +72,20 @@ pub fn view_metrics(
     dataset: &Dataset,
     settings: &RenderSettings,
 ) -> Result<EvalReport, DataError> {
+    view_metrics_with_progress(scene, dataset, settings, &NoProgress)
+}
+
+/// [`view_metrics`], reporting the step "test views" to `progress`, counted in views.
+pub fn view_metrics_with_progress(
+    scene: &NeuralScene,
+    dataset: &Dataset,
+    settings: &RenderSettings,
+    progress: &dyn EvalProgress,
+) -> Result<EvalReport, DataError> {
     let mut report = EvalReport::default();
     let (mut p, mut s, mut d, mut n) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let test: Vec<&Frame> = dataset.split(Split::Test).collect();
+    progress.step(progress::TEST_VIEWS, test.len() as u64);
     for f in test {
         let v = render_volume_view(scene, settings, &f.camera);
         let (w, h) = (f.camera.width, f.camera.height);
@@ -95,6 +107,7 @@ pub fn view_metrics(
                 n.push(x);
             }
         }
+        progress.inc(1);
     }
     report.novel_view.psnr = mean(&p);
     report.novel_view.ssim = mean(&s);
@@ -107,15 +120,27 @@ pub fn view_metrics(
 pub const THIN_OBJECT_TAGS: [&str; 2] = ["thin", "suspended"];
 pub use crate::mesh_metrics::THIN_OBJECT_THRESHOLDS;
 
-/// Mesh metrics of `pred` against `gt` (see [`mesh_metrics`]), with the per-object recall named
-/// and tagged from `objects`, and the recall of the objects tagged thin or suspended (`None` when
-/// `objects` has none).
+/// Mesh metrics of `pred` against `gt` (see [`crate::mesh_metrics::mesh_metrics`]), with the
+/// per-object recall named and tagged from `objects`, and the recall of the objects tagged thin or
+/// suspended (`None` when `objects` has none).
 pub fn mesh_report(
     pred: &TriangleMesh,
     gt: &TriangleMesh,
     views: &[CullingView],
     objects: &[ObjectInfo],
     options: &MeshMetricsOptions,
+) -> Result<(MeshReport, Option<ThinObjectsReport>), DataError> {
+    mesh_report_with_progress(pred, gt, views, objects, options, &NoProgress)
+}
+
+/// [`mesh_report`], reporting the steps of [`mesh_metrics_with_progress`] to `progress`.
+pub fn mesh_report_with_progress(
+    pred: &TriangleMesh,
+    gt: &TriangleMesh,
+    views: &[CullingView],
+    objects: &[ObjectInfo],
+    options: &MeshMetricsOptions,
+    progress: &dyn EvalProgress,
 ) -> Result<(MeshReport, Option<ThinObjectsReport>), DataError> {
     let thin: Vec<&ObjectInfo> = objects
         .iter()
@@ -129,7 +154,7 @@ pub fn mesh_report(
             thresholds: THIN_OBJECT_THRESHOLDS.to_vec(),
         });
     }
-    let metrics = mesh_metrics(pred, gt, views, &options)?;
+    let metrics = mesh_metrics_with_progress(pred, gt, views, &options, progress)?;
     let mut report = MeshReport::from(&metrics);
     report.join_objects(objects);
     let thin_report = (!thin.is_empty()).then(|| {
@@ -147,13 +172,28 @@ pub fn evaluate(
     bounds: &Bounds,
     options: &EvalOptions,
 ) -> Result<(EvalReport, TriangleMesh), DataError> {
-    let mut report = view_metrics(scene, dataset, &options.render)?;
+    evaluate_with_progress(scene, dataset, bounds, options, &NoProgress)
+}
+
+/// [`evaluate`], reporting each step to `progress` as it starts and its work as it goes: "test
+/// views", "mesh extraction", then with a GT mesh "sampling surfaces", "visibility culling" and
+/// "nearest neighbours" (see [`EvalProgress`]).
+pub fn evaluate_with_progress(
+    scene: &NeuralScene,
+    dataset: &Dataset,
+    bounds: &Bounds,
+    options: &EvalOptions,
+    progress: &dyn EvalProgress,
+) -> Result<(EvalReport, TriangleMesh), DataError> {
+    let mut report = view_metrics_with_progress(scene, dataset, &options.render, progress)?;
+    progress.step(progress::MESH_EXTRACTION, 0);
     let mesh = extract_mesh(scene, bounds, options.mesh_resolution)?;
     report.geometry.mesh = match &dataset.mesh_path {
         Some(gt_path) => {
             let gt = read_ply(gt_path)?;
             let views = culling_views(dataset);
-            let (mesh_report, thin) = mesh_report(&mesh, &gt, &views, &dataset.objects, &options.mesh)?;
+            let (mesh_report, thin) =
+                mesh_report_with_progress(&mesh, &gt, &views, &dataset.objects, &options.mesh, progress)?;
             report.geometry.thin_objects = thin;
             mesh_report
         }
@@ -255,5 +295,66 @@ mod tests {
         assert!(per_object[1].name.is_none() && per_object[1].tags.is_empty());
         let (report, thin) = mesh_report(&gt, &gt, &[], &[], &options()).unwrap();
         assert!(thin.is_none() && report.fscore == Some(1.0));
+    }
+
+    /// Records each step with its total and the units reported done.
+    #[derive(Default)]
+    struct Recorder(std::sync::Mutex<Vec<(String, u64, u64)>>);
+
+    impl EvalProgress for Recorder {
+        fn step(&self, name: &str, total: u64) {
+            self.0.lock().unwrap().push((name.to_string(), total, 0));
+        }
+        fn inc(&self, n: u64) {
+            self.0.lock().unwrap().last_mut().expect("inc inside a step").2 += n;
+        }
+    }
+
+    /// The fixture dataset with a GT mesh (a box around its bounds) and a tiny untrained scene:
+    /// every step is named in order, and each counted step reports exactly its total.
+    #[test]
+    fn evaluate_reports_each_step_with_its_count() {
+        let dir = tempfile::tempdir().unwrap();
+        i2sdf_data::fixture::write_native(dir.path(), &i2sdf_data::fixture::FixtureOptions::default());
+        let mut dataset = i2sdf_data::load(dir.path()).unwrap();
+        let gt_path = dir.path().join("gt.ply");
+        let b = dataset.bounds;
+        crate::write_ply(&gt_path, &box_mesh(b.min.map(|x| x as f32), b.max.map(|x| x as f32))).unwrap();
+        dataset.mesh_path = Some(gt_path);
+        let config = i2sdf_model::ModelConfig {
+            hash_levels: 2,
+            hash_log2_table: 10,
+            hash_finest_resolution: 16,
+            ..Default::default()
+        };
+        let scene = NeuralScene::new(&config, dataset.normalization, 1);
+        let options = EvalOptions {
+            mesh_resolution: 16,
+            mesh: MeshMetricsOptions {
+                num_points: 40_000,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let progress = Recorder::default();
+        let (report, _) = evaluate_with_progress(&scene, &dataset, &dataset.bounds, &options, &progress).unwrap();
+        assert!(report.geometry.mesh.threshold.is_some());
+        let steps = progress.0.into_inner().unwrap();
+        let names: Vec<&str> = steps.iter().map(|s| s.0.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "test views",
+                "mesh extraction",
+                "sampling surfaces",
+                "visibility culling",
+                "nearest neighbours"
+            ]
+        );
+        for (name, total, done) in &steps {
+            assert_eq!(done, total, "{name}");
+        }
+        assert_eq!(steps[0].1, 2, "two test views");
+        assert_eq!(steps[2].1, 80_000, "points on both meshes");
     }
 }

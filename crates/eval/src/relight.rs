@@ -14,7 +14,7 @@ use crate::image_metrics::{psnr, ssim, ImageRef};
 use crate::report::{ImagePair, RelightMetrics, RelightSetMetrics};
 use glam::Vec3;
 use i2sdf_data::edit_spec::{EditOp, EditSpec};
-use i2sdf_data::{DataError, Dataset, Frame, ImageF32, Split};
+use i2sdf_data::{DataError, Dataset, Frame, ImageF32, RelightSet, Split};
 use i2sdf_edit::{differential_hdr, edit_images, hdr_ldr_images, light_gains, EditSettings, RecoveredScene};
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::renderer::RenderSettings;
@@ -73,8 +73,22 @@ fn mean(v: &[f64]) -> Option<f64> {
     (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
 }
 
+/// A set's name in the report: its spec's file stem (`set{index}` without one).
+fn set_name(set: &RelightSet, index: usize) -> String {
+    set.spec
+        .file_stem()
+        .map_or_else(|| format!("set{index}"), |s| s.to_string_lossy().into_owned())
+}
+
 /// The relight section of the report; all null without relit sets. `on_row` is called after
 /// each rendered row.
+///
+/// Without emitters (stage 2 found none) nothing is rendered and every figure is null, each set
+/// listed with its frame count only: the edit renderer's light comes from the recovered emitters
+/// (and any light a spec inserts), so every relit image would be black, and its differential
+/// composite the radiance field's image unchanged; scoring those would report numbers that say
+/// nothing about relighting. The report says why with
+/// [`crate::report::EvalReport::note_no_emitters`].
 pub fn relight_metrics(
     scene: &NeuralScene,
     fields: &IntrinsicFields,
@@ -84,6 +98,22 @@ pub fn relight_metrics(
 ) -> Result<RelightMetrics, DataError> {
     if dataset.relight.is_empty() {
         return Ok(RelightMetrics::default());
+    }
+    if fields.emitters.is_empty() {
+        let sets = dataset.relight.iter().enumerate().map(|(i, set)| {
+            let frames = set.frames.len();
+            (
+                set_name(set, i),
+                RelightSetMetrics {
+                    frames,
+                    ..Default::default()
+                },
+            )
+        });
+        return Ok(RelightMetrics {
+            sets: Some(sets.collect()),
+            ..Default::default()
+        });
     }
     // Every spec and asset is read before the (long) rendering starts.
     let mut specs = Vec::new();
@@ -113,7 +143,7 @@ pub fn relight_metrics(
     let mut seen_tests = std::collections::HashSet::new();
     let mut sets = BTreeMap::new();
     let mut view = 0u32;
-    for (set, (spec, assets)) in dataset.relight.iter().zip(&specs) {
+    for (i, (set, (spec, assets))) in dataset.relight.iter().zip(&specs).enumerate() {
         let relight_only = spec.ops.iter().all(|op| matches!(op, EditOp::Relight(_)));
         let own = (!relight_only).then(|| recovered.edited(spec, assets));
         let edited = own.as_ref().unwrap_or(&unedited_scene);
@@ -174,12 +204,8 @@ pub fn relight_metrics(
         all_ds.extend(&ds);
         all_p.extend(&p);
         all_s.extend(&s);
-        let name = set
-            .spec
-            .file_stem()
-            .map_or_else(|| format!("set{}", sets.len()), |s| s.to_string_lossy().into_owned());
         sets.insert(
-            name,
+            set_name(set, i),
             RelightSetMetrics {
                 psnr: mean(&p),
                 ssim: mean(&s),
@@ -203,4 +229,65 @@ pub fn relight_metrics(
         psnr_differential: mean(&all_dp),
         ssim_differential: mean(&all_ds),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use i2sdf_model::material_field::{MaterialConfig, MaterialField};
+    use i2sdf_model::{EmitterTable, ModelConfig, Radiometry};
+
+    /// Without emitters nothing is rendered (the spec is not even read: it does not exist) and
+    /// every figure is null, each set keeping its frame count.
+    #[test]
+    fn no_emitters_give_null_figures_without_rendering() {
+        let dir = tempfile::tempdir().unwrap();
+        i2sdf_data::fixture::write_native(dir.path(), &i2sdf_data::fixture::FixtureOptions::default());
+        let mut dataset = i2sdf_data::load(dir.path()).unwrap();
+        let frames: Vec<Frame> = dataset.split(Split::Test).cloned().collect();
+        dataset.relight.push(RelightSet {
+            spec: dir.path().join("relight/lamp_dim.toml"),
+            frames,
+        });
+        let config = ModelConfig {
+            hash_levels: 2,
+            hash_log2_table: 10,
+            hash_finest_resolution: 16,
+            ..Default::default()
+        };
+        let scene = NeuralScene::new(&config, dataset.normalization, 1);
+        let material = MaterialConfig {
+            hash_levels: 2,
+            hash_log2_table: 10,
+            hash_finest_resolution: 16,
+            ..Default::default()
+        };
+        let fields = IntrinsicFields {
+            material: MaterialField::new(&material, scene.feature_dim(), 3),
+            emitters: EmitterTable::new(Vec::new(), &[]),
+            radiometry: Radiometry::default(),
+        };
+        let rows = std::sync::atomic::AtomicUsize::new(0);
+        let on_row = || {
+            rows.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        };
+        let m = relight_metrics(&scene, &fields, &dataset, &RelightOptions::default(), &on_row).unwrap();
+        assert_eq!(rows.into_inner(), 0, "nothing rendered");
+        let sets = m.sets.clone().unwrap();
+        assert_eq!(sets.keys().collect::<Vec<_>>(), ["lamp_dim"]);
+        assert_eq!(
+            sets["lamp_dim"],
+            RelightSetMetrics {
+                frames: 2,
+                ..Default::default()
+            }
+        );
+        assert_eq!(
+            m,
+            RelightMetrics {
+                sets: Some(sets),
+                ..Default::default()
+            }
+        );
+    }
 }

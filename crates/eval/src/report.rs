@@ -2,7 +2,10 @@
 //! is `null`, never absent. Extra keys beyond the contract: `geometry.mesh.per_object_recall`
 //! (with the dataset's object names and tags), `geometry.thin_objects`, `material.pixels` and
 //! `material.albedo_scale`, `emitters.emission` and `emitters.matches`, `relight.unedited`,
-//! `relight.psnr_differential`/`ssim_differential` and the per-set `*_unedited`, `*_differential`.
+//! `relight.psnr_differential`/`ssim_differential` and the per-set `*_unedited`, `*_differential`,
+//! and the top-level `notes`: sentences saying why figures are missing or not meaningful (always
+//! present, `[]` when there is nothing to say), e.g. [`zero_emitter_note`] when stage 2 found no
+//! emitters.
 
 use crate::mesh_metrics::{GroupRecall, MeshMetrics};
 use i2sdf_data::dataset::ObjectInfo;
@@ -17,6 +20,24 @@ pub struct EvalReport {
     pub emitters: EmitterMetrics,
     pub relight: RelightMetrics,
     pub time_s: StageTimes,
+    /// Why figures are null or not meaningful, in plain words, for whoever reads the JSON (and
+    /// the HTML report, which shows them). Absent in older reports: read as none.
+    #[serde(default)]
+    pub notes: Vec<String>,
+}
+
+/// What a run whose stage 2 found no emitters means for its figures. Stage 2 clusters the
+/// surface points of the training pixels whose emitter probability F_e is above
+/// `stage2.emitter_threshold`; with none (F_e not trained enough, or a dataset without emitter
+/// masks) it finds no emitters, and everything downstream is lit by nothing but the radiance field.
+pub fn zero_emitter_note() -> String {
+    "stage 2 found no emitters: no training pixel's emitter probability (F_e) was above \
+     stage2.emitter_threshold (or the dataset has no emitter masks), so there was nothing to \
+     cluster. The re-render therefore has only the radiance field's indirect light (no light \
+     from any emitter), and every relit image would be black when path traced and unchanged \
+     when composited differentially: the relight figures are null, not meaningful. Train stage 1 \
+     longer (the emitter field needs a converged surface) or lower stage2.emitter_threshold."
+        .to_string()
 }
 
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -229,6 +250,35 @@ pub struct StageTimes {
 }
 
 impl EvalReport {
+    /// Records that stage 2 found no emitters (`fields.emitters` is empty, `emitters.count` is 0):
+    /// adds [`zero_emitter_note`] once, and nulls the relight figures, which would only score
+    /// black or unchanged images ([`crate::relight::relight_metrics`] already returns them null
+    /// then; the frame counts of the sets stay).
+    pub fn note_no_emitters(&mut self) {
+        let note = zero_emitter_note();
+        if !self.notes.contains(&note) {
+            self.notes.push(note);
+        }
+        let sets = self.relight.sets.take().map(|sets| {
+            sets.into_iter()
+                .map(|(name, set)| {
+                    let frames = set.frames;
+                    (
+                        name,
+                        RelightSetMetrics {
+                            frames,
+                            ..Default::default()
+                        },
+                    )
+                })
+                .collect()
+        });
+        self.relight = RelightMetrics {
+            sets,
+            ..Default::default()
+        };
+    }
+
     /// Pretty JSON. Non-finite figures (a PSNR of identical images is +inf) are written as `null`
     /// by serde_json, as JSON has no infinity.
     pub fn to_json(&self) -> String {
@@ -270,6 +320,7 @@ mod tests {
                 }
             }
         }
+        assert_eq!(v["notes"], serde_json::json!([]), "notes are always present");
         assert!(v["geometry"]["thin_objects"].is_null());
         assert!(v["geometry"].as_object().unwrap().contains_key("thin_objects"));
         for key in ["emission", "matches"] {
@@ -367,5 +418,43 @@ mod tests {
         let back: EvalReport = serde_json::from_str(&json).unwrap();
         assert_eq!(back.geometry, report.geometry);
         assert_eq!(back.novel_view.psnr, None);
+    }
+
+    #[test]
+    fn no_emitters_leave_a_note_and_null_relight_figures() {
+        let mut report = EvalReport::default();
+        report.emitters.count = Some(0);
+        report.relight.psnr = Some(3.5);
+        report.relight.sets = Some(
+            [(
+                "lamp_dim".to_string(),
+                RelightSetMetrics {
+                    psnr: Some(3.5),
+                    frames: 4,
+                    ..Default::default()
+                },
+            )]
+            .into(),
+        );
+        report.note_no_emitters();
+        report.note_no_emitters();
+        assert_eq!(report.notes, [zero_emitter_note()], "noted once");
+        assert!(report.relight.psnr.is_none());
+        let set = &report.relight.sets.as_ref().unwrap()["lamp_dim"];
+        assert_eq!((set.psnr, set.frames), (None, 4));
+        let json = report.to_json();
+        let v: Value = serde_json::from_str(&json).unwrap();
+        let note = v["notes"][0].as_str().unwrap();
+        assert!(
+            note.contains("no emitters") && note.contains("relight figures are null"),
+            "{note}"
+        );
+        let back: EvalReport = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, report);
+        // A report written before `notes` existed reads as having none.
+        let mut old: serde_json::Map<String, Value> = serde_json::from_str(&json).unwrap();
+        old.remove("notes");
+        let back: EvalReport = serde_json::from_value(Value::Object(old)).unwrap();
+        assert!(back.notes.is_empty());
     }
 }

@@ -209,6 +209,9 @@ border: 1px solid #999; }
 .charts { display: flex; flex-wrap: wrap; }
 img.wide { max-width: 100%; border: 1px solid #ddd; background: #fff; }
 .muted { color: #777; }
+.warn { background: #fff4d6; border: 1px solid #e0b84c; border-left: 5px solid #d99a00; padding: 6px 10px; \
+margin: 8px 0; }
+.warn ul { margin: 4px 0; padding-left: 20px; }
 pre { background: #f0f0f0; padding: 8px; overflow-x: auto; font-size: 0.85em; }
 ";
 

@@ -215,6 +215,9 @@ pub fn write_report(
     mark("emitters, mesh preview", &mut timings);
 
     body.push_str("<h2 id=\"relight\">Relighting and editing</h2>");
+    if let Some(note) = no_emitters_note(input.fields.map(|f| f.emitters.len())) {
+        body.push_str(&note);
+    }
     match &recovered {
         Some(r) => {
             let ctx = views::EditContext {
@@ -449,6 +452,24 @@ fn emitters_section(assets: &mut Assets, input: &RunInputs, vertices: &[[f32; 3]
     Ok(s)
 }
 
+/// The warning at the top of the relighting section when stage 2 found no emitters
+/// (`stage2_emitters`: the run's emitter count, `None` without stage 2): every path-traced panel
+/// below is then black and every differential one the radiance field's image unchanged, which
+/// reads as a broken renderer unless the page says why.
+fn no_emitters_note(stage2_emitters: Option<usize>) -> Option<String> {
+    (stage2_emitters == Some(0)).then(|| {
+        "<div class=\"warn\"><b>Stage 2 found no emitters,</b> so the relit and edited views below \
+         show nothing about relighting. No training pixel's emitter probability (F_e) was above \
+         <code>stage2.emitter_threshold</code> (or the dataset has no emitter masks), so there was \
+         nothing to cluster into emitters. The edit renderer lights the scene with the recovered \
+         emitters alone: the path-traced images are black, and the differential composites are \
+         stage 1's radiance field unchanged (the path-traced change is zero). The re-render above \
+         has only the radiance field's indirect light. Train stage 1 longer (the emitter field \
+         needs a converged surface) or lower <code>stage2.emitter_threshold</code>.</div>"
+            .to_string()
+    })
+}
+
 fn resources_section(input: &RunInputs, timings: &[(String, f64)], total: f64) -> String {
     let mut s = String::from("<h2 id=\"resources\">Timings and memory</h2><table><tr><th>what</th><th>value</th></tr>");
     let mut row = |k: &str, v: String| {
@@ -478,4 +499,20 @@ fn resources_section(input: &RunInputs, timings: &[(String, f64)], total: f64) -
     }
     s.push_str("</table>");
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_relight_section_says_why_it_is_black_without_emitters() {
+        let note = no_emitters_note(Some(0)).expect("a note for stage 2 without emitters");
+        assert!(note.contains("class=\"warn\"") && note.contains("black"), "{note}");
+        assert!(no_emitters_note(Some(2)).is_none());
+        assert!(
+            no_emitters_note(None).is_none(),
+            "no stage 2: the section says so already"
+        );
+    }
 }

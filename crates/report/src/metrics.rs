@@ -175,6 +175,7 @@ pub fn metrics_section(metrics: Option<(&Path, &Value)>, run: &Path, data: &Path
          comparison. — : not computed (null) or not reported.</p>",
         esc(&file.display().to_string())
     );
+    s.push_str(&notes(m));
     s.push_str(
         "<table><tr><th>metric</th><th></th><th>ours</th><th>paper (its dataset)</th><th>paper's source</th></tr>",
     );
@@ -197,6 +198,25 @@ pub fn metrics_section(metrics: Option<(&Path, &Value)>, run: &Path, data: &Path
     s.push_str("</table>");
     emitter_matches(&mut s, m);
     relight_sets(&mut s, m);
+    s
+}
+
+/// The eval JSON's `notes` (why figures are null or not meaningful, e.g. stage 2 found no
+/// emitters), shown above the table they explain; empty without notes.
+fn notes(m: &Value) -> String {
+    let notes: Vec<&str> = m
+        .get("notes")
+        .and_then(Value::as_array)
+        .map(|a| a.iter().filter_map(Value::as_str).collect())
+        .unwrap_or_default();
+    if notes.is_empty() {
+        return String::new();
+    }
+    let mut s = String::from("<div class=\"warn\"><b>Notes from <code>i2sdf eval</code>:</b><ul>");
+    for n in notes {
+        let _ = write!(s, "<li>{}</li>", esc(n));
+    }
+    s.push_str("</ul></div>");
     s
 }
 
@@ -299,5 +319,23 @@ mod tests {
         assert_eq!(at(&v, "novel_view.psnr"), Some(30.5));
         let html = metrics_section(Some((&p, &v)), Path::new("r"), Path::new("d"));
         assert!(html.contains("30.50") && html.contains(">28.42<"));
+    }
+
+    #[test]
+    fn notes_show_above_the_table() {
+        let v: Value =
+            serde_json::from_str(r#"{"relight": {"psnr": null}, "notes": ["stage 2 found no emitters: <none>"]}"#)
+                .unwrap();
+        let html = metrics_section(Some((Path::new("m.json"), &v)), Path::new("r"), Path::new("d"));
+        let note = html
+            .find("stage 2 found no emitters: &lt;none&gt;")
+            .expect("the note, escaped");
+        assert!(html.contains("class=\"warn\"") && note < html.find("<table>").unwrap());
+        // No notes, or an empty list: nothing extra.
+        for json in [r#"{"relight": {}}"#, r#"{"relight": {}, "notes": []}"#] {
+            let v: Value = serde_json::from_str(json).unwrap();
+            let html = metrics_section(Some((Path::new("m.json"), &v)), Path::new("r"), Path::new("d"));
+            assert!(!html.contains("warn"), "{html}");
+        }
     }
 }

@@ -182,7 +182,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     imageio::write_bytes_atomic(&out.join("edit.toml"), &spec_text)?;
     let rows: usize = shots.iter().map(|(_, c, _)| c.height).sum();
     let passes = if unedited.is_some() { 2 } else { 1 };
-    let bar = crate::progress::bar((rows * passes) as u64);
+    let bar = crate::progress::Step::new(
+        &format!("path tracing {} edited view(s)", shots.len()),
+        (rows * passes) as u64,
+        "rows",
+    );
     let rm = &recovered.radiometry;
     let mut anim = Vec::new();
     for (name, cam, v) in &shots {

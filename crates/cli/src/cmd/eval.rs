@@ -1,5 +1,5 @@
 //! `i2sdf eval --run RUN --data SCENE --out METRICS.json`: the metrics JSON (every figure that
-//! cannot be computed is null; docs/ARCHITECTURE.md). With `--mesh-out FILE.ply` it also writes
+//! cannot be computed is null; `i2sdf_eval::report`). With `--mesh-out FILE.ply` it also writes
 //! the extracted mesh it scored; it writes nothing else. Both outputs are checked before the work
 //! (`i2sdf_data::output`) and an existing one is replaced only with `--force`. With
 //! stage 2 (`RUN/stage2.safetensors`) it fills `rerender`, `material` and `emitters` from a Monte
@@ -11,9 +11,11 @@ use clap::Args as ClapArgs;
 use i2sdf_data::{imageio, Split};
 use i2sdf_edit::EditSettings;
 use i2sdf_eval::intrinsic::{intrinsic_metrics_with_progress, IntrinsicOptions};
-use i2sdf_eval::neural::{evaluate, EvalOptions};
+use i2sdf_eval::neural::{evaluate_with_progress, EvalOptions};
+use i2sdf_eval::progress::EvalProgress;
 use i2sdf_eval::relight::{relight_frames, relight_metrics, RelightOptions};
 use std::path::PathBuf;
+use std::sync::RwLock;
 
 #[derive(ClapArgs)]
 pub struct Args {
@@ -82,7 +84,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ..Default::default()
     };
     options.mesh.threshold = args.threshold;
-    let (mut report, mesh) = evaluate(&scene, &dataset, &dataset.bounds, &options)?;
+    let steps = EvalSteps::default();
+    let (mut report, mesh) = evaluate_with_progress(&scene, &dataset, &dataset.bounds, &options, &steps)?;
+    steps.end();
     if let Some(fields) = &fields {
         let intrinsic = IntrinsicOptions {
             spp: args.spp,
@@ -91,15 +95,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ..Default::default()
         };
         let rows: usize = dataset.split(Split::Test).map(|f| f.camera.height).sum();
-        let bar = crate::progress::bar(rows as u64).with_message("stage 2 re-render");
+        let bar = crate::progress::Step::new("stage 2: re-rendering the test views", rows as u64, "rows");
         let (rerender, material, emitters) =
             intrinsic_metrics_with_progress(&scene, fields, &dataset, &intrinsic, &|| bar.inc(1))?;
-        bar.finish_and_clear();
+        bar.finish();
         report.rerender = rerender;
         report.material = material;
         report.emitters = emitters;
         let frames = relight_frames(&dataset);
-        if frames > 0 {
+        if fields.emitters.is_empty() {
+            // Nothing to relight: no black images are scored, the figures are null (the sets
+            // listed with their frames) and a note says why.
+            crate::progress::line(&format!("warning: {}", i2sdf_eval::report::zero_emitter_note()));
+            report.relight = relight_metrics(&scene, fields, &dataset, &RelightOptions::default(), &|| {})?;
+            report.note_no_emitters();
+        } else if frames > 0 {
             let relight = RelightOptions {
                 render: EditSettings {
                     spp: args.spp,
@@ -117,9 +127,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .flat_map(|s| &s.frames)
                 .map(|f| f.camera.height)
                 .sum();
-            let bar = crate::progress::bar(rows as u64).with_message("relit sets");
+            let bar = crate::progress::Step::new("relit sets: path tracing", rows as u64, "rows");
             report.relight = relight_metrics(&scene, fields, &dataset, &relight, &|| bar.inc(1))?;
-            bar.finish_and_clear();
+            bar.finish();
         }
     }
     report.time_s.stage1 = (info.stage1.iterations > 0).then_some(info.stage1.seconds);
@@ -131,4 +141,36 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     imageio::write_bytes_atomic(&args.out, json.as_bytes())?;
     println!("{json}");
     Ok(())
+}
+
+/// The evaluation's steps as labelled progress ([`crate::progress::Step`]), one after another.
+#[derive(Default)]
+struct EvalSteps(RwLock<Option<crate::progress::Step>>);
+
+impl EvalSteps {
+    /// The last step is done.
+    fn end(&self) {
+        if let Some(step) = self.0.write().unwrap_or_else(|p| p.into_inner()).take() {
+            step.finish();
+        }
+    }
+}
+
+impl EvalProgress for EvalSteps {
+    fn step(&self, name: &str, total: u64) {
+        self.end();
+        let unit = if name == i2sdf_eval::progress::TEST_VIEWS {
+            "views"
+        } else {
+            "points"
+        };
+        let step = crate::progress::Step::new(&format!("eval: {name}"), total, unit);
+        *self.0.write().unwrap_or_else(|p| p.into_inner()) = Some(step);
+    }
+
+    fn inc(&self, n: u64) {
+        if let Some(step) = self.0.read().unwrap_or_else(|p| p.into_inner()).as_ref() {
+            step.inc(n);
+        }
+    }
 }

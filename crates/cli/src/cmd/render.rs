@@ -227,7 +227,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let animated = args.path.path.is_some();
     let rows: usize = views.iter().map(|(_, c)| c.height).sum();
     let passes = stage1 as usize + stage2 as usize;
-    let bar = crate::progress::bar((rows * passes) as u64);
+    let bar = crate::progress::Step::new(
+        &format!("rendering {} view(s) ({})", views.len(), what.join(", ")),
+        (rows * passes) as u64,
+        "rows",
+    );
     let wants = |m: &str| what.contains(&m);
     let file = |m: &str, name: &str, ext: &str| staged.path().join(m).join(format!("{name}.{ext}"));
     // Each map's PNG frames of a path, for its animation.

@@ -6,7 +6,6 @@ use anyhow::Context;
 use i2sdf_data::DataError;
 use i2sdf_synth::tracer::Estimator;
 use i2sdf_synth::{generate, DepthNoise, RoomPreset, SceneDesc, SynthOptions};
-use indicatif::ProgressStyle;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -91,18 +90,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &inputs,
         Some(opts.estimated_bytes()),
     )?;
-    let bar = crate::progress::bar((opts.views * opts.height) as u64);
-    bar.set_style(
-        ProgressStyle::with_template("{msg} [{elapsed_precise}] {bar:40} {pos}/{len} rows (eta {eta})")
-            .expect("template"),
+    let bar = crate::progress::Step::new(
+        &format!(
+            "rendering {} ({} views, {}×{}, {} spp)",
+            desc.name, opts.views, opts.width, opts.height, opts.spp
+        ),
+        (opts.views * opts.height) as u64,
+        "rows",
     );
-    bar.set_message(format!(
-        "rendering {} ({} views, {}×{}, {} spp)",
-        desc.name, opts.views, opts.width, opts.height, opts.spp
-    ));
     let summary = generate(desc, &opts, staged.path(), &|| bar.inc(1))
         .with_context(|| format!("synthesizing {}", args.out.display()))?;
-    bar.finish_and_clear();
+    bar.finish();
     staged.commit()?;
     println!(
         "wrote {}: {} train + {} test views, {} triangles, {} emitters, exposure {:.4}, rendered in {:.1} s",

@@ -255,23 +255,10 @@ fn progress_events<'a, T>(
 /// A new run's folder: not in a dataset or overlapping `data`, and either absent, empty or a run
 /// already (which `open_run` refuses with its own message).
 fn check_new_run(out: &std::path::Path, data: &std::path::Path) -> Result<(), i2sdf_data::DataError> {
-    use i2sdf_data::output::{absolute, is_dataset, is_run};
+    use i2sdf_data::output::{absolute, check_inputs, check_outside_datasets, is_run};
     let abs = absolute(out);
-    if let Some(dataset) = abs.ancestors().find(|a| is_dataset(a)) {
-        return Err(i2sdf_data::DataError::invalid(format!(
-            "--out {}: lies in the dataset {}; i2sdf never writes into a dataset: choose a place outside it",
-            out.display(),
-            dataset.display()
-        )));
-    }
-    let data_abs = absolute(data);
-    if abs.starts_with(&data_abs) || data_abs.starts_with(&abs) {
-        return Err(i2sdf_data::DataError::invalid(format!(
-            "--out {}: overlaps --data {}: choose a run folder of its own",
-            out.display(),
-            data.display()
-        )));
-    }
+    check_outside_datasets("--out", out, &abs)?;
+    check_inputs("--out", &abs, &[data])?;
     if out.is_file() {
         return Err(i2sdf_data::DataError::invalid(format!(
             "--out {}: is a file; give a folder for the run",
