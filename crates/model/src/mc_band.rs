@@ -25,11 +25,14 @@ pub struct NarrowBand {
 
 impl NarrowBand {
     /// The band [`extract_mesh`](crate::marching_cubes::extract_mesh) uses for an SDF at
-    /// `resolution`: a coarse grid of about 128 samples along the longest side, and twice the
-    /// eikonal slope as the bound, since a trained SDF is only near 1-Lipschitz.
+    /// `resolution`: a coarse grid of about 256 samples along the longest side, and twice the
+    /// eikonal slope as the bound, since a trained SDF is only near 1-Lipschitz. At 1024 a step of
+    /// 4 beat 8 and 2 on the default room's trained run (49.8 s against 66.9 and 54.4 s, meshes
+    /// byte-identical) and on a 30-iteration one (32.7 against 40.6 s): finer blocks hug the
+    /// surface closer, until the coarse grid itself costs more than it saves.
     pub fn for_sdf(resolution: usize) -> NarrowBand {
         NarrowBand {
-            step: (resolution / 128).clamp(1, 8),
+            step: (resolution / 256).clamp(1, 8),
             lipschitz: 2.0,
         }
     }
