@@ -127,7 +127,11 @@ impl Table {
         if let Ok(path) = std::env::var("BAD_INPUT_TABLE") {
             // Each test of the file adds its table.
             use std::io::Write;
-            let mut f = std::fs::OpenOptions::new().create(true).append(true).open(path).unwrap();
+            let mut f = std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(path)
+                .unwrap();
             writeln!(f, "{md}").unwrap();
         }
         let failed: Vec<String> = self
