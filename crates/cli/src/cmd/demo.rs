@@ -21,6 +21,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    check_demo_folder(&args.out)?;
     // This machine's pace against the plan's, from a second of the bench's representative
     // iteration; the steps done then correct it.
     let bench_ms = i2sdf_nn::bench::representative_iteration_ms(4);
@@ -32,7 +33,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         minutes(plan.total()),
         minutes(plan.total() * pace)
     ));
-    check_demo_folder(&args.out)?;
     let scene = args.out.join("scene");
     let run_dir = args.out.join("run");
     if !scene.join("transforms.json").is_file() {
