@@ -109,8 +109,9 @@ fn read_all(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|e| DataError::file(path, format!("cannot read: {e}")))
 }
 
-/// Reads a colour or grey image: PNG (8 or 16 bit, scaled to [0,1], values as stored, no transfer
-/// function applied) or EXR (linear floats). Grey PNGs give 1 channel, grey+alpha 2, RGB 3, RGBA 4.
+/// Reads a colour or grey image: PNG (8 or 16 bit), JPEG, TIFF, BMP or WebP (scaled to [0,1],
+/// values as stored, no transfer function applied), or EXR (linear floats). Grey images give 1
+/// channel, grey+alpha 2, RGB 3, RGBA 4.
 pub fn read_image(path: &Path) -> Result<ImageF32> {
     ensure_exists(path)?;
     image_format(path)?;
@@ -122,17 +123,22 @@ pub fn read_image(path: &Path) -> Result<ImageF32> {
 pub fn read_image_bytes(path: &Path, bytes: &[u8]) -> Result<ImageF32> {
     match image_format(path)? {
         "exr" => read_exr(path, bytes),
-        _ => read_png(path, bytes),
+        _ => read_raster(path, bytes),
     }
 }
 
+/// Extensions of the images [`read_image`] decodes (EXR aside), lower case: what a folder of
+/// frames may hold.
+pub const RASTER_EXTENSIONS: [&str; 7] = ["png", "jpg", "jpeg", "tif", "tiff", "bmp", "webp"];
+
 fn image_format(path: &Path) -> Result<&'static str> {
     match extension(path).as_str() {
-        "png" | "jpg" | "jpeg" => Ok("png"),
+        // Decoded by the `image` crate, which finds the format from the bytes.
+        e if RASTER_EXTENSIONS.contains(&e) => Ok("raster"),
         "exr" => Ok("exr"),
         other => Err(DataError::file(
             path,
-            format!("unsupported image format '.{other}' (expected .png or .exr)"),
+            format!("unsupported image format '.{other}' (expected .png, .jpg, .tif, .bmp, .webp or .exr)"),
         )),
     }
 }
@@ -163,7 +169,7 @@ pub fn read_float_map_bytes(path: &Path, bytes: &[u8]) -> Result<ImageF32> {
     match float_map_format(path)? {
         "npy" => read_npy(path, bytes),
         "exr" => read_exr(path, bytes),
-        _ => read_png(path, bytes),
+        _ => read_raster(path, bytes),
     }
 }
 
@@ -185,8 +191,9 @@ fn check_dimensions(path: &Path, width: u64, height: u64, channels: u64) -> Resu
     }
 }
 
-/// Decodes a PNG held in memory, with the header's size checked before the pixels are.
-fn decode_png(path: &Path, bytes: &[u8]) -> Result<image::DynamicImage> {
+/// Decodes a raster image (PNG, JPEG, TIFF, BMP, WebP) held in memory, with the header's size
+/// checked before the pixels are.
+fn decode_raster(path: &Path, bytes: &[u8]) -> Result<image::DynamicImage> {
     let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|e| DataError::file(path, format!("cannot read: {e}")))?;
@@ -207,8 +214,8 @@ fn decode_png(path: &Path, bytes: &[u8]) -> Result<image::DynamicImage> {
         .map_err(|e| DataError::file(path, format!("cannot decode image: {e}")))
 }
 
-fn read_png(path: &Path, bytes: &[u8]) -> Result<ImageF32> {
-    let img = decode_png(path, bytes)?;
+fn read_raster(path: &Path, bytes: &[u8]) -> Result<ImageF32> {
+    let img = decode_raster(path, bytes)?;
     let (w, h) = (img.width() as usize, img.height() as usize);
     let channels = img.color().channel_count() as usize;
     let data: Vec<f32> = match channels {
@@ -229,7 +236,7 @@ pub fn read_png_raw_gray(path: &Path) -> Result<ImageF32> {
 
 /// [`read_png_raw_gray`] of a file's bytes already in memory.
 pub fn read_png_raw_gray_bytes(path: &Path, bytes: &[u8]) -> Result<ImageF32> {
-    let img = decode_png(path, bytes)?;
+    let img = decode_raster(path, bytes)?;
     if img.color().channel_count() != 1 {
         return Err(DataError::file(
             path,
@@ -704,5 +711,58 @@ mod tests {
         let p = dir.path().join("x.bin");
         assert!(write_atomic(&p, |_| Err("boom".into())).is_err());
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+}
+
+#[cfg(test)]
+mod raster_tests {
+    use super::*;
+
+    /// A smooth colour image, as 8-bit RGB.
+    fn smooth(w: u32, h: u32) -> image::RgbImage {
+        image::RgbImage::from_fn(w, h, |x, y| {
+            image::Rgb([
+                (x * 255 / w) as u8,
+                (y * 255 / h) as u8,
+                ((x + y) * 127 / (w + h)) as u8,
+            ])
+        })
+    }
+
+    /// JPEG (as phones and nerfstudio's processed captures write it) decodes to the image within
+    /// its compression error; BMP and TIFF decode exactly; the format comes from the bytes.
+    #[test]
+    fn jpeg_tiff_and_bmp_decode() {
+        let dir = tempfile::tempdir().unwrap();
+        let src = smooth(64, 48);
+        let exact: Vec<f32> = src.as_raw().iter().map(|&v| v as f32 / 255.0).collect();
+        let jpg = dir.path().join("frame.jpg");
+        let mut bytes = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, 90)
+            .encode_image(&src)
+            .unwrap();
+        std::fs::write(&jpg, &bytes).unwrap();
+        let img = read_image(&jpg).unwrap();
+        assert_eq!((img.width, img.height, img.channels), (64, 48, 3));
+        let mae = img.data.iter().zip(&exact).map(|(a, b)| (a - b).abs()).sum::<f32>() / exact.len() as f32;
+        assert!(mae < 0.01, "JPEG q90 mean error {mae}");
+        for ext in ["bmp", "tif"] {
+            let p = dir.path().join(format!("frame.{ext}"));
+            src.save(&p).unwrap();
+            let img = read_image(&p).unwrap();
+            assert_eq!(img.data, exact, "{ext}");
+        }
+        // A JPEG named .JPEG (any case) is read too; a truncated one names the file.
+        let upper = dir.path().join("frame2.JPEG");
+        std::fs::write(&upper, &bytes).unwrap();
+        assert!(read_image(&upper).is_ok());
+        let cut = dir.path().join("cut.jpg");
+        std::fs::write(&cut, &bytes[..bytes.len() / 3]).unwrap();
+        let e = read_image(&cut).unwrap_err().to_string();
+        assert!(e.contains("cut.jpg"), "{e}");
+        let odd = dir.path().join("x.gifx");
+        std::fs::write(&odd, &bytes).unwrap();
+        let e = read_image(&odd).unwrap_err().to_string();
+        assert!(e.contains(".jpg") && e.contains(".exr"), "{e}");
     }
 }

@@ -153,13 +153,14 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
     mut npz: npyz::npz::NpzArchive<R>,
 ) -> Result<Dataset> {
     let image_dir = root.join("image");
-    let images = list_dir(&image_dir, &["png", "jpg", "exr"])?
-        .ok_or_else(|| DataError::file(&image_dir, "directory not found"))?;
+    let frame_exts: Vec<&str> = imageio::RASTER_EXTENSIONS.iter().copied().chain(["exr"]).collect();
+    let images =
+        list_dir(&image_dir, &frame_exts)?.ok_or_else(|| DataError::file(&image_dir, "directory not found"))?;
     if images.is_empty() {
         return Err(DataError::file(&image_dir, "no images: the 'train' split is empty"));
     }
     let val_dir = root.join("val");
-    let vals = list_dir(&val_dir, &["png", "jpg", "exr"])?.unwrap_or_default();
+    let vals = list_dir(&val_dir, &frame_exts)?.unwrap_or_default();
     if vals.is_empty() {
         return Err(DataError::file(
             &val_dir,

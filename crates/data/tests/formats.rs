@@ -127,3 +127,43 @@ fn normalization_puts_the_scene_in_the_unit_sphere() {
         assert!(ds.bounds.max[a] <= fixture::ROOM_MAX[a] + 1e-3);
     }
 }
+
+/// A capture's JPEG frames (nerfstudio's `ns-process-data` writes `images/frame_00001.jpg`) load
+/// like the PNGs they were encoded from, within JPEG's error.
+#[test]
+fn native_jpeg_frames_load() {
+    let dir = tempfile::tempdir().unwrap();
+    fixture::write_native(dir.path(), &FixtureOptions::default());
+    let png = load(dir.path()).unwrap();
+    let json = dir.path().join("transforms.json");
+    let mut t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    for f in t["frames"].as_array_mut().unwrap() {
+        let rel = f["file_path"].as_str().unwrap().to_string();
+        let jpg = rel.replace(".png", ".jpg");
+        let img = image::open(dir.path().join(&rel)).unwrap().to_rgb8();
+        let mut bytes = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, 95)
+            .encode_image(&img)
+            .unwrap();
+        std::fs::write(dir.path().join(&jpg), bytes).unwrap();
+        std::fs::remove_file(dir.path().join(&rel)).unwrap();
+        f["file_path"] = serde_json::Value::String(jpg);
+    }
+    std::fs::write(&json, serde_json::to_string(&t).unwrap()).unwrap();
+    let jpeg = load(dir.path()).unwrap();
+    for (a, b) in png.frames.iter().zip(&jpeg.frames) {
+        assert_eq!(
+            (a.rgb.width, a.rgb.height, a.rgb.channels),
+            (b.rgb.width, b.rgb.height, b.rgb.channels)
+        );
+        let mae = a
+            .rgb
+            .data
+            .iter()
+            .zip(&b.rgb.data)
+            .map(|(x, y)| (x - y).abs())
+            .sum::<f32>()
+            / a.rgb.data.len() as f32;
+        assert!(mae < 0.03, "{}: JPEG mean error {mae}", b.name);
+    }
+}
