@@ -9,6 +9,7 @@ pub mod dataset;
 pub mod edit_assets;
 pub mod edit_spec;
 pub mod error;
+pub mod exposure;
 pub mod fingerprint;
 pub mod fixture;
 pub mod imageio;

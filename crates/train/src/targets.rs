@@ -22,7 +22,8 @@ pub struct TargetView {
     pub normal: Option<Vec<[f32; 3]>>,
 }
 
-/// The dataset's transfer and exposure.
+/// The dataset's transfer and exposure: the declared exposure, else the one its LDR and HDR
+/// images measure (`i2sdf_data::exposure`), else none.
 pub fn radiometry(dataset: &Dataset) -> Radiometry {
     Radiometry {
         transfer: if dataset.ldr_transfer == "linear" {
@@ -30,7 +31,7 @@ pub fn radiometry(dataset: &Dataset) -> Radiometry {
         } else {
             Transfer::Srgb
         },
-        exposure: dataset.ldr_exposure,
+        exposure: i2sdf_data::exposure::exposure_in_use(dataset),
     }
 }
 

@@ -29,6 +29,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let config = TrainConfig::load(args.config.as_deref(), &args.set)?;
     let dataset = i2sdf_data::load(&args.data)?;
     let summary = i2sdf_data::Summary::of(&dataset);
+    let exposure = i2sdf_data::exposure::estimate_exposure(&dataset);
+    let radiometry_warnings = exposure.as_ref().map(|e| e.warnings(&dataset)).unwrap_or_default();
     let estimate = memory::estimate(&DatasetShape::of(&dataset), &config);
     let machine = MachineMemory::read();
     let warning = machine.and_then(|m| {
@@ -41,6 +43,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     });
     if args.json {
         let mut v = serde_json::to_value(&summary)?;
+        v["exposure"] = serde_json::json!({
+            "declared": dataset.ldr_exposure,
+            "measured": exposure,
+            "warnings": radiometry_warnings,
+        });
         v["memory"] = serde_json::json!({
             "stage1_bytes": estimate.stage1.total,
             "stage2_bytes": estimate.stage2.total,
@@ -53,6 +60,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         println!("{summary}");
+        match &exposure {
+            Some(e) => println!(
+                "exposure     declared {}, measured {:.4} from the LDR/HDR pairs ({} channels, spread {:.1} %)",
+                dataset.ldr_exposure.map_or("–".to_string(), |d| d.to_string()),
+                e.exposure,
+                e.samples,
+                100.0 * e.spread
+            ),
+            None => println!(
+                "exposure     declared {} (no LDR/HDR pairs to measure it)",
+                dataset.ldr_exposure.map_or("–".to_string(), |d| d.to_string())
+            ),
+        }
         println!("training memory (estimate): stage 1 {}", estimate.stage1.describe());
         println!("training memory (estimate): stage 2 {}", estimate.stage2.describe());
         match machine {
@@ -64,6 +84,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             None => println!("machine memory: unknown (no /proc/meminfo)"),
         }
         println!("ok");
+    }
+    for w in &radiometry_warnings {
+        eprintln!("warning: {w}");
     }
     if let Some(w) = warning {
         eprintln!("{w}");

@@ -98,6 +98,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let geometry = matches!(args.stage, Stage::Geometry | Stage::All);
     let material = matches!(args.stage, Stage::Material | Stage::All);
     check_memory(&run, &dataset, config.as_ref(), geometry, material, args.ignore_memory)?;
+    if material {
+        // Stage 2 works in the images' linear units: what the images say of their exposure.
+        if let Some(e) = i2sdf_data::exposure::estimate_exposure(&dataset) {
+            for w in e.warnings(&dataset) {
+                crate::progress::line(&format!("warning: {w}"));
+            }
+        }
+    }
     let bar = |label: &str| {
         let bar = crate::progress::bar(0);
         bar.set_style(
