@@ -85,20 +85,24 @@ pub fn estimate_exposure(dataset: &Dataset) -> Option<ExposureEstimate> {
 }
 
 impl ExposureEstimate {
+    /// Whether a declared exposure is further than [`TOLERANCE`] from the measured one.
+    pub fn disagrees_with(&self, declared: f64) -> bool {
+        (self.exposure / declared - 1.0).abs() > TOLERANCE
+    }
+
     /// What a user should hear about `dataset`'s declared radiometry against this estimate, if
     /// anything: a declared exposure off by more than [`TOLERANCE`], none declared where the
     /// images say it is not 1, or a transfer under which the ratio drifts while the other's holds.
     pub fn warnings(&self, dataset: &Dataset) -> Vec<String> {
         let mut out = Vec::new();
-        let off = |declared: f64| (self.exposure / declared - 1.0).abs() > TOLERANCE;
         match dataset.ldr_exposure {
-            Some(d) if off(d) => out.push(format!(
+            Some(d) if self.disagrees_with(d) => out.push(format!(
                 "ldr.exposure = {d} is declared, but the LDR and HDR images say {:.4} (median of {} channels, spread {:.1} %): check the key",
                 self.exposure,
                 self.samples,
                 100.0 * self.spread
             )),
-            None if off(1.0) => out.push(format!(
+            None if self.disagrees_with(1.0) => out.push(format!(
                 "no exposure is declared (ldr.exposure), and the LDR and HDR images say {:.4} (median of {} channels, spread {:.1} %): stage 2 uses the measured value",
                 self.exposure,
                 self.samples,

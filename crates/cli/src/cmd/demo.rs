@@ -88,6 +88,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             resume: info.checkpoint_path().is_file(),
             quiet: false,
             ignore_memory: false,
+            trust_exposure: false,
         })?;
     }
     let stage2_done = info
@@ -119,6 +120,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             resume: info.stage2_checkpoint_path().is_file(),
             quiet: false,
             ignore_memory: false,
+            trust_exposure: false,
         })?;
     }
     plan.stage(4, "extract the mesh");

@@ -50,6 +50,10 @@ pub struct Args {
     /// available memory.
     #[arg(long)]
     pub ignore_memory: bool,
+    /// Stage 2: use the dataset's declared `ldr.exposure` even where its LDR and HDR images
+    /// measure another (without it, a disagreement over 5 % is refused).
+    #[arg(long)]
+    pub trust_exposure: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -99,8 +103,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let material = matches!(args.stage, Stage::Material | Stage::All);
     check_memory(&run, &dataset, config.as_ref(), geometry, material, args.ignore_memory)?;
     if material {
-        // Stage 2 works in the images' linear units: what the images say of their exposure.
+        // Stage 2 works in the images' linear units: what the images say of their exposure. A
+        // declared exposure they contradict is refused unless trusted: fitted at the wrong one,
+        // every material comes out off by the factor.
         if let Some(e) = i2sdf_data::exposure::estimate_exposure(&dataset) {
+            if let Some(declared) = dataset.ldr_exposure.filter(|_| !args.trust_exposure) {
+                if e.disagrees_with(declared) {
+                    anyhow::bail!(i2sdf_data::DataError::field(
+                        data.join("transforms.json"),
+                        "ldr.exposure",
+                        format!(
+                            "{declared} is declared, but the LDR and HDR images measure {:.4} ({} channels, spread {:.1} %): fix the key, or pass --trust-exposure to train with the declared value",
+                            e.exposure,
+                            e.samples,
+                            100.0 * e.spread
+                        ),
+                    ));
+                }
+            }
             for w in e.warnings(&dataset) {
                 crate::progress::line(&format!("warning: {w}"));
             }
