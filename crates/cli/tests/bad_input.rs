@@ -375,7 +375,7 @@ fn bad_input_table() {
         Ok(())
     };
     table.record("edit: spec file missing", o, 2, &["absent.toml"], untouched);
-    // An empty spec is valid (DESIGN.md: it renders the unedited scene).
+    // An empty spec is valid (it renders the unedited scene).
     let empty = root.join("empty.toml");
     std::fs::write(&empty, "# nothing to change\n").unwrap();
     let out = root.join("out_empty");

@@ -1,4 +1,4 @@
-//! The native format (DESIGN.md "Data", format 1): a nerfstudio-style `transforms.json`.
+//! The native format (the README's "Dataset formats", format 1): a nerfstudio-style `transforms.json`.
 //!
 //! Cameras: `fl_x fl_y cx cy w h` at the top level or per frame (per-frame values win), pinhole
 //! only (distortion coefficients must be zero), `transform_matrix` = camera-to-world in the

@@ -1,4 +1,4 @@
-//! Image metrics of DESIGN.md "Evaluation": PSNR and SSIM on [0, 1] images, depth L1 and normal
+//! Image metrics of the paper's Sec. 6 and supp. Sec. D, as the README's `eval` row lists: PSNR and SSIM on [0, 1] images, depth L1 and normal
 //! angular L1 (mean of 1 − n̂·n). Images are interleaved row-major `f32` (`height × width ×
 //! channels`); masks are one flag per pixel. Sums run in f64.
 

@@ -1,4 +1,4 @@
-//! Evaluation for i2sdf (DESIGN.md "Evaluation"): image metrics, marching cubes, mesh metrics with
+//! Evaluation for i2sdf (the paper's Sec. 6 and supp. Sec. D, as the README's `eval` row lists): image metrics, marching cubes, mesh metrics with
 //! visibility culling against the training views, and the `eval` JSON report. Meshes and their PLY
 //! I/O are the data layer's (`i2sdf_data::{mesh, ply}`), re-exported here for convenience.
 

@@ -1,4 +1,4 @@
-//! Mesh accuracy, completeness, precision, recall and F-score (DESIGN.md "Evaluation"), on points
+//! Mesh accuracy, completeness, precision, recall and F-score (the paper's Sec. 6 and supp. Sec. D, as the README's `eval` row lists), on points
 //! sampled uniformly by area on both meshes and culled to what the training views can see: the
 //! paper's evaluation re-fuses both meshes from the training views, and the equivalent on points is
 //! that a ground-truth point counts where some view's GT depth sees it, and a predicted point counts
@@ -77,7 +77,7 @@ fn valid_depth(d: f32) -> bool {
 /// that view's GT depth at its pixel by more than `tolerance` (a pixel without GT depth hides
 /// nothing).
 ///
-/// One rule serves both meshes. For a predicted point it is DESIGN.md's "no GT surface hides it
+/// One rule serves both meshes. For a predicted point it is the paper's re-fusion rule, "no GT surface hides it
 /// from every view", so floaters in free space count. For a GT point it is "some view's depth sees
 /// it": the stricter |z − depth| ≤ tolerance differs only where a point lies in front of its pixel's
 /// depth by more than the tolerance, which for a point on the GT surface happens only through pixel

@@ -1,4 +1,4 @@
-//! Evaluating a trained run against its dataset (DESIGN.md "Evaluation"): the mesh of the neural
+//! Evaluating a trained run against its dataset (the paper's Sec. 6 and supp. Sec. D, as the README's `eval` row lists): the mesh of the neural
 //! SDF, novel-view, depth and normal metrics on the test views, and mesh metrics against the
 //! ground-truth mesh culled by the training views, per GT object and for the thin and suspended
 //! objects where the dataset names its objects.

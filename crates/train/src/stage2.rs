@@ -15,7 +15,7 @@
 //! materials' GGX mixture, traced every iteration — is [`Stage2Estimator::Live`], the reference
 //! the cached fit is checked against.
 //!
-//! Radiometry (DESIGN.md "Emitters and stage 2"): targets are linear radiance in the units of the
+//! Radiometry (the README's "Stage 2: emitters and materials"): targets are linear radiance in the units of the
 //! input images — LDR pixels linearized by the dataset's transfer, or HDR pixels × the dataset's
 //! exposure when `stage2.use_hdr` and the dataset has them. Saturated LDR channels bound the
 //! prediction from below only. Pixels that see an emitter are not shaded: their prediction is

@@ -1,5 +1,5 @@
 //! Stage 2's targets: the training views in linear radiance in the units of the input images
-//! (DESIGN.md "Emitters and stage 2"), with which channels are saturated, the emitter masks and
+//! (the README's "Stage 2: emitters and materials"), with which channels are saturated, the emitter masks and
 //! the dataset's normals.
 
 use i2sdf_data::{Dataset, Split};
