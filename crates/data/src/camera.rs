@@ -2,11 +2,14 @@
 //! OpenCV axes (x right, y down, z forward), camera-to-world pose in world units, and continuous
 //! pixel coordinates whose pixel centres sit at +0.5 (pixel (i, j) covers [i, i+1) × [j, j+1)).
 //! Every loader converts into this; nothing downstream knows about OpenGL poses or integer-pixel
-//! rays.
+//! rays. A camera may carry a lens model ([`Lens`]): its rays and projections go through it, so
+//! everything that uses these methods sees the distorted capture as it was taken.
 
-use glam::{DMat3, DMat4, DVec3, DVec4, Mat3, Vec3};
+pub use crate::lens::Lens;
+use glam::{DMat3, DMat4, DVec2, DVec3, DVec4, Mat3, Vec3};
 
-/// A pinhole camera: intrinsics in pixels and a rigid camera-to-world transform (OpenCV axes).
+/// A camera: intrinsics in pixels, a lens model and a rigid camera-to-world transform (OpenCV
+/// axes).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Camera {
     pub width: usize,
@@ -18,6 +21,9 @@ pub struct Camera {
     /// Camera-to-world, OpenCV axes: columns 0..3 are the camera's x (right), y (down), z (forward)
     /// axes in world coordinates, column 3 the camera centre.
     pub c2w: DMat4,
+    /// The lens distortion (pinhole unless the dataset declares a model).
+    #[serde(default, skip_serializing_if = "Lens::is_pinhole")]
+    pub lens: Lens,
 }
 
 /// Flips the y and z axes: OpenGL/nerfstudio camera axes (x right, y up, looking down −z) ↔ OpenCV.
@@ -39,6 +45,7 @@ impl Camera {
             cx,
             cy,
             c2w: c2w_gl * GL_TO_CV,
+            lens: Lens::Pinhole,
         }
     }
 
@@ -77,10 +84,13 @@ impl Camera {
     }
 
     /// Direction in camera coordinates through continuous pixel position (u, v), scaled so that
-    /// z = 1: a point at z-depth `d` along it is `d * dir`.
+    /// z = 1: a point at z-depth `d` along it is `d * dir`. Goes through the lens model.
     #[inline]
     pub fn pixel_dir_cam(&self, u: f64, v: f64) -> DVec3 {
-        DVec3::new((u - self.cx) / self.fx, (v - self.cy) / self.fy, 1.0)
+        let p = self
+            .lens
+            .undistort(DVec2::new((u - self.cx) / self.fx, (v - self.cy) / self.fy));
+        p.extend(1.0)
     }
 
     /// Direction in camera coordinates through the centre of pixel (i, j).
@@ -111,7 +121,52 @@ impl Camera {
         if pc.z <= 1e-12 {
             return None;
         }
-        Some((self.fx * pc.x / pc.z + self.cx, self.fy * pc.y / pc.z + self.cy, pc.z))
+        let (u, v) = self.project_camera_space(pc);
+        Some((u, v, pc.z))
+    }
+
+    /// The pixel position of a camera-space point in front of the camera (z > 0), through the
+    /// lens model.
+    #[inline]
+    pub fn project_camera_space(&self, pc: DVec3) -> (f64, f64) {
+        let p = self.lens.distort(DVec2::new(pc.x / pc.z, pc.y / pc.z));
+        (self.fx * p.x + self.cx, self.fy * p.y + self.cy)
+    }
+
+    /// The same camera at another image size (intrinsics scaled with it, the lens unchanged: its
+    /// coefficients act on normalized coordinates).
+    pub fn resized(&self, width: usize, height: usize) -> Camera {
+        let sx = width as f64 / self.width as f64;
+        let sy = height as f64 / self.height as f64;
+        Camera {
+            width,
+            height,
+            fx: self.fx * sx,
+            fy: self.fy * sy,
+            cx: self.cx * sx,
+            cy: self.cy * sy,
+            c2w: self.c2w,
+            lens: self.lens,
+        }
+    }
+
+    /// The camera's identity as bits (size, intrinsics, lens, pose): equal keys mean the same
+    /// rays, so renders of one camera can be shared.
+    pub fn key(&self) -> Vec<u64> {
+        let mut k = vec![self.width as u64, self.height as u64];
+        k.extend([self.fx, self.fy, self.cx, self.cy].map(f64::to_bits));
+        k.extend(self.lens.params().iter().map(|(_, v)| v.to_bits()));
+        k.push(self.lens.model_name().len() as u64);
+        k.extend(self.c2w.to_cols_array().map(f64::to_bits));
+        k
+    }
+
+    /// The same pose and intrinsics without the lens distortion (what `render --pinhole` draws).
+    pub fn pinhole(&self) -> Camera {
+        Camera {
+            lens: Lens::Pinhole,
+            ..self.clone()
+        }
     }
 
     /// The camera in f32 for the Monte Carlo renderer's inner loop (one direction per path).
@@ -123,6 +178,7 @@ impl Camera {
             fy: self.fy as f32,
             cx: self.cx as f32,
             cy: self.cy as f32,
+            lens: self.lens,
         }
     }
 
@@ -132,9 +188,9 @@ impl Camera {
         validate_rigid(&self.c2w)
     }
 
-    /// The image size and intrinsics alone, with the name of the faulty one (`width`, `fx`, `fy`,
-    /// `cx`, `cy`), so that a dataset reader can name its own key for it (`fl_x` …) rather than
-    /// the pose's.
+    /// The image size, intrinsics and lens alone, with the name of the faulty one (`width`, `fx`,
+    /// `fy`, `cx`, `cy`, `distortion`), so that a dataset reader can name its own key for it
+    /// (`fl_x` …) rather than the pose's.
     pub fn validate_intrinsics(&self) -> Result<(), (&'static str, String)> {
         if self.width == 0 || self.height == 0 {
             return Err(("width", format!("image size {}×{} is empty", self.width, self.height)));
@@ -149,13 +205,20 @@ impl Camera {
                 return Err((name, format!("focal length {name} = {v}: must be positive")));
             }
         }
+        let (fx, fy, cx, cy) = (self.fx, self.fy, self.cx, self.cy);
+        self.lens
+            .check_invertible(self.width, self.height, fx.max(fy), |u, v| {
+                DVec2::new((u - cx) / fx, (v - cy) / fy)
+            })
+            .map_err(|m| ("distortion", m))?;
         Ok(())
     }
 }
 
 /// A [`Camera`] in f32, for generating many rays: the path tracer traces a few hundred per pixel
 /// and needs neither the f64 precision of the pose nor a matrix conversion per ray. Same
-/// conventions (OpenCV axes, pixel centres at +0.5).
+/// conventions (OpenCV axes, pixel centres at +0.5) and lens model (inverted in f64: a few Newton
+/// steps per ray cost nothing beside tracing it).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RayGenerator {
     pub origin: Vec3,
@@ -165,13 +228,22 @@ pub struct RayGenerator {
     pub fy: f32,
     pub cx: f32,
     pub cy: f32,
+    pub lens: Lens,
 }
 
 impl RayGenerator {
     /// Unit world direction through continuous pixel position (u, v).
     #[inline]
     pub fn dir(&self, u: f32, v: f32) -> Vec3 {
-        (self.rotation * Vec3::new((u - self.cx) / self.fx, (v - self.cy) / self.fy, 1.0)).normalize()
+        let (x, y) = ((u - self.cx) / self.fx, (v - self.cy) / self.fy);
+        let (x, y) = match self.lens {
+            Lens::Pinhole => (x, y),
+            lens => {
+                let p = lens.undistort(DVec2::new(x as f64, y as f64));
+                (p.x as f32, p.y as f32)
+            }
+        };
+        (self.rotation * Vec3::new(x, y, 1.0)).normalize()
     }
 
     /// The optical axis (z-depth of a point p is (p − origin) · forward).
@@ -293,6 +365,7 @@ mod tests {
 
     fn cam() -> Camera {
         Camera {
+            lens: Default::default(),
             width: 64,
             height: 48,
             fx: 50.0,

@@ -153,6 +153,7 @@ mod tests {
 
     fn cam(eye: DVec3, target: DVec3) -> Camera {
         let like = Camera {
+            lens: Default::default(),
             width: 8,
             height: 6,
             fx: 8.0,

@@ -46,6 +46,10 @@ impl DatasetFingerprint {
             for v in [c.fx, c.fy, c.cx, c.cy].into_iter().chain(c.c2w.to_cols_array()) {
                 cams.word(v.to_bits());
             }
+            // Only a real lens adds words, so a pinhole dataset keeps the fingerprint it had.
+            for (_, v) in c.lens.params() {
+                cams.word(v.to_bits());
+            }
             let maps = [
                 Some(&f.rgb),
                 f.hdr.as_ref(),

@@ -97,6 +97,7 @@ pub fn cameras(opts: &FixtureOptions) -> Vec<Camera> {
                 .unwrap_or(DVec3::new(2.0 * (a + 1.0).cos(), 1.5 * (a + 1.0).sin(), 0.8));
             let fx = 0.9 * opts.width as f64 + i as f64;
             let mut cam = Camera {
+                lens: Default::default(),
                 width: opts.width,
                 height: opts.height,
                 fx,

@@ -1,7 +1,8 @@
 //! The native format (the README's "Dataset formats", format 1): a nerfstudio-style `transforms.json`.
 //!
-//! Cameras: `fl_x fl_y cx cy w h` at the top level or per frame (per-frame values win), pinhole
-//! only (distortion coefficients must be zero), `transform_matrix` = camera-to-world in the
+//! Cameras: `fl_x fl_y cx cy w h` at the top level or per frame (per-frame values win),
+//! `camera_model` (PINHOLE by default; SIMPLE_PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV,
+//! OPENCV_FISHEYE) with its coefficients `k1 k2 k3 k4 p1 p2` (see `lens`), `transform_matrix` = camera-to-world in the
 //! OpenGL convention, principal point in the pixel-centre-at-+0.5 convention (nerfstudio's).
 //! Per frame: `file_path` (LDR PNG or EXR), optional `hdr_file_path`, `depth_file_path` (z-depth in
 //! world units: EXR or `.npy` float32, or 16-bit PNG times `depth_unit_scale_factor`, default
@@ -12,7 +13,7 @@
 //! `relight: [{spec, frames}]`, `ldr: {transfer: "srgb"|"linear"}`, `objects: [{id, name, tags}]`
 //! (the GT mesh's per-face `object_id`s, named and tagged). Unknown keys are ignored.
 
-use crate::camera::{validate_rigid, Camera};
+use crate::camera::{validate_rigid, Camera, Lens};
 use crate::dataset::{self, Dataset, Format, Frame, GtEmitter, ObjectInfo, RelightSet, Split};
 use crate::error::{DataError, Result};
 use glam::DMat4;
@@ -69,21 +70,20 @@ fn parse_matrix(v: Option<&Value>, ctx: &Ctx) -> Result<DMat4> {
 }
 
 fn camera_of(obj: &Map<String, Value>, top: &Map<String, Value>, ctx: &Ctx) -> Result<Camera> {
-    let model = obj
-        .get("camera_model")
-        .or_else(|| top.get("camera_model"))
-        .and_then(Value::as_str)
-        .unwrap_or("PINHOLE");
-    if !matches!(model, "PINHOLE" | "OPENCV" | "SIMPLE_PINHOLE") {
-        return Err(ctx.err("camera_model", format!("'{model}' is not supported (pinhole only)")));
-    }
+    let model = match obj.get("camera_model").or_else(|| top.get("camera_model")) {
+        None | Some(Value::Null) => "PINHOLE",
+        Some(Value::String(m)) => m.as_str(),
+        Some(v) => return Err(ctx.err("camera_model", format!("expected a model name, found {v}"))),
+    };
     for k in ["k1", "k2", "k3", "k4", "p1", "p2"] {
-        if let Some(v) = obj.get(k).or_else(|| top.get(k)).and_then(Value::as_f64) {
-            if v != 0.0 {
-                return Err(ctx.err(k, "lens distortion is not supported: undistort the images first"));
+        if let Some(v) = obj.get(k).or_else(|| top.get(k)) {
+            if !v.is_null() && v.as_f64().is_none() {
+                return Err(ctx.err(k, format!("expected a number, found {v}")));
             }
         }
     }
+    let lens = Lens::from_model(model, |k| obj.get(k).or_else(|| top.get(k)).and_then(Value::as_f64))
+        .map_err(|(key, m)| ctx.err(key, m))?;
     let w = get_f64(obj, top, "w", ctx)?;
     let h = get_f64(obj, top, "h", ctx)?;
     if w < 1.0 || h < 1.0 || w.fract() != 0.0 || h.fract() != 0.0 {
@@ -98,12 +98,16 @@ fn camera_of(obj: &Map<String, Value>, top: &Map<String, Value>, ctx: &Ctx) -> R
     let cx = get_f64(obj, top, "cx", ctx).unwrap_or(w / 2.0);
     let cy = get_f64(obj, top, "cy", ctx).unwrap_or(h / 2.0);
     let c2w = parse_matrix(obj.get("transform_matrix"), ctx)?;
-    let cam = Camera::from_opengl_c2w(w as usize, h as usize, fx, fy, cx, cy, c2w);
+    let cam = Camera {
+        lens,
+        ..Camera::from_opengl_c2w(w as usize, h as usize, fx, fy, cx, cy, c2w)
+    };
     cam.validate_intrinsics().map_err(|(name, m)| {
         let key = match name {
             "fx" => "fl_x",
             "fy" => "fl_y",
             "width" => "w",
+            "distortion" => "camera_model",
             other => other,
         };
         ctx.err(key, m)

@@ -117,6 +117,7 @@ fn camera_from_projection(p4: [[f64; 4]; 4], width: usize, height: usize) -> std
         return Err(format!("skewed intrinsics (skew {}) are not supported", k.y_axis.x));
     }
     let cam = Camera {
+        lens: Default::default(),
         width,
         height,
         fx: k.x_axis.x,

@@ -105,6 +105,7 @@ fn torus(p: Vec3) -> f32 {
 
 fn camera(eye: DVec3, target: DVec3, size: usize) -> Camera {
     Camera {
+        lens: Default::default(),
         width: size,
         height: size,
         fx: size as f64,

@@ -58,8 +58,7 @@ impl<'a> Projector<'a> {
             return None;
         }
         let cam = &self.view.camera;
-        let u = cam.fx * c.x / c.z + cam.cx;
-        let w = cam.fy * c.y / c.z + cam.cy;
+        let (u, w) = cam.project_camera_space(c);
         if !(u >= 0.0 && w >= 0.0 && u < cam.width as f64 && w < cam.height as f64) {
             return None;
         }
@@ -431,6 +430,7 @@ mod tests {
     fn render_view(gt: &TriangleMesh, eye: [f32; 3], target: [f32; 3]) -> CullingView {
         let (eye, target) = (Vec3::from(eye).as_dvec3(), Vec3::from(target).as_dvec3());
         let camera = Camera {
+            lens: Default::default(),
             width: W,
             height: H,
             fx: 40.0,

@@ -55,11 +55,7 @@ pub fn relight_frames(dataset: &Dataset) -> usize {
 
 /// A camera's identity for sharing renders between sets (exact pose and intrinsics).
 fn camera_key(f: &Frame) -> Vec<u64> {
-    let c = &f.camera;
-    let mut k = vec![c.width as u64, c.height as u64];
-    k.extend([c.fx, c.fy, c.cx, c.cy].map(f64::to_bits));
-    k.extend(c.c2w.to_cols_array().map(f64::to_bits));
-    k
+    f.camera.key()
 }
 
 fn scores(pred: &ImageF32, gt: &ImageF32) -> Result<(Option<f64>, Option<f64>), DataError> {

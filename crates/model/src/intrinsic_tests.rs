@@ -205,6 +205,7 @@ fn camera() -> Camera {
     let mut c2w = DMat4::IDENTITY;
     c2w.w_axis = centre().as_dvec3().extend(1.0);
     Camera {
+        lens: Default::default(),
         width: 8,
         height: 6,
         fx: 6.0,

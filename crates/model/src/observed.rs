@@ -70,7 +70,8 @@ impl ObservedViews {
                 if pc.z <= 1e-9 {
                     return false;
                 }
-                let (u, v, z) = (cam.fx * pc.x / pc.z + cam.cx, cam.fy * pc.y / pc.z + cam.cy, pc.z);
+                let (u, v) = cam.project_camera_space(pc);
+                let z = pc.z;
                 let (i, j) = (u.floor(), v.floor());
                 if z <= 0.0 || i < 0.0 || j < 0.0 || i >= cam.width as f64 || j >= cam.height as f64 {
                     return false;
@@ -96,6 +97,7 @@ mod tests {
         let mesh = TriangleMesh::unit_icosphere(4);
         let geo = MeshGeometry::new(&mesh, vec![0; mesh.faces.len()]);
         let cam = Camera {
+            lens: Default::default(),
             width: 64,
             height: 64,
             fx: 64.0,

@@ -260,6 +260,7 @@ mod tests {
     fn camera(eye: Vec3, target: Vec3, w: usize, h: usize) -> Camera {
         let f = 0.5 * w as f64 / (30f64.to_radians()).tan();
         Camera {
+            lens: Default::default(),
             width: w,
             height: h,
             fx: f,

@@ -22,13 +22,10 @@ use i2sdf_render::{Geometry, Ray, ViewRender};
 use rayon::prelude::*;
 use std::fmt::Write as _;
 
-/// A camera's identity (size, intrinsics, pose bits): the relit sets' first frames are often
-/// the test camera itself, and each render of it is made once.
+/// A camera's identity: the relit sets' first frames are often the test camera itself, and each
+/// render of it is made once.
 fn camera_key(c: &Camera) -> Vec<u64> {
-    let mut k = vec![c.width as u64, c.height as u64];
-    k.extend([c.fx, c.fy, c.cx, c.cy].map(f64::to_bits));
-    k.extend(c.c2w.to_cols_array().map(f64::to_bits));
-    k
+    c.key()
 }
 
 /// Renders shared between the sections: the radiance field's view of a camera (stage 1's map,
@@ -263,6 +260,7 @@ pub fn overview_camera(bounds: &Bounds, width: usize, height: usize) -> Camera {
     // 75° horizontal field of view.
     let f = 0.5 * width as f64 / (37.5f64.to_radians()).tan();
     Camera {
+        lens: Default::default(),
         width,
         height,
         fx: f,

@@ -180,6 +180,7 @@ fn gt_views(scene: &NeuralScene) -> Vec<TargetView> {
             let eye = DVec3::new(0.05 * a.cos(), 0.02, 0.05 * a.sin());
             let target = DVec3::new(a.cos(), -0.1, a.sin());
             let camera = Camera {
+                lens: Default::default(),
                 width: w,
                 height: h,
                 fx: 20.0,

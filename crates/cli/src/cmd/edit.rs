@@ -262,14 +262,5 @@ fn resized(cam: &Camera, size: Option<(usize, usize)>) -> Camera {
     let Some((w, h)) = size else {
         return cam.clone();
     };
-    let (sx, sy) = (w as f64 / cam.width as f64, h as f64 / cam.height as f64);
-    Camera {
-        width: w,
-        height: h,
-        fx: cam.fx * sx,
-        fy: cam.fy * sy,
-        cx: cam.cx * sx,
-        cy: cam.cy * sy,
-        c2w: cam.c2w,
-    }
+    cam.resized(w, h)
 }

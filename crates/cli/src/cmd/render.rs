@@ -65,6 +65,10 @@ pub struct PathArgs {
     /// Frames per second of the animation.
     #[arg(long, default_value_t = 24)]
     pub fps: u32,
+    /// Draw through an undistorted pinhole camera (the dataset's intrinsics and poses). By
+    /// default views go through the dataset's own lens model, so they line up with its images.
+    #[arg(long)]
+    pub pinhole: bool,
 }
 
 impl Default for PathArgs {
@@ -75,6 +79,7 @@ impl Default for PathArgs {
             frames: 48,
             keyframes: None,
             fps: 24,
+            pinhole: false,
         }
     }
 }
@@ -85,6 +90,18 @@ const MAX_FRAMES: usize = 100_000;
 impl PathArgs {
     /// The views to render, named: the split's frames as they are, or the path's frames.
     pub fn views(
+        &self,
+        frames: &[&i2sdf_data::Frame],
+        bounds: &i2sdf_data::Bounds,
+    ) -> Result<Vec<(String, Camera)>, DataError> {
+        let views = self.views_through_lens(frames, bounds)?;
+        Ok(match self.pinhole {
+            true => views.into_iter().map(|(n, c)| (n, c.pinhole())).collect(),
+            false => views,
+        })
+    }
+
+    fn views_through_lens(
         &self,
         frames: &[&i2sdf_data::Frame],
         bounds: &i2sdf_data::Bounds,
