@@ -111,7 +111,12 @@ impl Camera {
     /// The world point seen at pixel (i, j)'s centre with z-depth `depth` (paper eq:unproj:
     /// x = t + D · R K⁻¹ [u, v, 1]ᵀ).
     pub fn backproject(&self, i: usize, j: usize, depth: f64) -> DVec3 {
-        self.center() + self.rotation() * (self.pixel_center_dir_cam(i, j) * depth)
+        self.backproject_at(i as f64 + 0.5, j as f64 + 0.5, depth)
+    }
+
+    /// The world point seen at continuous pixel position (u, v) with z-depth `depth`.
+    pub fn backproject_at(&self, u: f64, v: f64, depth: f64) -> DVec3 {
+        self.center() + self.rotation() * (self.pixel_dir_cam(u, v) * depth)
     }
 
     /// Projects a world point: continuous pixel position (u, v) and z-depth. `None` behind the
