@@ -157,6 +157,9 @@ pub struct Dataset {
     /// when the dataset states it: stage 2 scales HDR images by it into the LDR images' linear
     /// units, and reports each emitter's radiance as emission / exposure.
     pub ldr_exposure: Option<f64>,
+    /// The dataset declares its poses exact (native `poses_exact: true`, as the synthetic rooms
+    /// write; the paper's release, calibrated): training then does not correct them.
+    pub poses_exact: bool,
     /// The ground-truth emitters (native format, top-level `emitters`), for evaluation only.
     pub emitters: Vec<GtEmitter>,
     /// Ground-truth mesh (PLY) in world units, if the dataset has one.

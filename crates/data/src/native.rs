@@ -11,7 +11,8 @@
 //! `split`, else from nerfstudio's top-level `train_filenames` / `test_filenames`; a dataset with
 //! neither holds out every 8th frame (0, 8, 16, …) for testing. Top level, optional: `mesh_path`,
 //! `relight: [{spec, frames}]`, `ldr: {transfer: "srgb"|"linear"}`, `objects: [{id, name, tags}]`
-//! (the GT mesh's per-face `object_id`s, named and tagged). Unknown keys are ignored.
+//! (the GT mesh's per-face `object_id`s, named and tagged), `poses_exact` (true: the poses are
+//! exact and training does not correct them; default false). Unknown keys are ignored.
 
 use crate::camera::{validate_rigid, Camera, Lens};
 use crate::dataset::{self, Dataset, Format, Frame, GtEmitter, ObjectInfo, RelightSet, Split};
@@ -341,6 +342,17 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
             }
         },
     };
+    let poses_exact = match top.get("poses_exact") {
+        None | Some(Value::Null) => false,
+        Some(Value::Bool(b)) => *b,
+        Some(v) => {
+            return Err(DataError::field(
+                &json_path,
+                "poses_exact",
+                format!("expected true or false, found {v}"),
+            ))
+        }
+    };
     let emitters = parse_emitters(&json_path, top)?;
     let (bounds, bounds_source, normalization) = dataset::measure_bounds(&frames);
     Ok(Dataset {
@@ -349,6 +361,7 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
         frames,
         ldr_transfer,
         ldr_exposure,
+        poses_exact,
         emitters,
         mesh_path,
         relight,

@@ -29,7 +29,8 @@ pub const RUN_MARKER: &str = "run.json";
 
 /// A run's own files, which no command but `train` writes (`RunDir`'s paths; its test keeps the
 /// two lists equal).
-pub const RUN_FILES: [&str; 6] = [
+pub const RUN_FILES: [&str; 7] = [
+    "poses.json",
     "run.json",
     "config.toml",
     "checkpoint.safetensors",

@@ -299,6 +299,8 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
         frames,
         ldr_transfer: "srgb".into(),
         ldr_exposure: None,
+        // The release's poses are the renderer's own (synthetic) or calibrated (real rooms).
+        poses_exact: true,
         emitters: Vec::new(),
         mesh_path: Some(root.join("mesh.ply")).filter(|p| p.is_file()),
         relight: Vec::new(),

@@ -15,6 +15,7 @@ pub mod material_field;
 pub mod mc_band;
 pub mod mc_tables;
 pub mod observed;
+pub mod poses;
 pub mod query;
 pub mod raycast;
 pub mod renderer;

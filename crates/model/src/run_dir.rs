@@ -6,6 +6,7 @@
 //! RUN/run.json                   dataset path, normalization, per-stage progress and timings
 //! RUN/checkpoint.safetensors     fields + optimizer state, written atomically
 //! RUN/log.jsonl                  one JSON object of losses per logged step
+//! RUN/poses.json                 the training views' corrected poses (when stage 1 corrects them)
 //! ```
 //!
 //! The configuration is stored as TOML text: its type (the trainer's `TrainConfig`) lives above
@@ -162,6 +163,10 @@ impl RunDir {
             _ => self.checkpoint_path(),
         }
     }
+    /// `RUN/poses.json`: the training views' poses as stage 1 corrected them.
+    pub fn poses_path(&self) -> PathBuf {
+        self.root.join("poses.json")
+    }
     /// `RUN/emitters.json`: stage 2's emitters in world units.
     pub fn emitters_path(&self) -> PathBuf {
         self.root.join("emitters.json")
@@ -202,8 +207,9 @@ impl RunDir {
 
     /// The files of this run that no other command may write ([`i2sdf_data::output::RUN_FILES`]
     /// lists their names for the output checks).
-    pub fn own_files(&self) -> [PathBuf; 6] {
+    pub fn own_files(&self) -> [PathBuf; 7] {
         [
+            self.poses_path(),
             self.info_path(),
             self.config_path(),
             self.checkpoint_path(),

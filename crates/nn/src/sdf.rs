@@ -163,6 +163,8 @@ pub struct SdfWorkspace {
     jac_levels: Vec<f32>,
     gx_levels: Vec<f32>,
     abar_levels: Vec<f32>,
+    /// The last backward's cotangent of the raw position input (the MLP's first 3 inputs), `[n×3]`.
+    xbar: Vec<f32>,
     acts: Vec<f32>,
     gacts: Vec<f32>,
     chunks: Vec<ChunkState>,
@@ -491,6 +493,8 @@ impl SdfNetwork {
         let od = fd + 1;
         let ranges = even_ranges(n.div_ceil(TILE), ws.chunks.len());
         let abar_levels = SharedMut(ws.abar_levels.as_mut_ptr());
+        resize(&mut ws.xbar, n * 3);
+        let xbar = SharedMut(ws.xbar.as_mut_ptr());
         let (xs, enc_levels, jac_levels, acts_all, gacts_all) = (
             &ws.x[..],
             &ws.enc_levels[..],
@@ -579,6 +583,12 @@ impl SdfNetwork {
                         .backward_tile(&st.input, m, acts, &st.dout, &mut st.mlp_grad, dx, &mut st.scratch),
                 }
                 if let SdfEncoding::HashGrid(g) = &self.encoding {
+                    for r in 0..m {
+                        for k in 0..3 {
+                            // SAFETY: row r0 + r belongs to this chunk's tiles only.
+                            unsafe { *xbar.ptr().add((r0 + r) * 3 + k) = st.dx[r * d + k] };
+                        }
+                    }
                     let f = g.config.features_per_level;
                     for l in 0..g.config.levels {
                         for r in 0..m {
@@ -610,6 +620,40 @@ impl SdfNetwork {
             g.backward(&ws.x, &ws.abar_levels[..m], gx, d_gradient, hg);
         }
         ws.timings.scatter = t1.elapsed();
+    }
+}
+
+impl SdfNetwork {
+    /// After [`SdfNetwork::backward`] of a [`SdfNetwork::forward_with_gradient`] batch with a
+    /// hash-grid encoding: writes into `out` (`[n×3]`) the gradient of the backward's objective
+    /// `Σ d̄·d + Σ z̄·z` w.r.t. the input positions (what a camera pose correction needs: how the
+    /// loss moves with the points). The curvature term of a `∇̄d` cotangent (through the
+    /// encoding's second derivatives) is left out: trilinear cells have none along each axis and
+    /// the pose correction only needs a descent direction. `None` for the frequency encoding,
+    /// whose Jacobian the forward does not keep.
+    pub fn position_gradient(&self, ws: &SdfWorkspace, out: &mut [f32]) -> Option<()> {
+        let SdfEncoding::HashGrid(g) = &self.encoding else {
+            return None;
+        };
+        if !ws.with_gradient {
+            return None;
+        }
+        let (n, f) = (ws.n, g.config.features_per_level);
+        out[..n * 3].copy_from_slice(&ws.xbar[..n * 3]);
+        for l in 0..g.config.levels {
+            let abar = &ws.abar_levels[l * n * f..(l + 1) * n * f];
+            let jac = &ws.jac_levels[l * n * f * 3..(l + 1) * n * f * 3];
+            for i in 0..n {
+                for ff in 0..f {
+                    let a = abar[i * f + ff];
+                    let j = &jac[(i * f + ff) * 3..(i * f + ff) * 3 + 3];
+                    for k in 0..3 {
+                        out[i * 3 + k] += a * j[k];
+                    }
+                }
+            }
+        }
+        Some(())
     }
 }
 

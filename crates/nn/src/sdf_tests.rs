@@ -266,3 +266,30 @@ fn empty_batches_are_fine() {
     net.mlp.forward(&[], &mut mws, &mut []);
     net.mlp.backward(&mut mws, &[], &mut g.mlp, None);
 }
+
+/// The position gradient (what the pose correction follows) against finite differences in `x`
+/// of `Σ d̄·d + Σ z̄·z`, over several tiles.
+#[test]
+fn position_gradient_matches_finite_differences_hash_grid() {
+    let net = network(small_hash_config());
+    let n = 300;
+    let x = points(&net, n, 17);
+    let mut c = cotangents(&net, n);
+    c.d_gradient.fill(0.0);
+    let mut ws = SdfWorkspace::default();
+    let (mut sdf, mut feat, mut grad) = (vec![0.0; n], vec![0.0; n * net.feature_dim()], vec![0.0; n * 3]);
+    net.forward_with_gradient(&x, &mut ws, &mut sdf, &mut feat, &mut grad);
+    let mut g = SdfGrad::new(&net);
+    net.backward(&mut ws, &c.d_sdf, Some(&c.d_feature), None, &mut g);
+    let mut dx = vec![0.0; n * 3];
+    net.position_gradient(&ws, &mut dx).unwrap();
+    let fd = central_difference(&x, 1e-3, |xp| loss(&net, xp, &c));
+    assert_grad_close("position", &dx, &fd, 5e-3, 1e-2);
+    // The frequency encoding does not keep its Jacobian: no position gradient, said by None.
+    let freq = network(small_frequency_config());
+    let mut ws = SdfWorkspace::default();
+    let xf = points(&freq, 4, 1);
+    let (mut s, mut f, mut gr) = (vec![0.0; 4], vec![0.0; 4 * freq.feature_dim()], vec![0.0; 12]);
+    freq.forward_with_gradient(&xf, &mut ws, &mut s, &mut f, &mut gr);
+    assert!(freq.position_gradient(&ws, &mut [0.0; 12]).is_none());
+}

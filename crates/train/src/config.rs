@@ -23,6 +23,8 @@ pub struct TrainConfig {
     pub stage2: Stage2Config,
     /// Stage 2's material fields.
     pub material: MaterialConfig,
+    /// Stage 1's per-camera pose correction.
+    pub pose: PoseConfig,
 }
 
 impl Default for TrainConfig {
@@ -36,6 +38,7 @@ impl Default for TrainConfig {
             adaptive: AdaptiveConfig::default(),
             stage2: Stage2Config::default(),
             material: MaterialConfig::default(),
+            pose: PoseConfig::default(),
         }
     }
 }
@@ -273,6 +276,45 @@ impl Default for AdaptiveConfig {
     }
 }
 
+/// Whether stage 1 corrects the training views' poses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PoseCorrectionMode {
+    /// On unless the dataset declares its poses exact (`poses_exact: true` in transforms.json;
+    /// the built-in rooms and the paper's release do).
+    Auto,
+    On,
+    Off,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PoseConfig {
+    pub correction: PoseCorrectionMode,
+    /// Adam learning rate of the rotations (radians).
+    pub lr_rotation: f32,
+    /// Adam learning rate of the translations (normalized units: the scene's bounding sphere
+    /// has radius 1).
+    pub lr_translation: f32,
+    /// Weight λ of the penalty λ(‖ω‖² + ‖τ‖²) that keeps the corrections small.
+    pub regularization: f32,
+    /// The fraction of stage 1 after which the poses are corrected (the fields first need a
+    /// rough scene to align against).
+    pub start: f32,
+}
+
+impl Default for PoseConfig {
+    fn default() -> Self {
+        PoseConfig {
+            correction: PoseCorrectionMode::Auto,
+            lr_rotation: 2e-4,
+            lr_translation: 2e-4,
+            regularization: 1e-3,
+            start: 0.1,
+        }
+    }
+}
+
 impl TrainConfig {
     /// Reads a TOML file (if given) and applies `key=value` overrides (dotted keys, TOML values;
     /// a value that does not parse as TOML is taken as a string).
@@ -407,6 +449,16 @@ impl TrainConfig {
                 "stage2.cache_pixels × stage2.cache_samples = {} × {}: at most 2^27 cached samples (4 GiB)",
                 s2.cache_pixels, s2.cache_samples
             ));
+        }
+        let p = &self.pose;
+        positive("pose.lr_rotation", p.lr_rotation, 1.0)?;
+        positive("pose.lr_translation", p.lr_translation, 1.0)?;
+        real("pose.regularization", p.regularization, 0.0, 1e4)?;
+        real("pose.start", p.start, 0.0, 1.0)?;
+        if p.correction == PoseCorrectionMode::On && !matches!(self.model.backbone, Backbone::HashGrid) {
+            return Err(
+                "pose.correction = \"on\" needs the hash-grid backbone (model.backbone = \"hash_grid\")".into(),
+            );
         }
         self.material.check()?;
         self.model.validate()

@@ -365,6 +365,18 @@ pub fn train_materials(
     }
     check_same_dataset(run, &info, data_arg, dataset)?;
     record_dataset(&mut info, data_arg, dataset);
+    // Stage 2 sees the training views where stage 1 put them (a copy of the dataset: its
+    // fingerprint, checked above, is of the poses as given).
+    let corrected;
+    let dataset = match i2sdf_model::poses::PoseCorrections::read(run)? {
+        Some(p) => {
+            let mut d = dataset.clone();
+            p.apply(&mut d, &run.poses_path())?;
+            corrected = d;
+            &corrected
+        }
+        None => dataset,
+    };
     let ckpt = run.stage2_checkpoint_path();
     if ckpt.is_file() && !resume {
         return Err(DataError::file(

@@ -8,6 +8,7 @@ pub mod kmeans;
 pub mod losses;
 pub mod memory;
 pub mod pdf_map;
+pub mod pose_correction;
 pub mod rays;
 pub mod resume;
 pub mod schedule;

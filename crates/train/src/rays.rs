@@ -21,6 +21,11 @@ pub struct TrainImage {
     pub depth: Vec<f32>,
     pub normal: Option<Vec<[f32; 3]>>,
     pub emitter: Option<Vec<f32>>,
+    /// The pose correction in use (row-major rotation about the camera centre, translation;
+    /// identity unless stage 1 corrects the poses): every ray and surface point of the image
+    /// goes through it.
+    pub rotation: [[f32; 3]; 3],
+    pub translation: [f32; 3],
 }
 
 impl TrainImage {
@@ -69,7 +74,22 @@ impl TrainImage {
             depth,
             normal,
             emitter,
+            rotation: IDENTITY,
+            translation: [0.0; 3],
         }
+    }
+
+    /// The corrected ray of a pixel: origin and unit direction, normalized frame.
+    #[inline]
+    pub fn ray(&self, pixel: usize) -> ([f32; 3], [f32; 3]) {
+        let o = self.origin;
+        let t = self.translation;
+        let d = self.dirs[pixel];
+        let r = &self.rotation;
+        (
+            [o[0] + t[0], o[1] + t[1], o[2] + t[2]],
+            std::array::from_fn(|i| r[i][0] * d[0] + r[i][1] * d[1] + r[i][2] * d[2]),
+        )
     }
 
     pub fn pixels(&self) -> usize {
@@ -79,16 +99,18 @@ impl TrainImage {
     /// The surface point seen at a pixel according to its depth (paper eq:unproj), normalized frame.
     pub fn surface_point(&self, pixel: usize) -> Option<[f32; 3]> {
         let t = self.depth[pixel];
-        (t > 0.0).then(|| {
-            let d = self.dirs[pixel];
-            [
-                self.origin[0] + t * d[0],
-                self.origin[1] + t * d[1],
-                self.origin[2] + t * d[2],
-            ]
-        })
+        (t > 0.0).then(|| self.point_along(pixel, t))
+    }
+
+    /// The point at distance `t` along a pixel's corrected ray.
+    #[inline]
+    pub fn point_along(&self, pixel: usize, t: f32) -> [f32; 3] {
+        let (o, d) = self.ray(pixel);
+        [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]
     }
 }
+
+const IDENTITY: [[f32; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
 
 /// All training images of a dataset.
 pub fn train_images(ds: &Dataset) -> Vec<TrainImage> {
@@ -141,12 +163,18 @@ impl RayBatch {
         let im = &images[image];
         self.image.push(image as u32);
         self.pixel.push(pixel as u32);
-        self.origin.push(im.origin);
-        self.dir.push(im.dirs[pixel]);
+        let (o, d) = im.ray(pixel);
+        self.origin.push(o);
+        self.dir.push(d);
         self.rgb.push(im.rgb[pixel]);
         self.depth.push(im.depth[pixel]);
         self.has_depth.push(im.depth[pixel] > 0.0);
-        let n = im.normal.as_ref().map_or([0.0; 3], |n| n[pixel]);
+        // A given normal turns with its view's correction (it was made in that view's frame).
+        let n = im.normal.as_ref().map_or([0.0; 3], |n| {
+            let n = n[pixel];
+            let r = &im.rotation;
+            std::array::from_fn(|i| r[i][0] * n[0] + r[i][1] * n[1] + r[i][2] * n[2])
+        });
         self.normal.push(n);
         self.has_normal.push(n != [0.0; 3]);
         self.emitter.push(im.emitter.as_ref().map_or(0.0, |e| e[pixel]));

@@ -13,10 +13,12 @@ use crate::config::TrainConfig;
 use crate::driver::{render_settings, StepOutcome, TrainStage};
 use crate::losses;
 use crate::pdf_map::{PdfMaps, PixelRef};
+use crate::pose_correction::PoseCorrection;
 use crate::rays::{train_images, RayBatch, TrainImage};
 use crate::resume::{DatasetFingerprint, DATASET_META};
 use crate::schedule::Phase;
 use i2sdf_data::{DataError, Dataset};
+use i2sdf_model::poses::{CorrectedView, PoseCorrections};
 use i2sdf_model::renderer::{self, RayGrads, RenderSettings, RenderWorkspace};
 use i2sdf_model::scene::{GradMut, GroupSpec, LrClass, Update, OPTIMIZER_PREFIX};
 use i2sdf_model::{NeuralScene, SceneGrads};
@@ -96,6 +98,10 @@ impl Parameters for PdfValues {
     }
 }
 
+/// The checkpoint's prefix of the pose corrections, and its metadata key saying they are there.
+pub const POSE_PREFIX: &str = "adam.pose_correction";
+const POSE_META: &str = "pose_correction";
+
 /// The checkpoint's prefix of the PDF maps, and its metadata key saying they are there.
 const PDF_PREFIX: &str = "adam.pdf_maps";
 const PDF_META: &str = "pdf_maps";
@@ -114,6 +120,11 @@ pub struct Stage1 {
     pdf: Option<PdfMaps>,
     batch: RayBatch,
     extra: Vec<f32>,
+    /// The training views' pose corrections (None: the poses are used as given).
+    pub poses: Option<PoseCorrection>,
+    /// Per training image: its frame's name, index and given pose (for `RUN/poses.json`).
+    given_poses: Vec<(String, usize, glam::DMat4)>,
+    normalization: i2sdf_data::Normalization,
     /// The training data's fingerprint (JSON), kept in every checkpoint so that a resume or a
     /// stage 2 against other data is refused.
     dataset: String,
@@ -149,9 +160,22 @@ impl Stage1 {
         let settings = render_settings(&config);
         let grads = SceneGrads::new(&scene);
         let fingerprint = serde_json::to_string(&DatasetFingerprint::of(dataset)).expect("serializes");
+        let images = train_images(dataset);
+        let hash_grid = matches!(config.model.backbone, i2sdf_model::Backbone::HashGrid);
+        let poses = PoseCorrection::new(dataset, &config.pose, hash_grid, images.len(), t.iterations);
+        let given_poses = images
+            .iter()
+            .map(|im| {
+                let f = &dataset.frames[im.frame_index];
+                (f.name.clone(), im.frame_index, f.camera.c2w)
+            })
+            .collect();
         Stage1 {
+            poses,
+            given_poses,
+            normalization: dataset.normalization,
             dataset: fingerprint,
-            images: train_images(dataset),
+            images,
             adam,
             specs,
             grads,
@@ -176,7 +200,13 @@ impl Stage1 {
         let has_pdf = meta.get(PDF_META).is_some_and(|v| v == "1");
         let mut pdf_values = PdfValues(vec![0.0; s.images.iter().map(|i| i.pixels()).sum()]);
         {
-            let Stage1 { scene, adam, specs, .. } = &mut s;
+            let Stage1 {
+                scene,
+                adam,
+                specs,
+                poses,
+                ..
+            } = &mut s;
             let prefixes: Vec<String> = specs.iter().map(|g| format!("{OPTIMIZER_PREFIX}{}", g.name)).collect();
             let mut states: Vec<AdamGroupStateMut> = adam
                 .groups
@@ -203,11 +233,19 @@ impl Stage1 {
                     required: true,
                 });
             }
+            if let Some(p) = poses {
+                slots.push(ModuleSlot {
+                    prefix: POSE_PREFIX,
+                    module: p,
+                    required: meta.get(POSE_META).is_some_and(|v| v == "1"),
+                });
+            }
             scene.load_params(checkpoint, &mut slots)?;
         }
         if has_pdf {
             s.pdf = Some(s.restore_pdf(&pdf_values.0));
         }
+        s.apply_poses();
         let get = |k: &str| -> Result<u64, DataError> {
             meta.get(k)
                 .and_then(|v| v.parse().ok())
@@ -290,8 +328,7 @@ impl Stage1 {
                 }
                 let mut err = vec![0.0f32; im.pixels()];
                 for chunk in pixels.chunks(4096) {
-                    let origins = vec![im.origin; chunk.len()];
-                    let dirs: Vec<[f32; 3]> = chunk.iter().map(|&p| im.dirs[p]).collect();
+                    let (origins, dirs): (Vec<[f32; 3]>, Vec<[f32; 3]>) = chunk.iter().map(|&p| im.ray(p)).unzip();
                     renderer::forward::<Pcg64>(&self.scene, &self.settings, &origins, &dirs, &[], &mut ws, None);
                     for (q, &p) in chunk.iter().enumerate() {
                         let e = (ws.out.depth[q] - im.depth[p]).abs();
@@ -355,10 +392,8 @@ impl Stage1 {
                 for p in &picks {
                     let im = &self.images[p.image as usize];
                     if im.surface_point(p.pixel as usize).is_some() {
-                        let (d, t) = (im.dirs[p.pixel as usize], im.depth[p.pixel as usize] + INSIDE_DEPTH);
-                        let o = im.origin;
-                        self.extra
-                            .extend_from_slice(&[o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]);
+                        let t = im.depth[p.pixel as usize] + INSIDE_DEPTH;
+                        self.extra.extend_from_slice(&im.point_along(p.pixel as usize, t));
                     }
                 }
             }
@@ -530,6 +565,7 @@ impl Stage1 {
             &mut self.grads,
         );
         self.apply_adam();
+        self.correct_poses();
         st.ms_sampling = (t1 - t0).as_secs_f32() * 1e3;
         st.ms_forward = (t2 - t1).as_secs_f32() * 1e3;
         st.ms_backward = t2.elapsed().as_secs_f32() * 1e3;
@@ -537,6 +573,31 @@ impl Stage1 {
         StepOutcome {
             stats: st,
             finite: true,
+        }
+    }
+
+    /// One step of the pose corrections from this batch's rays (after the fields' step: both
+    /// follow the same backward), then the images take the new poses.
+    fn correct_poses(&mut self) {
+        let Some(poses) = &mut self.poses else { return };
+        if !poses.active(self.iteration) {
+            return;
+        }
+        let Some(g) = renderer::ray_position_gradients(&self.scene, &self.ws) else {
+            return;
+        };
+        for (r, g) in g.iter().enumerate() {
+            poses.add_ray_gradient(self.batch.image[r] as usize, self.batch.dir[r], g[0], g[1]);
+        }
+        poses.step();
+        self.apply_poses();
+    }
+
+    /// Gives every training image its current pose correction.
+    fn apply_poses(&mut self) {
+        let Some(poses) = &self.poses else { return };
+        for (i, im) in self.images.iter_mut().enumerate() {
+            (im.rotation, im.translation) = poses.transform(i);
         }
     }
 
@@ -569,7 +630,34 @@ impl Stage1 {
             meta.push((PDF_META, "1".into()));
             extra.push((PDF_PREFIX, p as &dyn Parameters));
         }
-        self.scene.save_with(path, &meta, &extra)
+        if let Some(p) = &self.poses {
+            meta.push((POSE_META, "1".into()));
+            extra.push((POSE_PREFIX, p as &dyn Parameters));
+        }
+        self.scene.save_with(path, &meta, &extra)?;
+        if let Some(c) = self.pose_corrections() {
+            c.write(&path.with_file_name("poses.json"))?;
+        }
+        Ok(())
+    }
+
+    /// The training views' corrected poses in world units, when stage 1 corrects them.
+    pub fn pose_corrections(&self) -> Option<PoseCorrections> {
+        let poses = self.poses.as_ref()?;
+        let views = self
+            .given_poses
+            .iter()
+            .enumerate()
+            .map(|(i, (name, frame, given))| {
+                CorrectedView::new(
+                    name,
+                    *frame,
+                    *given,
+                    poses.corrected_c2w(i, *given, &self.normalization),
+                )
+            })
+            .collect();
+        Some(PoseCorrections { views })
     }
 }
 

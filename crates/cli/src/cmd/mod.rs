@@ -33,10 +33,12 @@ pub fn run_dataset(
     let dir = i2sdf_model::RunDir::new(run);
     let info = dir.read_info()?;
     let path = dir.dataset_path(&info, data)?;
-    let dataset = i2sdf_data::load(&path)?;
+    let mut dataset = i2sdf_data::load(&path)?;
     if let Some(w) = info.dataset_mismatch(&dataset, &path) {
         crate::progress::line(&w);
     }
+    // Training views as stage 1 placed them (test views keep their given poses).
+    i2sdf_model::poses::with_corrected_poses(&dir, &mut dataset)?;
     Ok((path, dataset))
 }
 
