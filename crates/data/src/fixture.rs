@@ -204,6 +204,7 @@ pub fn write_native(dir: &Path, opts: &FixtureOptions) -> Vec<Camera> {
         "w": opts.width, "h": opts.height,
         "camera_model": "OPENCV",
         "depth_unit_scale_factor": 0.001,
+        "poses_exact": true,
         "an_unknown_key": {"is": "ignored"},
         "frames": frames,
     });

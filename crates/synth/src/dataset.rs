@@ -348,6 +348,8 @@ fn transforms_json(
                   "noise": opts.depth_noise.name(), "noise_mu": mu, "noise_sigma": sigma},
         "mesh_path": "mesh.ply",
         "scene_path": "scene.toml",
+        // The renderer's own cameras: exact, so training does not correct them.
+        "poses_exact": true,
         "generator": {"name": "i2sdf synth", "preset": opts.preset, "seed": opts.seed, "spp": opts.spp,
                       "max_depth": opts.max_depth, "units": "metre", "up": "+y",
                       "estimator": estimator_json(&opts.estimator)},
