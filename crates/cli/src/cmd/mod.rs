@@ -34,11 +34,14 @@ pub fn run_dataset(
     let info = dir.read_info()?;
     let path = dir.dataset_path(&info, data)?;
     let mut dataset = i2sdf_data::load(&path)?;
-    if let Some(w) = info.dataset_mismatch(&dataset, &path) {
-        crate::progress::line(&w);
+    match info.dataset_mismatch(&dataset, &path) {
+        // Another dataset: the run's pose corrections are of other views, so none is used.
+        Some(w) => crate::progress::line(&w),
+        // Training views as stage 1 placed them (test views keep their given poses).
+        None => {
+            i2sdf_model::poses::with_corrected_poses(&dir, &mut dataset)?;
+        }
     }
-    // Training views as stage 1 placed them (test views keep their given poses).
-    i2sdf_model::poses::with_corrected_poses(&dir, &mut dataset)?;
     Ok((path, dataset))
 }
 
