@@ -108,6 +108,40 @@ fn non_finite_values() {
     assert_bad(dir.path(), &["transforms.json", "frames[1].fl_x"]);
 }
 
+/// Depth as sensors write it: a NaN depth pixel is no depth, dropped and counted (text and
+/// JSON), not a refused dataset; a 1000 m outlier falls outside the validity window.
+#[test]
+fn depth_holes_and_outliers_are_dropped_and_counted() {
+    let dir = native();
+    let (code, out, err) = check(dir.path());
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.contains("depth kept   2592 of 2592 samples, none dropped; validity window"),
+        "{out}"
+    );
+    let p = dir.path().join("depth/frame_001.exr");
+    let mut d = imageio::read_float_map(&p).unwrap();
+    d.pixel_mut(5, 7)[0] = f32::NAN;
+    d.pixel_mut(6, 7)[0] = 1000.0;
+    imageio::write_exr(&p, &d).unwrap();
+    let (code, out, err) = check(dir.path());
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.contains("2590 of 2592 samples, dropped 1 non-finite, 1 outside the validity window;"),
+        "{out}"
+    );
+    let (code, out, err) = check_with(dir.path(), &["--json"]);
+    assert_eq!(code, 0, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    let dropped = &v["depth_dropped"];
+    assert_eq!(
+        (&dropped["non_finite"], &dropped["out_of_window"], &dropped["kept"]),
+        (&Value::from(1), &Value::from(1), &Value::from(2590)),
+        "{out}"
+    );
+    assert!(v["depth_window"][1].as_f64().unwrap() > 5.0, "{out}");
+}
+
 #[test]
 fn degenerate_poses() {
     let dir = native();

@@ -2,11 +2,12 @@
 //! and the optional per-pixel annotations (z-depth in world units, world-space unit normals,
 //! emitter masks, HDR and GT material maps), plus the normalization into the unit sphere that the
 //! neural fields work in. Also the map loaders shared by the format readers, which validate size
-//! and finiteness and name the file in every error.
+//! and finiteness and name the file in every error (depth maps: `sensor_depth`).
 
 use crate::camera::Camera;
 use crate::error::{DataError, Result};
 use crate::imageio::{self, ImageF32};
+use crate::sensor_depth::DepthDropped;
 use glam::{DMat4, DVec3};
 use std::path::{Path, PathBuf};
 
@@ -171,6 +172,8 @@ pub struct Dataset {
     pub bounds: Bounds,
     pub bounds_source: BoundsSource,
     pub normalization: Normalization,
+    /// The depth samples read and why those without depth were dropped (`sensor_depth`).
+    pub depth_dropped: DepthDropped,
 }
 
 impl Dataset {
@@ -267,24 +270,6 @@ pub fn load_rgb(path: &Path, cam: &Camera) -> Result<ImageF32> {
     check_size(path, &img, cam)?;
     check_finite(path, &img)?;
     to_channels(path, img, 3, "a colour image")
-}
-
-/// A depth map: EXR (first colour channel, or the single channel) or `.npy` in world units, or a
-/// 16-bit PNG of integers times `png_scale`. Non-positive values mean "no depth" and become 0.
-pub fn load_depth(path: &Path, cam: &Camera, png_scale: f64) -> Result<ImageF32> {
-    let is_png = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
-    let img = if is_png {
-        let mut raw = imageio::read_png_raw_gray(path)?;
-        raw.data.iter_mut().for_each(|v| *v = (*v as f64 * png_scale) as f32);
-        raw
-    } else {
-        imageio::read_float_map(path)?
-    };
-    check_size(path, &img, cam)?;
-    check_finite(path, &img)?;
-    let mut img = img.channel(0);
-    img.data.iter_mut().for_each(|v| *v = v.max(0.0));
-    Ok(img)
 }
 
 /// A normal map, 3 channels. `rotation` maps the file's frame to world (identity for world-space

@@ -228,8 +228,8 @@ fn read_raster(path: &Path, bytes: &[u8]) -> Result<ImageF32> {
     Ok(ImageF32::from_data(w, h, channels, data))
 }
 
-/// Reads a 16-bit (or 8-bit) grey PNG as raw integer values (for depth PNGs scaled by
-/// `depth_unit_scale_factor`).
+/// Reads a 16-bit (or 8-bit) grey PNG as raw integer values (depth PNGs scaled by
+/// `depth_unit_scale_factor`, confidence maps).
 pub fn read_png_raw_gray(path: &Path) -> Result<ImageF32> {
     read_png_raw_gray_bytes(path, &read_all(path)?)
 }
@@ -247,7 +247,11 @@ pub fn read_png_raw_gray_bytes(path: &Path, bytes: &[u8]) -> Result<ImageF32> {
         ));
     }
     let (w, h) = (img.width() as usize, img.height() as usize);
-    let data = img.to_luma16().into_raw().into_iter().map(|v| v as f32).collect();
+    // The stored integers, whatever the bit depth: `to_luma16` would rescale 8-bit values by 257.
+    let data = match img {
+        image::DynamicImage::ImageLuma8(b) => b.into_raw().into_iter().map(f32::from).collect(),
+        other => other.to_luma16().into_raw().into_iter().map(f32::from).collect(),
+    };
     Ok(ImageF32::from_data(w, h, 1, data))
 }
 

@@ -19,6 +19,7 @@ pub mod native;
 pub mod output;
 pub mod paper;
 pub mod ply;
+pub mod sensor_depth;
 pub mod summary;
 
 pub use camera::Camera;
@@ -30,4 +31,5 @@ pub use error::DataError;
 pub use imageio::ImageF32;
 pub use lens::Lens;
 pub use mesh::TriangleMesh;
+pub use sensor_depth::DepthDropped;
 pub use summary::Summary;

@@ -6,7 +6,10 @@
 //! OpenGL convention, principal point in the pixel-centre-at-+0.5 convention (nerfstudio's).
 //! Per frame: `file_path` (LDR PNG or EXR), optional `hdr_file_path`, `depth_file_path` (z-depth in
 //! world units: EXR or `.npy` float32, or 16-bit PNG times `depth_unit_scale_factor`, default
-//! 0.001), `normal_file_path` (world-space unit normals), `emitter_mask_path`, `split`, and the GT
+//! 0.001; at the image's resolution or another one of the same aspect, mapped onto the image's
+//! pixels), `confidence_file_path` (per depth sample 0/1/2, at the depth map's resolution; samples
+//! below the top-level `depth_confidence_min`, default 1, are dropped; see `sensor_depth`),
+//! `normal_file_path` (world-space unit normals), `emitter_mask_path`, `split`, and the GT
 //! material maps `albedo_file_path`, `specular_file_path`, `roughness_file_path`. Splits come from
 //! `split`, else from nerfstudio's top-level `train_filenames` / `test_filenames`; a dataset with
 //! neither holds out every 8th frame (0, 8, 16, …) for testing. Top level, optional: `mesh_path`,
@@ -17,6 +20,7 @@
 use crate::camera::{validate_rigid, Camera, Lens};
 use crate::dataset::{self, Dataset, Format, Frame, GtEmitter, ObjectInfo, RelightSet, Split};
 use crate::error::{DataError, Result};
+use crate::sensor_depth::{self, Confidence, DepthDropped};
 use glam::DMat4;
 use rayon::prelude::*;
 use serde_json::{Map, Value};
@@ -125,15 +129,50 @@ fn opt_path(obj: &Map<String, Value>, key: &str, root: &Path, ctx: &Ctx) -> Resu
     }
 }
 
-/// Reads one frame entry: camera, image and every annotation it names.
+/// How the dataset's depth files are read: the top-level `depth_unit_scale_factor` and
+/// `depth_confidence_min`.
+#[derive(Clone, Copy)]
+struct DepthUnits {
+    png_scale: f64,
+    confidence_min: u8,
+}
+
+impl DepthUnits {
+    fn of(json_path: &Path, top: &Map<String, Value>) -> Result<DepthUnits> {
+        let png_scale = match top.get("depth_unit_scale_factor") {
+            None => 1e-3,
+            Some(v) => v
+                .as_f64()
+                .filter(|s| s.is_finite() && *s > 0.0)
+                .ok_or_else(|| DataError::field(json_path, "depth_unit_scale_factor", "not a positive number"))?,
+        };
+        let confidence_min = match top.get("depth_confidence_min") {
+            None | Some(Value::Null) => 1,
+            Some(v) => v.as_u64().filter(|c| *c <= 2).map(|c| c as u8).ok_or_else(|| {
+                DataError::field(
+                    json_path,
+                    "depth_confidence_min",
+                    format!("expected an integer 0, 1 or 2 (ARKit's low, medium, high), found {v}"),
+                )
+            })?,
+        };
+        Ok(DepthUnits {
+            png_scale,
+            confidence_min,
+        })
+    }
+}
+
+/// Reads one frame entry: camera, image and every annotation it names; also what became of its
+/// depth samples.
 fn load_frame(
     root: &Path,
     obj: &Map<String, Value>,
     top: &Map<String, Value>,
     ctx: &Ctx,
     split: Split,
-    png_depth_scale: f64,
-) -> Result<Frame> {
+    units: DepthUnits,
+) -> Result<(Frame, DepthDropped)> {
     let camera = camera_of(obj, top, ctx)?;
     let image_path = opt_path(obj, "file_path", root, ctx)?.ok_or_else(|| ctx.err("file_path", "missing"))?;
     let rgb = dataset::load_rgb(&image_path, &camera)?;
@@ -141,9 +180,21 @@ fn load_frame(
     let hdr = path("hdr_file_path")?
         .map(|p| dataset::load_rgb(&p, &camera))
         .transpose()?;
-    let depth = path("depth_file_path")?
-        .map(|p| dataset::load_depth(&p, &camera, png_depth_scale))
-        .transpose()?;
+    let confidence_path = path("confidence_file_path")?;
+    let (depth, depth_dropped) = match path("depth_file_path")? {
+        Some(p) => {
+            let confidence = confidence_path.as_deref().map(|path| Confidence {
+                path,
+                min: units.confidence_min,
+            });
+            let (depth, dropped) = sensor_depth::load_depth(&p, &camera, units.png_scale, confidence)?;
+            (Some(depth), dropped)
+        }
+        None if confidence_path.is_some() => {
+            return Err(ctx.err("confidence_file_path", "given without a depth_file_path"))
+        }
+        None => (None, DepthDropped::default()),
+    };
     let normal = path("normal_file_path")?
         .map(|p| dataset::load_normal(&p, &camera, None))
         .transpose()?;
@@ -163,7 +214,7 @@ fn load_frame(
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_default();
-    Ok(Frame {
+    let frame = Frame {
         name,
         split,
         camera,
@@ -176,7 +227,8 @@ fn load_frame(
         albedo,
         specular,
         roughness,
-    })
+    };
+    Ok((frame, depth_dropped))
 }
 
 fn normalize_name(s: &str) -> String {
@@ -234,13 +286,7 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
     if frames_json.is_empty() {
         return Err(DataError::field(&json_path, "frames", "the list is empty"));
     }
-    let png_depth_scale = match top.get("depth_unit_scale_factor") {
-        None => 1e-3,
-        Some(v) => v
-            .as_f64()
-            .filter(|s| s.is_finite() && *s > 0.0)
-            .ok_or_else(|| DataError::field(&json_path, "depth_unit_scale_factor", "not a positive number"))?,
-    };
+    let units = DepthUnits::of(&json_path, top)?;
     let train_names = filename_set(top, "train_filenames", &json_path)?;
     let test_names = filename_set(top, "test_filenames", &json_path)?;
     let any_split_key = frames_json.iter().any(|f| f.get("split").is_some());
@@ -290,13 +336,18 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
         };
         entries.push((obj, split));
     }
-    let frames = par_load(&entries, |i, (obj, split)| {
+    let mut depth_dropped = DepthDropped::default();
+    let mut frames = Vec::with_capacity(entries.len());
+    for (frame, dropped) in par_load(&entries, |i, (obj, split)| {
         let ctx = Ctx {
             json: &json_path,
             entry: format!("frames[{i}]"),
         };
-        load_frame(root, obj, top, &ctx, *split, png_depth_scale)
-    })?;
+        load_frame(root, obj, top, &ctx, *split, units)
+    })? {
+        depth_dropped.add(&dropped);
+        frames.push(frame);
+    }
     dataset::check_splits(&json_path, &frames)?;
 
     let mesh_path = match top.get("mesh_path") {
@@ -314,7 +365,7 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
         }
         Some(v) => return Err(DataError::field(&json_path, "mesh_path", format!("not a path: {v}"))),
     };
-    let relight = load_relight(root, &json_path, top, png_depth_scale)?;
+    let mut relight = load_relight(root, &json_path, top, units, &mut depth_dropped)?;
     let objects = parse_objects(&json_path, top)?;
     let ldr_transfer = top
         .get("ldr")
@@ -355,6 +406,12 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
     };
     let emitters = parse_emitters(&json_path, top)?;
     let (bounds, bounds_source, normalization) = dataset::measure_bounds(&frames);
+    let relight_frames = relight.iter_mut().flat_map(|r| r.frames.iter_mut());
+    sensor_depth::apply_validity_window(
+        frames.iter_mut().chain(relight_frames),
+        &normalization,
+        &mut depth_dropped,
+    );
     Ok(Dataset {
         root: root.to_path_buf(),
         format: Format::Native,
@@ -369,6 +426,7 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
         bounds,
         bounds_source,
         normalization,
+        depth_dropped,
     })
 }
 
@@ -376,7 +434,8 @@ fn load_relight(
     root: &Path,
     json_path: &Path,
     top: &Map<String, Value>,
-    png_depth_scale: f64,
+    units: DepthUnits,
+    depth_dropped: &mut DepthDropped,
 ) -> Result<Vec<RelightSet>> {
     let Some(list) = top.get("relight") else {
         return Ok(Vec::new());
@@ -407,13 +466,18 @@ fn load_relight(
                     .ok_or_else(|| ctx.err(&format!("frames[{i}]"), "not a JSON object"))
             })
             .collect::<Result<_>>()?;
-        let frames = par_load(&objs, |i, obj| {
+        let loaded = par_load(&objs, |i, obj| {
             let ctx = Ctx {
                 json: json_path,
                 entry: format!("relight[{k}].frames[{i}]"),
             };
-            load_frame(root, obj, top, &ctx, Split::Test, png_depth_scale)
+            load_frame(root, obj, top, &ctx, Split::Test, units)
         })?;
+        let mut frames = Vec::with_capacity(loaded.len());
+        for (frame, dropped) in loaded {
+            depth_dropped.add(&dropped);
+            frames.push(frame);
+        }
         sets.push(RelightSet { spec, frames });
     }
     Ok(sets)

@@ -3,7 +3,8 @@
 //! ```text
 //! cameras_normalize.npz   world_mat_i = K·W2C (world units), scale_mat_i, val_mat_i
 //! image/NNNN.png          LDR training images (sorted by name; index i ↔ world_mat_i)
-//! depth/NNNN.exr          z-depth in the original world units (0 = invalid)
+//! depth/NNNN.exr          z-depth in the original world units (0, non-finite or outside the
+//!                         validity window = no depth; see `sensor_depth`)
 //! normal/NNNN.exr         unit normals in OpenCV camera space (0 = invalid)
 //! light_mask/NNNN.png     emitter masks (optional)
 //! val/NNNN.png            held-out test images (↔ val_mat_i)
@@ -23,6 +24,7 @@ use crate::camera::{decompose_projection, Camera};
 use crate::dataset::{self, Dataset, Format, Frame, Split};
 use crate::error::{DataError, Result};
 use crate::imageio;
+use crate::sensor_depth::{self, DepthDropped};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -219,7 +221,7 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
         p.is_file().then_some(p)
     };
 
-    let train: Vec<Result<Frame>> = (0..images.len())
+    let train: Vec<Result<(Frame, DepthDropped)>> = (0..images.len())
         .into_par_iter()
         .map(|i| {
             let camera = cameras[i].clone();
@@ -231,10 +233,13 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
                 .into_owned();
             let rgb = dataset::load_rgb(&image_path, &camera)?;
             let rot = camera.rotation();
-            let depth = depths
-                .as_ref()
-                .map(|d| dataset::load_depth(&d[i], &camera, 1.0))
-                .transpose()?;
+            let (depth, depth_dropped) = match &depths {
+                Some(d) => {
+                    let (depth, dropped) = sensor_depth::load_depth(&d[i], &camera, 1.0, None)?;
+                    (Some(depth), dropped)
+                }
+                None => (None, DepthDropped::default()),
+            };
             let normal = normals
                 .as_ref()
                 .map(|n| dataset::load_normal(&n[i], &camera, Some(rot)))
@@ -253,7 +258,7 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
             let roughness = material(&stem, "rough")
                 .map(|p| dataset::load_float(&p, &camera, 1, "a roughness map"))
                 .transpose()?;
-            Ok(Frame {
+            let frame = Frame {
                 name: stem,
                 split: Split::Train,
                 camera,
@@ -266,7 +271,8 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
                 albedo,
                 specular,
                 roughness,
-            })
+            };
+            Ok((frame, depth_dropped))
         })
         .collect();
     let test: Vec<Result<Frame>> = (0..vals.len())
@@ -291,8 +297,16 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
             })
         })
         .collect();
-    let frames: Vec<Frame> = train.into_iter().chain(test).collect::<Result<_>>()?;
+    let mut depth_dropped = DepthDropped::default();
+    let mut frames = Vec::with_capacity(train.len() + test.len());
+    for loaded in train {
+        let (frame, dropped) = loaded?;
+        depth_dropped.add(&dropped);
+        frames.push(frame);
+    }
+    frames.extend(test.into_iter().collect::<Result<Vec<_>>>()?);
     let (bounds, bounds_source, normalization) = dataset::measure_bounds(&frames);
+    sensor_depth::apply_validity_window(&mut frames, &normalization, &mut depth_dropped);
     Ok(Dataset {
         root: root.to_path_buf(),
         format: Format::Paper,
@@ -308,6 +322,7 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
         bounds,
         bounds_source,
         normalization,
+        depth_dropped,
     })
 }
 

@@ -1,6 +1,7 @@
 //! A dataset's summary, as `i2sdf check` prints it (and as JSON with `--json`).
 
 use crate::dataset::{Bounds, BoundsSource, Dataset, Format, Normalization, Split};
+use crate::sensor_depth::{depth_window, DepthDropped};
 use std::fmt;
 
 #[derive(Clone, Debug, serde::Serialize)]
@@ -27,6 +28,10 @@ pub struct Summary {
     /// Range of valid z-depths in world units, and the fraction of pixels with depth.
     pub depth_range: Option<(f64, f64)>,
     pub depth_coverage: Option<f64>,
+    /// The depth samples read and why some were dropped; the validity window in world units
+    /// (when there is depth).
+    pub depth_dropped: DepthDropped,
+    pub depth_window: Option<(f64, f64)>,
     pub bounds: Bounds,
     pub bounds_source: BoundsSource,
     pub normalization: Normalization,
@@ -71,6 +76,8 @@ impl Summary {
             maps,
             depth_range: (valid > 0).then_some((lo, hi)),
             depth_coverage: (total > 0).then(|| valid as f64 / total as f64),
+            depth_dropped: ds.depth_dropped,
+            depth_window: (ds.depth_dropped.samples_total > 0).then(|| depth_window(&ds.normalization)),
             bounds: ds.bounds,
             bounds_source: ds.bounds_source,
             normalization: ds.normalization,
@@ -125,6 +132,30 @@ impl fmt::Display for Summary {
                 cov * 100.0
             )?,
             _ => writeln!(f, "depth        none")?,
+        }
+        if let Some((lo, hi)) = self.depth_window {
+            let d = &self.depth_dropped;
+            let reasons: Vec<String> = [
+                (d.non_finite, "non-finite"),
+                (d.non_positive, "≤ 0"),
+                (d.low_confidence, "below depth_confidence_min"),
+                (d.superseded, "superseded (depth finer than its image)"),
+                (d.out_of_window, "outside the validity window"),
+            ]
+            .iter()
+            .filter(|(n, _)| *n > 0)
+            .map(|(n, why)| format!("{n} {why}"))
+            .collect();
+            let dropped = if reasons.is_empty() {
+                "none dropped".to_string()
+            } else {
+                format!("dropped {}", reasons.join(", "))
+            };
+            writeln!(
+                f,
+                "depth kept   {} of {} samples, {dropped}; validity window {lo:.4} … {hi:.4} (world units)",
+                d.kept, d.samples_total
+            )?;
         }
         let b = &self.bounds;
         let src = match self.bounds_source {

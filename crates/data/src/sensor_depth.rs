@@ -1,0 +1,323 @@
+//! Depth as sensors write it (the README's "Dataset formats", depth): a float map in world units
+//! or a 16-bit PNG of integers times `depth_unit_scale_factor`, possibly at another resolution
+//! than its image (a phone's LiDAR grid is 256×192 beside a 1920×1440 image), possibly with a
+//! per-sample confidence map (ARKit's 0 low / 1 medium / 2 high), and with holes and outliers:
+//! NaN where the sensor saw nothing, 0 likewise, a reflection 1000 m away.
+//!
+//! Such samples are dropped ("no depth", 0 in `Frame::depth`) and counted ([`DepthDropped`])
+//! instead of refusing the dataset; the sensor grid is mapped onto the image's pixels so that
+//! `Frame::depth` keeps the image's size and nothing downstream changes. The validity window
+//! (the official I²-SDF loader's `1e-3 < depth < 6` in normalized units) is applied once the
+//! normalization is known ([`apply_validity_window`]).
+
+use crate::camera::Camera;
+use crate::dataset::{Frame, Normalization};
+use crate::error::{DataError, Result};
+use crate::imageio::{self, ImageF32};
+use std::path::Path;
+
+/// How far a depth map's aspect ratio may differ from its image's (relative) and still be mapped
+/// onto it: sensors crop a few pixels (ARKit's 256×192 is exactly 4:3, Azure Kinect modes are
+/// not quite their colour camera's), a different aspect means a different field of view.
+pub const MAX_ASPECT_MISMATCH: f64 = 0.01;
+
+/// The validity window of the official loader, `1e-3 < depth < 6`, in normalized units (times
+/// the normalization's scale in world units): nearer is sensor noise at the lens, farther is
+/// beyond the unit sphere's room (windows, mirrors, multipath).
+pub const DEPTH_WINDOW_NORMALIZED: (f64, f64) = (1e-3, 6.0);
+
+/// What happened to the depth samples of a dataset (every frame's depth map, relight frames
+/// included), counted per sensor sample: each sample is counted once, by the first reason that
+/// applies, in the order of the fields. `samples_total` = `kept` + the rest.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct DepthDropped {
+    /// Samples read from the depth files.
+    pub samples_total: u64,
+    /// Samples that became an image pixel's depth.
+    pub kept: u64,
+    /// NaN or ±∞.
+    pub non_finite: u64,
+    /// ≤ 0: the file's own "no depth".
+    pub non_positive: u64,
+    /// Below `depth_confidence_min` in the frame's confidence map.
+    pub low_confidence: u64,
+    /// Valid samples not used because another sample landed nearer to the centre of the same
+    /// image pixel (a depth map finer than its image).
+    pub superseded: u64,
+    /// Outside the validity window ([`depth_window`]), once the normalization was measured.
+    pub out_of_window: u64,
+}
+
+impl DepthDropped {
+    pub fn add(&mut self, o: &DepthDropped) {
+        self.samples_total += o.samples_total;
+        self.kept += o.kept;
+        self.non_finite += o.non_finite;
+        self.non_positive += o.non_positive;
+        self.low_confidence += o.low_confidence;
+        self.superseded += o.superseded;
+        self.out_of_window += o.out_of_window;
+    }
+}
+
+/// The validity window in world units for a normalization: depths `lo < d < hi` are kept.
+pub fn depth_window(norm: &Normalization) -> (f64, f64) {
+    let (lo, hi) = DEPTH_WINDOW_NORMALIZED;
+    (lo * norm.scale, hi * norm.scale)
+}
+
+/// A frame's confidence map and the least confidence a depth sample needs.
+#[derive(Clone, Copy, Debug)]
+pub struct Confidence<'a> {
+    pub path: &'a Path,
+    pub min: u8,
+}
+
+/// Reads a depth map (EXR or `.npy` float in world units, the first channel; or a PNG of integers
+/// times `png_scale`), drops the samples without valid depth (non-finite, ≤ 0, below the
+/// confidence minimum) and maps the sensor grid onto `cam`'s pixels ([`map_to_image`]). The
+/// result has the image's size, 0 where there is no depth. A depth map whose aspect ratio is not
+/// the image's, or a confidence map not of the depth map's size, is an error naming the file.
+pub fn load_depth(
+    path: &Path,
+    cam: &Camera,
+    png_scale: f64,
+    confidence: Option<Confidence>,
+) -> Result<(ImageF32, DepthDropped)> {
+    let is_png = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    let samples = if is_png {
+        let mut raw = imageio::read_png_raw_gray(path)?;
+        raw.data.iter_mut().for_each(|v| *v = (*v as f64 * png_scale) as f32);
+        raw
+    } else {
+        imageio::read_float_map(path)?.channel(0)
+    };
+    check_aspect(path, &samples, cam)?;
+    let conf = confidence
+        .map(|c| read_confidence(c.path, &samples).map(|values| (values, c.min)))
+        .transpose()?;
+    let mut dropped = DepthDropped {
+        samples_total: samples.data.len() as u64,
+        ..Default::default()
+    };
+    let valid: Vec<f32> = samples
+        .data
+        .iter()
+        .enumerate()
+        .map(|(k, &d)| {
+            if !d.is_finite() {
+                dropped.non_finite += 1;
+            } else if d <= 0.0 {
+                dropped.non_positive += 1;
+            } else if conf.as_ref().is_some_and(|(c, min)| c[k] < *min) {
+                dropped.low_confidence += 1;
+            } else {
+                return d;
+            }
+            0.0
+        })
+        .collect();
+    let valid = ImageF32::from_data(samples.width, samples.height, 1, valid);
+    let before = valid.data.iter().filter(|d| **d > 0.0).count() as u64;
+    let depth = map_to_image(&valid, cam.width, cam.height);
+    dropped.kept = depth.data.iter().filter(|d| **d > 0.0).count() as u64;
+    dropped.superseded = before - dropped.kept;
+    Ok((depth, dropped))
+}
+
+fn check_aspect(path: &Path, depth: &ImageF32, cam: &Camera) -> Result<()> {
+    let depth_aspect = depth.width as f64 / depth.height as f64;
+    let image_aspect = cam.width as f64 / cam.height as f64;
+    if (depth_aspect / image_aspect - 1.0).abs() > MAX_ASPECT_MISMATCH {
+        return Err(DataError::file(
+            path,
+            format!(
+                "a depth map of the wrong aspect: {}×{} against the image's {}×{} (aspect ratios \
+                 {depth_aspect:.4} and {image_aspect:.4} differ by over {} %)",
+                depth.width,
+                depth.height,
+                cam.width,
+                cam.height,
+                MAX_ASPECT_MISMATCH * 100.0
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// A confidence map: an 8-bit (or 16-bit) grey PNG or a `.npy` of integers 0, 1, 2 at the depth
+/// map's size.
+fn read_confidence(path: &Path, depth: &ImageF32) -> Result<Vec<u8>> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let img = match ext.as_str() {
+        "png" => imageio::read_png_raw_gray(path)?,
+        "npy" => imageio::read_float_map(path)?,
+        other => {
+            return Err(DataError::file(
+                path,
+                format!("unsupported confidence map format '.{other}' (expected .png or .npy)"),
+            ))
+        }
+    };
+    if img.channels != 1 {
+        return Err(DataError::file(
+            path,
+            format!("a confidence map needs 1 channel, found {}", img.channels),
+        ));
+    }
+    if (img.width, img.height) != (depth.width, depth.height) {
+        return Err(DataError::file(
+            path,
+            format!(
+                "size {}×{} does not match its depth map's {}×{}",
+                img.width, img.height, depth.width, depth.height
+            ),
+        ));
+    }
+    img.data
+        .iter()
+        .enumerate()
+        .map(|(k, &v)| match v {
+            0.0 => Ok(0),
+            1.0 => Ok(1),
+            2.0 => Ok(2),
+            _ => Err(DataError::file(
+                path,
+                format!(
+                    "confidence {v} at pixel ({}, {}): expected 0, 1 or 2 (ARKit's low, medium, high)",
+                    k % img.width,
+                    k / img.width
+                ),
+            )),
+        })
+        .collect()
+}
+
+/// Maps a depth map (1 channel, 0 = no depth) of any size onto a `width`×`height` image of the
+/// same camera. Sample (u, v) is taken at its sensor pixel centre and scaled to the image, pixel
+/// centres at +0.5: `x = (u + 0.5)·width/Ws`; it lands on the image pixel containing (x, y). Pixels
+/// no valid sample lands on have no depth; of several samples landing on one pixel (a map finer
+/// than its image), the one nearest to the pixel's centre is kept. Z-depth is along the optical
+/// axis, so a sample's value holds for the pixel it lands on as it is.
+///
+/// Nothing is interpolated or averaged: across a depth edge a blend of foreground and background
+/// (a mean, or a median of an even count) is a depth no surface has, a "flying pixel" the SDF would
+/// be pulled towards. The sample nearest to the pixel centre is a real measurement, and the one
+/// whose ray is nearest to the pixel's ray that training casts.
+pub fn map_to_image(depth: &ImageF32, width: usize, height: usize) -> ImageF32 {
+    if (depth.width, depth.height) == (width, height) {
+        return depth.clone();
+    }
+    let mut out = ImageF32::new(width, height, 1);
+    let mut best = vec![f64::INFINITY; width * height];
+    let sx = width as f64 / depth.width as f64;
+    let sy = height as f64 / depth.height as f64;
+    for v in 0..depth.height {
+        let y = (v as f64 + 0.5) * sy;
+        let j = (y.floor() as usize).min(height - 1);
+        for u in 0..depth.width {
+            let d = depth.pixel(u, v)[0];
+            if d <= 0.0 {
+                continue;
+            }
+            let x = (u as f64 + 0.5) * sx;
+            let i = (x.floor() as usize).min(width - 1);
+            let dist2 = (x - (i as f64 + 0.5)).powi(2) + (y - (j as f64 + 0.5)).powi(2);
+            let k = j * width + i;
+            if dist2 < best[k] {
+                best[k] = dist2;
+                out.data[k] = d;
+            }
+        }
+    }
+    out
+}
+
+/// Drops the depth of every pixel outside the validity window ([`depth_window`]) of `norm`, in
+/// every frame given, and counts them in `dropped` (as `out_of_window`, no longer `kept`).
+pub fn apply_validity_window<'a>(
+    frames: impl IntoIterator<Item = &'a mut Frame>,
+    norm: &Normalization,
+    dropped: &mut DepthDropped,
+) {
+    let (lo, hi) = depth_window(norm);
+    for f in frames {
+        let Some(depth) = &mut f.depth else { continue };
+        for d in depth.data.iter_mut().filter(|d| **d > 0.0) {
+            let v = *d as f64;
+            if v <= lo || v >= hi {
+                *d = 0.0;
+                dropped.out_of_window += 1;
+                dropped.kept -= 1;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid(w: usize, h: usize, f: impl Fn(usize, usize) -> f32) -> ImageF32 {
+        let mut img = ImageF32::new(w, h, 1);
+        for v in 0..h {
+            for u in 0..w {
+                img.pixel_mut(u, v)[0] = f(u, v);
+            }
+        }
+        img
+    }
+
+    #[test]
+    fn a_coarser_map_lands_each_sample_on_the_pixel_under_its_centre() {
+        // 3×2 samples onto 12×8 pixels: sample (u, v) sits at ((u+½)·4, (v+½)·4) = pixel (4u+2, 4v+2).
+        let coarse = grid(3, 2, |u, v| 1.0 + u as f32 + 10.0 * v as f32);
+        let out = map_to_image(&coarse, 12, 8);
+        for j in 0..8 {
+            for i in 0..12 {
+                let expected = if i % 4 == 2 && j % 4 == 2 {
+                    coarse.pixel(i / 4, j / 4)[0]
+                } else {
+                    0.0
+                };
+                assert_eq!(out.pixel(i, j)[0], expected, "pixel ({i}, {j})");
+            }
+        }
+    }
+
+    #[test]
+    fn a_finer_map_keeps_the_valid_sample_nearest_each_pixel_centre() {
+        // 8×4 samples onto 4×2 pixels: samples 2i and 2i+1 land on pixel i, both ¼ pixel from its
+        // centre; the first in scan order wins a tie. With the ties broken by an invalid sample,
+        // its neighbour is kept.
+        let fine = grid(8, 4, |u, v| 1.0 + u as f32 + 10.0 * v as f32);
+        let out = map_to_image(&fine, 4, 2);
+        assert_eq!(out.pixel(1, 1)[0], fine.pixel(2, 2)[0]);
+        let mut holes = fine.clone();
+        holes.pixel_mut(2, 2)[0] = 0.0;
+        let out = map_to_image(&holes, 4, 2);
+        assert_eq!(out.pixel(1, 1)[0], fine.pixel(3, 2)[0]);
+        // 3×3 samples onto one pixel: the centre sample is kept, not a mean.
+        let mut nine = grid(3, 3, |_, _| 1.0);
+        nine.pixel_mut(1, 1)[0] = 5.0;
+        assert_eq!(map_to_image(&nine, 1, 1).data, vec![5.0]);
+    }
+
+    #[test]
+    fn confidence_values_other_than_0_1_2_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let depth = grid(4, 3, |_, _| 1.0);
+        let p = dir.path().join("conf.npy");
+        imageio::write_npy(&p, &grid(4, 3, |u, _| if u == 3 { 255.0 } else { 2.0 })).unwrap();
+        let e = read_confidence(&p, &depth).unwrap_err();
+        assert!(
+            e.is_bad_input() && e.to_string().contains("conf.npy") && e.to_string().contains("(3, 0)"),
+            "{e}"
+        );
+        imageio::write_npy(&p, &grid(4, 3, |u, _| u.min(2) as f32)).unwrap();
+        assert_eq!(read_confidence(&p, &depth).unwrap()[..4], [0, 1, 2, 2]);
+    }
+}
