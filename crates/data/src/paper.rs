@@ -306,6 +306,7 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
         bounds,
         bounds_source,
         normalization,
+        colmap_scale: None,
     })
 }
 
