@@ -56,6 +56,25 @@ pub struct ScaleFix {
     pub views: usize,
 }
 
+impl ScaleFix {
+    /// Depth and model disagreeing by more than this (the ratios' spread) is said.
+    pub const SPREAD_WARNING: f64 = 0.05;
+
+    /// What to say when the ratios scatter: the depth maps and the model do not describe the same
+    /// geometry well (noisy depth, a poor reconstruction, or depth in other units per view).
+    pub fn warning(&self) -> Option<String> {
+        (self.spread > Self::SPREAD_WARNING).then(|| {
+            format!(
+                "the depth maps and the COLMAP model disagree: their depth/SfM ratios spread by {:.1} % around the \
+                 scale {:.4} (over {} observations); check the depth's units and the reconstruction",
+                100.0 * self.spread,
+                self.ratio,
+                self.samples
+            )
+        })
+    }
+}
+
 /// The folder holding the model: `sparse/0` if it has one, else `sparse`.
 pub fn model_dir(root: &Path) -> Result<PathBuf> {
     let sparse = root.join("sparse");
