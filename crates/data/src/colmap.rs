@@ -133,6 +133,13 @@ pub fn pose_c2w(qvec: [f64; 4], tvec: [f64; 3]) -> std::result::Result<DMat4, St
 /// Intrinsics (fx, fy, cx, cy) and lens of a camera, from COLMAP's parameter order per model.
 pub fn intrinsics(cam: &ColmapCamera) -> std::result::Result<(f64, f64, f64, f64, Lens), (&'static str, String)> {
     let p = &cam.params;
+    let expected = model::parameter_count(cam.model);
+    if expected != Some(p.len()) {
+        return Err((
+            "params",
+            format!("camera model {} with {} parameters", cam.model, p.len()),
+        ));
+    }
     let (fx, fy, cx, cy, coeffs): (f64, f64, f64, f64, &[(&str, f64)]) = match cam.model {
         "SIMPLE_PINHOLE" => (p[0], p[0], p[1], p[2], &[]),
         "PINHOLE" => (p[0], p[1], p[2], p[3], &[]),
@@ -437,10 +444,8 @@ pub fn load(root: &Path) -> Result<Dataset> {
             .map(|p| dataset::load_mask(&p, &camera))
             .transpose()?;
         Ok(Frame {
-            name: stem
-                .file_name()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default(),
+            // Images in subfolders (one per camera of a rig) keep the folder in their name.
+            name: stem.to_string_lossy().replace(['/', '\\'], "_"),
             split,
             camera,
             image_path,

@@ -369,3 +369,30 @@ fn depth_without_any_observed_point_is_refused() {
     std::fs::write(sparse.join("images.txt"), out.join("\n")).unwrap();
     assert_refused(dir.path(), "depth", "scale cannot be tied");
 }
+
+/// Every prefix of each binary file is refused (naming it), and no single corrupted byte makes
+/// the parser panic or allocate what the file cannot hold.
+#[test]
+fn truncations_and_corrupted_bytes_are_errors_not_panics() {
+    type Parse = fn(&Path, &[u8]) -> bool;
+    let parsers: [(&str, Parse); 3] = [
+        ("cameras.bin", |p, b| colmap::parse_cameras_bin(p, b).is_ok()),
+        ("images.bin", |p, b| colmap::parse_images_bin(p, b).is_ok()),
+        ("points3D.bin", |p, b| colmap::parse_points_bin(p, b).is_ok()),
+    ];
+    for (file, parse) in parsers {
+        let path = fixture_root("bin").join("sparse/0").join(file);
+        let bytes = std::fs::read(&path).unwrap();
+        assert!(parse(&path, &bytes), "{file}");
+        for keep in 0..bytes.len() {
+            assert!(!parse(&path, &bytes[..keep]), "{file} cut to {keep} bytes was accepted");
+        }
+        for pos in 0..bytes.len() {
+            for value in [0x00, 0x7f, 0xff] {
+                let mut b = bytes.clone();
+                b[pos] = value;
+                let _ = parse(&path, &b);
+            }
+        }
+    }
+}

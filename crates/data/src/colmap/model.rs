@@ -187,6 +187,14 @@ fn supported_model(model_id: i64) -> std::result::Result<(&'static str, usize), 
     }
 }
 
+/// The number of parameters of a supported camera model (by COLMAP's name).
+pub fn parameter_count(model: &str) -> Option<usize> {
+    CAMERA_MODELS[..SUPPORTED_MODELS]
+        .iter()
+        .find(|(n, _)| *n == model)
+        .map(|(_, n)| *n)
+}
+
 fn model_id_of_name(name: &str) -> Option<i64> {
     CAMERA_MODELS.iter().position(|(n, _)| *n == name).map(|i| i as i64)
 }
