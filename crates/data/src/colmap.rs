@@ -131,14 +131,11 @@ pub fn pose_c2w(qvec: [f64; 4], tvec: [f64; 3]) -> std::result::Result<DMat4, St
 }
 
 /// Intrinsics (fx, fy, cx, cy) and lens of a camera, from COLMAP's parameter order per model.
-pub fn intrinsics(cam: &ColmapCamera) -> std::result::Result<(f64, f64, f64, f64, Lens), (&'static str, String)> {
+pub fn intrinsics(cam: &ColmapCamera) -> std::result::Result<(f64, f64, f64, f64, Lens), String> {
     let p = &cam.params;
     let expected = model::parameter_count(cam.model);
     if expected != Some(p.len()) {
-        return Err((
-            "params",
-            format!("camera model {} with {} parameters", cam.model, p.len()),
-        ));
+        return Err(format!("camera model {} with {} parameters", cam.model, p.len()));
     }
     let (fx, fy, cx, cy, coeffs): (f64, f64, f64, f64, &[(&str, f64)]) = match cam.model {
         "SIMPLE_PINHOLE" => (p[0], p[0], p[1], p[2], &[]),
@@ -159,9 +156,10 @@ pub fn intrinsics(cam: &ColmapCamera) -> std::result::Result<(f64, f64, f64, f64
             p[3],
             &[("k1", p[4]), ("k2", p[5]), ("k3", p[6]), ("k4", p[7])],
         ),
-        other => return Err(("model", format!("camera model {other} is not supported"))),
+        other => return Err(format!("camera model {other} is not supported")),
     };
-    let lens = Lens::from_model(cam.model, |k| coeffs.iter().find(|(n, _)| *n == k).map(|(_, v)| *v))?;
+    let lens =
+        Lens::from_model(cam.model, |k| coeffs.iter().find(|(n, _)| *n == k).map(|(_, v)| *v)).map_err(|(_, m)| m)?;
     Ok((fx, fy, cx, cy, lens))
 }
 
@@ -180,7 +178,7 @@ fn camera_of(model: &ColmapModel, image: &ColmapImage, cameras_file: &Path, imag
         )
     })?;
     let camera_field = format!("camera {}", cam.id);
-    let (fx, fy, cx, cy, lens) = intrinsics(cam).map_err(|(_, m)| DataError::field(cameras_file, &camera_field, m))?;
+    let (fx, fy, cx, cy, lens) = intrinsics(cam).map_err(|m| DataError::field(cameras_file, &camera_field, m))?;
     let c2w = pose_c2w(image.qvec, image.tvec).map_err(|m| DataError::field(images_file, &image_field, m))?;
     let camera = Camera {
         width: cam.width,

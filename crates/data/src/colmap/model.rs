@@ -115,21 +115,21 @@ pub fn read_model(dir: &Path) -> Result<ColmapModel> {
     let cameras = if bin {
         parse_cameras_bin(&path, &bytes)?
     } else {
-        parse_cameras_txt(&path, &text(&path, &bytes)?)?
+        parse_cameras_txt(&path, text(&path, &bytes)?)?
     };
     let (path, bin) = pick("images")?;
     let bytes = read(&path)?;
     let images = if bin {
         parse_images_bin(&path, &bytes)?
     } else {
-        parse_images_txt(&path, &text(&path, &bytes)?)?
+        parse_images_txt(&path, text(&path, &bytes)?)?
     };
     let (path, bin) = pick("points3D")?;
     let bytes = read(&path)?;
     let points = if bin {
         parse_points_bin(&path, &bytes)?
     } else {
-        parse_points_txt(&path, &text(&path, &bytes)?)?
+        parse_points_txt(&path, text(&path, &bytes)?)?
     };
     Ok(ColmapModel {
         cameras,
