@@ -7,7 +7,7 @@ set -u
 cd "$(dirname "$0")"
 secs=${1:-180}
 [ $# -gt 0 ] && shift
-targets=${*:-"transforms_json paper_npz npy exr png ply train_config edit_spec checkpoint run_info"}
+targets=${*:-"transforms_json paper_npz colmap_model npy exr png ply train_config edit_spec checkpoint run_info"}
 bin=target/x86_64-unknown-linux-gnu/release
 mkdir -p logs
 for t in $targets; do

@@ -53,6 +53,18 @@ fn main() {
     fixture::write_paper(&paper, &opts);
     copy("paper_npz", "fixture.npz", &paper.join("cameras_normalize.npz"));
 
+    // COLMAP: the selector byte, then the file (the model pycolmap wrote for the data tests).
+    let colmap = Path::new("../crates/data/tests/fixtures/colmap");
+    for (k, file) in ["cameras.bin", "images.bin", "points3D.bin", "cameras.txt", "images.txt", "points3D.txt"]
+        .iter()
+        .enumerate()
+    {
+        let dir = if k < 3 { colmap.join("bin/sparse/0") } else { colmap.join("txt/sparse") };
+        let mut bytes = vec![k as u8];
+        bytes.extend(std::fs::read(dir.join(file)).unwrap());
+        put("colmap_model", file, &bytes);
+    }
+
     let img3 = ImageF32::from_data(4, 3, 3, (0..36).map(|i| i as f32 / 36.0).collect());
     let img1 = ImageF32::from_data(4, 3, 1, (0..12).map(|i| i as f32 / 12.0).collect());
     let p = tmp.path().join("m.npy");

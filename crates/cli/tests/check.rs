@@ -282,3 +282,128 @@ fn training_memory_is_estimated_and_warned_about() {
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("stage2.pixels"), "{err}");
 }
+
+/// A COLMAP dataset: the summary says how its scale was fixed (text and JSON), and bad input in
+/// its model exits 2 naming the file.
+#[test]
+fn colmap_datasets_print_their_scale_fix() {
+    let dir = tempfile::tempdir().unwrap();
+    fixture::write_colmap(dir.path(), &FixtureOptions::default(), 0.25);
+    let (code, out, err) = check(dir.path());
+    assert_eq!(code, 0, "{err}");
+    for needle in [
+        "COLMAP sparse model",
+        "4 train, 2 test",
+        "scale        COLMAP model ×",
+        "depth 6/6",
+    ] {
+        assert!(out.contains(needle), "expected '{needle}' in:\n{out}");
+    }
+    let (code, out, err) = check_with(dir.path(), &["--json"]);
+    assert_eq!(code, 0, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["format"], "Colmap");
+    let ratio = v["colmap_scale"]["ratio"].as_f64().unwrap();
+    assert!((ratio * 0.25 - 1.0).abs() < 0.01, "{ratio}");
+    assert!(v["colmap_scale"]["samples"].as_u64().unwrap() > 100);
+
+    let cameras = dir.path().join("sparse/0/cameras.txt");
+    let text = std::fs::read_to_string(&cameras).unwrap();
+    std::fs::write(&cameras, text.replacen("PINHOLE", "FULL_OPENCV", 1)).unwrap();
+    assert_bad(dir.path(), &["cameras.txt", "FULL_OPENCV"]);
+}
+
+/// Item 5 of issue 24: a synthesized room exported as a COLMAP dataset (text model at another
+/// scale, its images, 16-bit millimetre depth, masks, test.txt) loads with the cameras of its
+/// transforms.json, the scale recovered from the depth.
+#[test]
+fn a_synth_room_exported_to_colmap_loads_with_its_cameras() {
+    let dir = tempfile::tempdir().unwrap();
+    let room = dir.path().join("room");
+    let out = Command::new(env!("CARGO_BIN_EXE_i2sdf"))
+        .args([
+            "synth", "--width", "40", "--height", "30", "--views", "12", "--spp", "4", "--out",
+        ])
+        .arg(&room)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let native = i2sdf_data::load(&room).unwrap();
+
+    let model_scale = 0.23;
+    let colmap = dir.path().join("colmap");
+    let (mut views, mut points, mut test_list) = (Vec::new(), Vec::new(), String::new());
+    for f in &native.frames {
+        let file = f.image_path.file_name().unwrap().to_string_lossy().into_owned();
+        std::fs::create_dir_all(colmap.join("images")).unwrap();
+        std::fs::copy(&f.image_path, colmap.join("images").join(&file)).unwrap();
+        let depth = f.depth.as_ref().expect("synth rooms have depth");
+        let mm: Vec<u16> = depth.data.iter().map(|d| (d * 1000.0).round() as u16).collect();
+        let stem = file.trim_end_matches(".png");
+        imageio::write_png16_raw(
+            &colmap.join(format!("depth/{stem}.png")),
+            depth.width,
+            depth.height,
+            1,
+            &mm,
+        )
+        .unwrap();
+        if let Some(mask) = &f.emitter_mask {
+            imageio::write_png(&colmap.join(format!("masks/{stem}.png")), mask).unwrap();
+        }
+        if f.split == i2sdf_data::Split::Test {
+            test_list.push_str(&format!("{file}\n"));
+        }
+        for j in (0..f.camera.height).step_by(3) {
+            for i in (0..f.camera.width).step_by(3) {
+                let d = depth.pixel(i, j)[0] as f64;
+                if d > 0.0 {
+                    points.push(f.camera.backproject(i, j, d) * model_scale);
+                }
+            }
+        }
+        let mut cam = f.camera.clone();
+        cam.c2w.w_axis = (f.camera.center() * model_scale).extend(1.0);
+        views.push((file, cam));
+    }
+    fixture::write_colmap_text(&colmap.join("sparse/0"), &views, &points);
+    std::fs::write(colmap.join("test.txt"), test_list).unwrap();
+
+    let ds = i2sdf_data::load(&colmap).unwrap();
+    let fix = ds.colmap_scale.unwrap();
+    let err = (fix.ratio * model_scale - 1.0).abs();
+    println!(
+        "synth room via COLMAP: ratio {:.6} (true {:.6}), error {err:.2e}, spread {:.2e}, {} samples",
+        fix.ratio,
+        1.0 / model_scale,
+        fix.spread,
+        fix.samples
+    );
+    assert!(err < 0.01, "{fix:?}");
+    assert_eq!(ds.frames.len(), native.frames.len());
+    let (lo, hi) = (native.bounds.min, native.bounds.max);
+    let extent = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
+    for (a, b) in ds.frames.iter().zip(&native.frames) {
+        assert_eq!((&a.name, a.split), (&b.name, b.split));
+        assert_eq!(
+            (a.camera.fx, a.camera.fy, a.camera.cx, a.camera.cy),
+            (b.camera.fx, b.camera.fy, b.camera.cx, b.camera.cy)
+        );
+        // transforms.json holds f32 rotations, orthonormal to ~1e-7: the quaternion makes them exact.
+        assert!(a.camera.rotation().abs_diff_eq(b.camera.rotation(), 1e-6), "{}", a.name);
+        let off = (a.camera.center() - b.camera.center()).length();
+        assert!(
+            off < 0.01 * extent,
+            "{}: centre off by {off} (room extent {extent})",
+            a.name
+        );
+        assert_eq!(a.rgb.data, b.rgb.data);
+    }
+    let n = (ds.normalization.scale / native.normalization.scale - 1.0).abs();
+    assert!(
+        n < 0.02,
+        "normalization scale {} vs {}",
+        ds.normalization.scale,
+        native.normalization.scale
+    );
+}

@@ -40,6 +40,8 @@ pub enum Format {
     Native,
     /// The paper's VolSDF/IDR-style release (`cameras_normalize.npz`).
     Paper,
+    /// A COLMAP sparse model (`sparse/0/{cameras,images,points3D}.{bin,txt}`) with `images/`.
+    Colmap,
 }
 
 /// One view with its annotations. Maps are `None` when the dataset does not provide them.
@@ -145,6 +147,8 @@ pub enum BoundsSource {
     Depth,
     /// Camera centres only (no depth), enlarged: a guess.
     Cameras,
+    /// A structure-from-motion point cloud (COLMAP's points3D) and the camera centres (no depth).
+    SfmPoints,
 }
 
 #[derive(Clone, Debug)]
@@ -174,6 +178,9 @@ pub struct Dataset {
     pub normalization: Normalization,
     /// The depth samples read and why those without depth were dropped (`sensor_depth`).
     pub depth_dropped: DepthDropped,
+    /// How a COLMAP model's arbitrary scale was tied to its depth maps' units (None: not a COLMAP
+    /// dataset, or one without depth, which stays in COLMAP's units).
+    pub colmap_scale: Option<crate::colmap::ScaleFix>,
 }
 
 impl Dataset {
@@ -185,8 +192,9 @@ impl Dataset {
     }
 }
 
-/// Reads the dataset in `dir`, detecting its format: `transforms.json` (native) or
-/// `cameras_normalize.npz` / `cameras.npz` (paper release).
+/// Reads the dataset in `dir`, detecting its format: `transforms.json` (native),
+/// `cameras_normalize.npz` / `cameras.npz` (paper release) or a `sparse/` folder (COLMAP), in that
+/// order (a folder converted to `transforms.json` from its COLMAP model is read as converted).
 pub fn load(dir: &Path) -> Result<Dataset> {
     if dir.is_file() {
         let hint = match dir.file_name().and_then(|n| n.to_str()) {
@@ -205,10 +213,13 @@ pub fn load(dir: &Path) -> Result<Dataset> {
         crate::native::load(dir)
     } else if dir.join("cameras_normalize.npz").is_file() || dir.join("cameras.npz").is_file() {
         crate::paper::load(dir)
+    } else if dir.join("sparse").is_dir() {
+        crate::colmap::load(dir)
     } else {
         Err(DataError::file(
             dir,
-            "not a dataset: neither transforms.json (native format) nor cameras_normalize.npz (paper format) found",
+            "not a dataset: neither transforms.json (native format), cameras_normalize.npz (paper format) nor \
+             sparse/ (a COLMAP model) found",
         ))
     }
 }
@@ -336,6 +347,13 @@ pub fn load_float(path: &Path, cam: &Camera, channels: usize, what: &str) -> Res
 /// normalization: centre of the box, scale so the box's circumscribed sphere, enlarged by 5 %,
 /// becomes the unit sphere.
 pub fn measure_bounds(frames: &[Frame]) -> (Bounds, BoundsSource, Normalization) {
+    measure_bounds_with_points(frames, &[])
+}
+
+/// [`measure_bounds`] for a dataset that also has a structure-from-motion point cloud (world
+/// units): without depth, the points and camera centres give the extent (robustly: 1–99 % per
+/// axis, as SfM clouds carry stray points) instead of a guess from the cameras alone.
+pub fn measure_bounds_with_points(frames: &[Frame], sfm_points: &[DVec3]) -> (Bounds, BoundsSource, Normalization) {
     let mut pts: Vec<DVec3> = frames.iter().map(|f| f.camera.center()).collect();
     let mut depth_pts = 0usize;
     for f in frames {
@@ -354,6 +372,9 @@ pub fn measure_bounds(frames: &[Frame]) -> (Bounds, BoundsSource, Normalization)
     }
     let source = if depth_pts > 0 {
         BoundsSource::Depth
+    } else if !sfm_points.is_empty() {
+        pts.extend_from_slice(sfm_points);
+        BoundsSource::SfmPoints
     } else {
         BoundsSource::Cameras
     };
@@ -362,7 +383,11 @@ pub fn measure_bounds(frames: &[Frame]) -> (Bounds, BoundsSource, Normalization)
     for a in 0..3 {
         let mut v: Vec<f64> = pts.iter().map(|p| p[a]).collect();
         v.sort_by(|x, y| x.total_cmp(y));
-        let lo = if depth_pts > 1000 { v.len() / 1000 } else { 0 };
+        let lo = match source {
+            BoundsSource::Depth if depth_pts > 1000 => v.len() / 1000,
+            BoundsSource::SfmPoints if sfm_points.len() > 100 => v.len() / 100,
+            _ => 0,
+        };
         let hi = v.len() - 1 - lo;
         min[a] = v[lo];
         max[a] = v[hi];

@@ -33,7 +33,7 @@ pub struct ExposureEstimate {
 }
 
 /// The median and the median relative deviation of `ratios` (reordered).
-fn median_and_spread(ratios: &mut [f64]) -> (f64, f64) {
+pub(crate) fn median_and_spread(ratios: &mut [f64]) -> (f64, f64) {
     let mid = ratios.len() / 2;
     let median = *ratios.select_nth_unstable_by(mid, f64::total_cmp).1;
     let mut dev: Vec<f64> = ratios.iter().map(|r| (r / median - 1.0).abs()).collect();

@@ -304,3 +304,119 @@ pub fn write_paper(dir: &Path, opts: &FixtureOptions) -> Vec<Camera> {
     drop(npz); // finishes the zip archive
     cams
 }
+
+/// Writes a COLMAP text model into `sparse_dir`: one camera per view (PINHOLE, OPENCV or
+/// OPENCV_FISHEYE by its lens), each view's world-to-camera pose and, for every point, an
+/// observation in each view it projects into (at that projection). Cameras and points are taken
+/// as they are (in the model's units). Written from COLMAP's documented text layout, independently
+/// of the loader.
+pub fn write_colmap_text(sparse_dir: &Path, views: &[(String, Camera)], points: &[DVec3]) {
+    use crate::camera::Lens;
+    use std::fmt::Write;
+    std::fs::create_dir_all(sparse_dir).unwrap();
+    let mut cameras = String::from("# Camera list with one line of data per camera:\n");
+    let mut images = String::from("# Image list with two lines of data per image:\n");
+    let mut tracks: Vec<Vec<(usize, usize)>> = vec![Vec::new(); points.len()];
+    for (k, (name, cam)) in views.iter().enumerate() {
+        let (model, extra) = match cam.lens {
+            Lens::Pinhole => ("PINHOLE", vec![]),
+            Lens::BrownConrady { k1, k2, k3, p1, p2 } => {
+                assert_eq!(k3, 0.0, "COLMAP's OPENCV model has no k3");
+                ("OPENCV", vec![k1, k2, p1, p2])
+            }
+            Lens::Fisheye { k1, k2, k3, k4 } => ("OPENCV_FISHEYE", vec![k1, k2, k3, k4]),
+        };
+        let params: Vec<String> = [cam.fx, cam.fy, cam.cx, cam.cy]
+            .iter()
+            .chain(&extra)
+            .map(|v| format!("{v:?}"))
+            .collect();
+        writeln!(
+            cameras,
+            "{} {model} {} {} {}",
+            k + 1,
+            cam.width,
+            cam.height,
+            params.join(" ")
+        )
+        .unwrap();
+        let r_w2c = DMat3::from_mat4(cam.c2w).transpose();
+        let q = glam::DQuat::from_mat3(&r_w2c);
+        let t = -(r_w2c * cam.center());
+        writeln!(
+            images,
+            "{} {:?} {:?} {:?} {:?} {:?} {:?} {:?} {} {name}",
+            k + 1,
+            q.w,
+            q.x,
+            q.y,
+            q.z,
+            t.x,
+            t.y,
+            t.z,
+            k + 1
+        )
+        .unwrap();
+        let mut obs = Vec::new();
+        for (p_idx, p) in points.iter().enumerate() {
+            let Some((u, v, _)) = cam.project(*p) else { continue };
+            if u >= 0.0 && v >= 0.0 && u < cam.width as f64 && v < cam.height as f64 {
+                tracks[p_idx].push((k + 1, obs.len()));
+                obs.push(format!("{u:?} {v:?} {}", p_idx + 1));
+            }
+        }
+        writeln!(images, "{}", obs.join(" ")).unwrap();
+    }
+    let mut pts = String::from("# 3D point list with one line of data per point:\n");
+    for (p_idx, p) in points.iter().enumerate() {
+        let track: Vec<String> = tracks[p_idx].iter().map(|(i, o)| format!("{i} {o}")).collect();
+        writeln!(
+            pts,
+            "{} {:?} {:?} {:?} 128 128 128 0.5 {}",
+            p_idx + 1,
+            p.x,
+            p.y,
+            p.z,
+            track.join(" ")
+        )
+        .unwrap();
+    }
+    std::fs::write(sparse_dir.join("cameras.txt"), cameras).unwrap();
+    std::fs::write(sparse_dir.join("images.txt"), images).unwrap();
+    std::fs::write(sparse_dir.join("points3D.txt"), pts).unwrap();
+}
+
+/// Writes the fixture as a COLMAP dataset into `dir`: `images/`, `depth/` (in `opts.depth`'s
+/// format, world units: PNGs in millimetres), `masks/`, a `test.txt` naming the test views, and a
+/// text model in `sparse/0/` whose coordinates are the world's times `model_scale` (COLMAP's scale
+/// is arbitrary: the loader must find 1 / `model_scale` from the depth). The 3D points are room
+/// surface points seen through a grid of pixels of every view. Returns the true cameras (world
+/// units; train first, then test).
+pub fn write_colmap(dir: &Path, opts: &FixtureOptions, model_scale: f64) -> Vec<Camera> {
+    let cams = cameras(opts);
+    let mut views = Vec::new();
+    let mut points = Vec::new();
+    let mut test_list = String::new();
+    for (k, cam) in cams.iter().enumerate() {
+        let name = format!("frame_{k:03}");
+        let maps = render(cam, cam.cx, cam.cy, 0.5);
+        imageio::write_png(&dir.join("images").join(format!("{name}.png")), &maps.rgb).unwrap();
+        write_depth(&dir.join("depth").join(&name), &maps.depth, opts.depth);
+        imageio::write_png(&dir.join("masks").join(format!("{name}.png")), &maps.mask).unwrap();
+        if k >= opts.train_views {
+            test_list.push_str(&format!("{name}.png\n"));
+        }
+        for j in (1..cam.height).step_by(4) {
+            for i in (1..cam.width).step_by(4) {
+                let (o, d, _) = cam.ray(i as f64 + 0.25, j as f64 + 0.75);
+                points.push((o + d * room_hit(o, d).0) * model_scale);
+            }
+        }
+        let mut model_cam = cam.clone();
+        model_cam.c2w.w_axis = (cam.center() * model_scale).extend(1.0);
+        views.push((format!("{name}.png"), model_cam));
+    }
+    write_colmap_text(&dir.join("sparse").join("0"), &views, &points);
+    std::fs::write(dir.join("test.txt"), test_list).unwrap();
+    cams
+}

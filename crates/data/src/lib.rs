@@ -1,10 +1,11 @@
-//! i2sdf datasets: the native nerfstudio-style format and the paper's release format, read into one
-//! internal scene (OpenCV cameras, world-space normals, z-depth, a normalization into the unit
-//! sphere), with every file validated on load. Also the image/array I/O every other crate uses.
+//! i2sdf datasets: the native nerfstudio-style format, the paper's release format and COLMAP sparse
+//! models, read into one internal scene (OpenCV cameras, world-space normals, z-depth, a
+//! normalization into the unit sphere), with every file validated on load. Also the image/array I/O every other crate uses.
 
 pub mod animation;
 pub mod camera;
 pub mod camera_path;
+pub mod colmap;
 pub mod dataset;
 pub mod edit_assets;
 pub mod edit_spec;

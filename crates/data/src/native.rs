@@ -258,7 +258,7 @@ fn filename_set(top: &Map<String, Value>, key: &str, json: &Path) -> Result<Opti
 
 /// Runs `f` over items in parallel and returns the results in order, or the first error in order
 /// (so the message a user sees does not depend on thread timing).
-fn par_load<T: Sync, R: Send>(items: &[T], f: impl Fn(usize, &T) -> Result<R> + Sync) -> Result<Vec<R>> {
+pub(crate) fn par_load<T: Sync, R: Send>(items: &[T], f: impl Fn(usize, &T) -> Result<R> + Sync) -> Result<Vec<R>> {
     let results: Vec<Result<R>> = items.par_iter().enumerate().map(|(i, t)| f(i, t)).collect();
     results.into_iter().collect()
 }
@@ -427,6 +427,7 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
         bounds_source,
         normalization,
         depth_dropped,
+        colmap_scale: None,
     })
 }
 

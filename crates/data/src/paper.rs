@@ -323,6 +323,7 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
         bounds_source,
         normalization,
         depth_dropped,
+        colmap_scale: None,
     })
 }
 

@@ -1,5 +1,6 @@
 //! A dataset's summary, as `i2sdf check` prints it (and as JSON with `--json`).
 
+use crate::colmap::ScaleFix;
 use crate::dataset::{Bounds, BoundsSource, Dataset, Format, Normalization, Split};
 use crate::sensor_depth::{depth_window, DepthDropped};
 use std::fmt;
@@ -36,6 +37,8 @@ pub struct Summary {
     pub bounds_source: BoundsSource,
     pub normalization: Normalization,
     pub ldr_transfer: String,
+    /// How a COLMAP model's scale was tied to its depth maps (None otherwise).
+    pub colmap_scale: Option<ScaleFix>,
     pub mesh_path: Option<String>,
     pub relight_sets: Vec<(String, usize)>,
 }
@@ -82,6 +85,7 @@ impl Summary {
             bounds_source: ds.bounds_source,
             normalization: ds.normalization,
             ldr_transfer: ds.ldr_transfer.clone(),
+            colmap_scale: ds.colmap_scale,
             mesh_path: ds.mesh_path.as_ref().map(|p| p.display().to_string()),
             relight_sets: ds
                 .relight
@@ -97,6 +101,7 @@ impl fmt::Display for Summary {
         let format = match self.format {
             Format::Native => "native (transforms.json)",
             Format::Paper => "paper release (cameras_normalize.npz)",
+            Format::Colmap => "COLMAP sparse model (sparse/)",
         };
         let n = self.train_views + self.test_views;
         writeln!(f, "dataset      {}", self.root)?;
@@ -161,6 +166,7 @@ impl fmt::Display for Summary {
         let src = match self.bounds_source {
             BoundsSource::Depth => "from depth and cameras",
             BoundsSource::Cameras => "from cameras only (no depth): a guess",
+            BoundsSource::SfmPoints => "from the SfM points and cameras (no depth)",
         };
         writeln!(
             f,
@@ -173,6 +179,19 @@ impl fmt::Display for Summary {
             "normalized   x_n = (x − [{:.4}, {:.4}, {:.4}]) / {:.4}  (scene inside the unit sphere)",
             c[0], c[1], c[2], self.normalization.scale
         )?;
+        match (self.format, &self.colmap_scale) {
+            (_, Some(s)) => writeln!(
+                f,
+                "scale        COLMAP model × {:.6} into the depth's units (median of {} depth/SfM ratios in {} views, \
+                 spread {:.2} %)",
+                s.ratio,
+                s.samples,
+                s.views,
+                100.0 * s.spread
+            )?,
+            (Format::Colmap, None) => writeln!(f, "scale        COLMAP's own units (no depth to fix them)")?,
+            _ => {}
+        }
         writeln!(f, "ldr          {}", self.ldr_transfer)?;
         writeln!(f, "mesh         {}", self.mesh_path.as_deref().unwrap_or("–"))?;
         if self.relight_sets.is_empty() {

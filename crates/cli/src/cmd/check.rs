@@ -10,7 +10,8 @@ use std::path::PathBuf;
 
 #[derive(ClapArgs)]
 pub struct Args {
-    /// Dataset directory: transforms.json (native format) or cameras_normalize.npz (paper format).
+    /// Dataset directory: transforms.json (native format), cameras_normalize.npz (paper format) or a
+    /// COLMAP model in sparse/ with images/ (COLMAP format).
     #[arg(long)]
     pub data: PathBuf,
     /// Print the summary as one JSON object instead of text.
@@ -86,6 +87,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("ok");
     }
     for w in &radiometry_warnings {
+        eprintln!("warning: {w}");
+    }
+    if let Some(w) = dataset.colmap_scale.and_then(|s| s.warning()) {
         eprintln!("warning: {w}");
     }
     if let Some(w) = warning {
