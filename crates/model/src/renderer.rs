@@ -315,6 +315,63 @@ pub fn forward_with_samples(
     }
 }
 
+/// Per ray, the distance of the sample where the volume-rendering weight peaks (the surface the
+/// ray renders), for rays whose opacity reaches `min_opacity` (else `None`), from the samples
+/// [`sample`] placed in `ws`: an SDF inference at them, nothing kept for a backward (the points
+/// are detached). Stage 1 takes its smoothness and bubble points there when the dataset has no
+/// depth.
+pub fn peak_weight_distances(
+    scene: &NeuralScene,
+    origins: &[[f32; 3]],
+    dirs: &[[f32; 3]],
+    ws: &RenderWorkspace,
+    min_opacity: f32,
+) -> Vec<Option<f32>> {
+    let set = &ws.samples;
+    let rays = origins.len();
+    let n = set.t.len();
+    let mut points = Vec::with_capacity(n * 3);
+    for r in 0..rays {
+        let (o, d) = (origins[r], dirs[r]);
+        for &t in &set.t[set.ray_offsets[r] as usize..set.ray_offsets[r + 1] as usize] {
+            points.extend_from_slice(&[o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]);
+        }
+    }
+    const CHUNK: usize = 4096;
+    let mut sdf = vec![0.0f32; n];
+    sdf.par_chunks_mut(CHUNK)
+        .zip(points.par_chunks(CHUNK * 3))
+        .for_each_init(SdfInferWorkspace::default, |sws, (out, pts)| {
+            scene.sdf.infer(pts, sws, out, None, None)
+        });
+    let mut sigma = vec![0.0f32; n];
+    laplace_density_batch(&sdf, scene.beta.value(), &mut sigma);
+    let (mut weights, mut depth, mut opacity) = (vec![0.0f32; n], vec![0.0f32; rays], vec![0.0f32; rays]);
+    composite_batch(
+        &PackedSamples {
+            ray_offsets: &set.ray_offsets,
+            t: &set.t,
+            delta: &set.delta,
+            sigma: &sigma,
+            channels: &[],
+            num_channels: 0,
+        },
+        CompositeOutputs {
+            channels: &mut [],
+            depth: &mut depth,
+            opacity: &mut opacity,
+            weights: &mut weights,
+        },
+    );
+    (0..rays)
+        .map(|r| {
+            let range = set.ray_offsets[r] as usize..set.ray_offsets[r + 1] as usize;
+            let peak = range.clone().max_by(|&a, &b| weights[a].total_cmp(&weights[b]))?;
+            (opacity[r] >= min_opacity).then_some(set.t[peak])
+        })
+        .collect()
+}
+
 /// Upstream gradients of a [`forward`]'s per-ray outputs.
 pub struct RayGrads<'a> {
     pub rgb: &'a [f32],

@@ -6,6 +6,7 @@
 //! RUN/run.json                   dataset path, normalization, per-stage progress and timings
 //! RUN/checkpoint.safetensors     fields + optimizer state, written atomically
 //! RUN/log.jsonl                  one JSON object of losses per logged step
+//! RUN/emitter_masks/NAME.png     emitter masks found from the images (datasets without them)
 //! ```
 //!
 //! The configuration is stored as TOML text: its type (the trainer's `TrainConfig`) lives above
@@ -169,6 +170,11 @@ impl RunDir {
     pub fn log_path(&self) -> PathBuf {
         self.root.join("log.jsonl")
     }
+    /// `RUN/emitter_masks/`: the emitter masks training found from the images, one PNG per
+    /// training view (`i2sdf_train::maps`), which every later session of the run reads back.
+    pub fn emitter_masks_dir(&self) -> PathBuf {
+        self.root.join("emitter_masks")
+    }
 
     pub fn exists(&self) -> bool {
         self.info_path().is_file()
@@ -202,7 +208,7 @@ impl RunDir {
 
     /// The files of this run that no other command may write ([`i2sdf_data::output::RUN_FILES`]
     /// lists their names for the output checks).
-    pub fn own_files(&self) -> [PathBuf; 6] {
+    pub fn own_files(&self) -> [PathBuf; 7] {
         [
             self.info_path(),
             self.config_path(),
@@ -210,6 +216,7 @@ impl RunDir {
             self.stage2_checkpoint_path(),
             self.log_path(),
             self.emitters_path(),
+            self.emitter_masks_dir(),
         ]
     }
 

@@ -265,6 +265,7 @@ fn progress_events<'a, T>(
             bar.set_position(iteration);
         }
         Event::Pause(what) => bar.set_message(format!("{what}…")),
+        Event::Note(line) => crate::progress::line(&line),
         Event::Step { iteration, stats, .. } => {
             bar.set_position(iteration + 1);
             if iteration % 10 == 0 {
