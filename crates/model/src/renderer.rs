@@ -315,12 +315,13 @@ pub fn forward_with_samples(
     }
 }
 
-/// Per ray, the distance of the sample where the volume-rendering weight peaks (the surface the
-/// ray renders), for rays whose opacity reaches `min_opacity` (else `None`), from the samples
-/// [`sample`] placed in `ws`: an SDF inference at them, nothing kept for a backward (the points
-/// are detached). Stage 1 takes its smoothness and bubble points there when the dataset has no
-/// depth.
-pub fn peak_weight_distances(
+/// Per ray, the distance of the sample where the ray's termination density T(t)·σ(t) peaks (the
+/// surface the ray renders: the first it meets, where an expected depth would average a thin
+/// object with the wall behind it), for rays whose opacity reaches `min_opacity` (else `None`),
+/// from the samples [`sample`] placed in `ws`: an SDF inference at them, nothing kept for a
+/// backward (the points are detached). Stage 1 takes its smoothness and bubble points there when
+/// the dataset has no depth.
+pub fn rendered_surface_distances(
     scene: &NeuralScene,
     origins: &[[f32; 3]],
     dirs: &[[f32; 3]],
@@ -365,9 +366,19 @@ pub fn peak_weight_distances(
     );
     (0..rays)
         .map(|r| {
+            // The peak of the termination density T(t)·σ(t), not of the weights: a weight is that
+            // density times its interval, and the intervals vary tenfold along a ray.
             let range = set.ray_offsets[r] as usize..set.ray_offsets[r + 1] as usize;
-            let peak = range.clone().max_by(|&a, &b| weights[a].total_cmp(&weights[b]))?;
-            (opacity[r] >= min_opacity).then_some(set.t[peak])
+            let mut transmittance = 1.0f32;
+            let (mut best, mut peak) = (f32::NEG_INFINITY, None);
+            for i in range {
+                let density = transmittance * sigma[i];
+                if density > best {
+                    (best, peak) = (density, Some(set.t[i]));
+                }
+                transmittance -= weights[i];
+            }
+            peak.filter(|_| opacity[r] >= min_opacity)
         })
         .collect()
 }
@@ -615,6 +626,8 @@ mod tests {
         assert!(checked > 10);
     }
 
+    /// The expected depth and the peak of the termination density (`rendered_surface_distances`) both
+    /// lie at the SDF's zero crossing.
     #[test]
     fn rendered_depth_is_the_sdf_zero_crossing() {
         let s = scene();
@@ -624,6 +637,10 @@ mod tests {
         let mut ws = RenderWorkspace::default();
         let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
         forward(&s, &settings, &o, &d, &[], &mut ws, Some(&mut rng));
+        let peaks = rendered_surface_distances(&s, &o, &d, &ws, 0.5);
+        assert!(rendered_surface_distances(&s, &o, &d, &ws, 1.01)
+            .iter()
+            .all(Option::is_none));
         let mut q = crate::SceneQuery::new(&s);
         for r in 0..3 {
             // The initial field is an inverted sphere (free space inside): bisect its zero crossing.
@@ -650,6 +667,8 @@ mod tests {
                 ws.out.depth[r]
             );
             assert!(ws.out.opacity[r] > 0.99);
+            let peak = peaks[r].expect("an opaque ray has a peak");
+            assert!((peak - lo).abs() < beta, "peak {peak} vs zero crossing {lo}");
             // Inverted sphere: the surface normal (∇d) points inwards, against the ray.
             let dot: f32 = (0..3).map(|c| ws.out.normal[r * 3 + c] * d[r][c]).sum();
             assert!(dot < -0.8, "normal {:?}", ws.out.normal);

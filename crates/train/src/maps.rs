@@ -269,7 +269,7 @@ impl TrainingMaps {
             depth,
             match depth {
                 0 => {
-                    "no depth loss; smoothness and bubble points from the rendered surface (peak weight along each ray)"
+                    "no depth loss; smoothness and bubble points on the rendered surface (where each ray's termination density peaks)"
                         .into()
                 }
                 n if n == views => "depth loss, bubble points, smoothness".into(),

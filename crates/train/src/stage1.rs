@@ -8,8 +8,9 @@
 //! depth surface); one forward of the renderer over rays and points; the losses and their
 //! gradients; one backward; Adam. A dataset without depth has no depth loss and no PDF maps: its
 //! bubble points and smoothness pairs lie on the surface the batch's rays render (each ray's
-//! peak-weight sample, detached), so that neither term goes silently inert. Stage 1 is a [`TrainStage`]: the shared driver seeds each
-//! iteration's RNG, skips non-finite steps and writes the checkpoints.
+//! sample where the termination density peaks, detached), so that neither term goes silently
+//! inert. Stage 1 is a [`TrainStage`]: the shared driver seeds each iteration's RNG, skips
+//! non-finite steps and writes the checkpoints.
 
 use crate::config::TrainConfig;
 use crate::driver::{render_settings, StepOutcome, TrainStage};
@@ -62,6 +63,10 @@ pub struct StepStats {
     pub samples_per_ray: f32,
     /// Pixels the PDF maps can currently draw from (bubble step).
     pub pdf_active: usize,
+    /// Bubble points and smoothness pairs of the step (on the depth surface, or without depth
+    /// on the rendered one).
+    pub bubble_points: usize,
+    pub smooth_pairs: usize,
     /// The step produced a non-finite loss and was skipped.
     pub skipped: bool,
     /// Milliseconds spent placing samples, in the forward, and in backward + Adam.
@@ -353,7 +358,8 @@ impl Stage1 {
         self.batch.sample_uniform(&self.images, t.rays, rng);
         let t0 = std::time::Instant::now();
         // Without depth the surface each ray renders stands in for its depth's: the samples are
-        // placed first and each ray's peak-weight distance read off them (detached).
+        // placed first and each ray's surface read off them (where its termination density peaks;
+        // detached).
         let rendered = (self.no_depth && (w.bubble > 0.0 || w.smooth > 0.0)).then(|| {
             renderer::sample(
                 &self.scene,
@@ -363,7 +369,7 @@ impl Stage1 {
                 &mut self.ws,
                 Some(&mut *rng),
             );
-            renderer::peak_weight_distances(
+            renderer::rendered_surface_distances(
                 &self.scene,
                 &self.batch.origin,
                 &self.batch.dir,
@@ -472,6 +478,8 @@ impl Stage1 {
             iteration: self.iteration,
             phase: Some(phase),
             beta: self.scene.beta.value(),
+            bubble_points: n_bub,
+            smooth_pairs: n_smooth,
             ..Default::default()
         };
         st.rgb = losses::rgb_l1(&pred_rgb, &self.batch.rgb, w.rgb, &mut g_rgb);
