@@ -308,29 +308,30 @@ impl TrainingMaps {
             }
             (_, 0) => "emitter loss, stage 2's emitters".to_string(),
             (policy, _) => {
-                let how =
-                    match &self.detection {
-                        Some(d) => {
-                            format!(
-                        " ({}{}, {} pieces kept, {} dropped as too small, {} as not bright from the other views)",
-                        match d.hdr_threshold {
-                            Some(t) => format!("HDR luminance over {t:.3}"),
+                let how = match &self.detection {
+                    Some(d) => {
+                        let test = match d.hdr_threshold {
+                            Some(t) => format!("HDR luminance > {t:.3}"),
                             None => "saturated LDR".into(),
-                        },
-                        if d.multi_view { "" } else { ", no depth: no multi-view check" },
-                        d.kept,
-                        d.dropped_small,
-                        d.dropped_inconsistent
-                    )
-                        }
-                        None => String::new(),
-                    };
+                        };
+                        let views = if d.multi_view {
+                            format!(", {} dropped as dark from other views", d.dropped_inconsistent)
+                        } else {
+                            "; no depth: no cross-view check".into()
+                        };
+                        format!(
+                            " ({test}; {} pieces kept, {} dropped as small{views})",
+                            d.kept, d.dropped_small
+                        )
+                    }
+                    None => String::new(),
+                };
                 let which = if policy == EmitterMasks::Images {
                     " (maps.emitter_masks = \"images\")"
                 } else {
                     ""
                 };
-                format!("found from the images{which}: {found} views, {found_px} px in {with_emitters} of them{how}")
+                format!("found from the images{which}: {found_px} px in {with_emitters} of {found} views{how}")
             }
         };
         match &self.masks_in_run {
@@ -442,7 +443,7 @@ mod tests {
         let lines: Vec<String> = maps.describe(&bare).iter().map(|l| l.to_string()).collect();
         assert!(lines[1].starts_with("normals: absent → no normal loss"), "{}", lines[1]);
         assert!(
-            lines[2].starts_with("emitter masks: absent → found from the images: 4 views, 0 px"),
+            lines[2].starts_with("emitter masks: absent → found from the images: 0 px in 0 of 4 views"),
             "{}",
             lines[2]
         );
