@@ -133,3 +133,69 @@ fn without_depth_bubble_and_smoothness_points_lie_on_the_rendered_surface() {
         "mean |d| {mean} over the scene, {worst} at the bubble points"
     );
 }
+
+/// A run on data without emitter masks writes the masks it finds into the run, says so, and its
+/// stage 2 (another session) reads the same masks back from there.
+#[test]
+fn a_run_writes_its_found_masks_and_stage_2_reads_them_back() {
+    use i2sdf_model::run_dir::RunDir;
+    use i2sdf_train::driver::{train_geometry, train_materials, Event};
+    let (_dir, mut ds) = common::dataset();
+    for f in ds.frames.iter_mut() {
+        f.emitter_mask = None;
+        // A lamp in the top left corner of every view: bright, but each view's is another spot
+        // of the room, so the cross-view check drops all but what no other view refutes.
+        for j in 0..3 {
+            for i in 0..3 {
+                f.rgb.pixel_mut(i, j).copy_from_slice(&[1.0; 3]);
+            }
+        }
+    }
+    let runs = tempfile::tempdir().unwrap();
+    let run = RunDir::new(&runs.path().join("run"));
+    let config = TrainConfig::load(
+        None,
+        &[
+            "train.iterations=3".into(),
+            "train.rays=64".into(),
+            "stage2.iterations=2".into(),
+            "stage2.pixels=64".into(),
+            "stage2.cache_pixels=256".into(),
+            "stage2.cache_samples=4".into(),
+            "stage2.bake_resolution=16".into(),
+        ],
+    )
+    .unwrap();
+    let mut notes = Vec::new();
+    train_geometry(&run, &ds, "fixture", Some(config), false, |e| {
+        if let Event::Note(line) = e {
+            notes.push(line)
+        }
+    })
+    .unwrap();
+    let written = i2sdf_data::output::entries(&run.emitter_masks_dir());
+    assert_eq!(written.len(), 6, "{written:?}");
+    let said = notes
+        .iter()
+        .find(|l| l.starts_with("emitter masks: absent → found from the images"));
+    assert!(said.is_some_and(|l| l.contains("written to")), "{notes:?}");
+    let first = TrainingMaps::for_run(&run, &ds, &TrainConfig::default()).unwrap();
+    notes.clear();
+    train_materials(&run, &ds, "fixture", None, false, &|_| {}, |e| {
+        if let Event::Note(line) = e {
+            notes.push(line)
+        }
+    })
+    .unwrap();
+    assert!(
+        notes
+            .iter()
+            .any(|l| l.starts_with("emitter masks") && l.contains("read back from")),
+        "{notes:?}"
+    );
+    // What stage 2 used is what stage 1 wrote, bit for bit.
+    let again = TrainingMaps::for_run(&run, &ds, &TrainConfig::default()).unwrap();
+    for (k, f) in ds.frames.iter().enumerate().filter(|(_, f)| f.split == Split::Train) {
+        assert_eq!(first.emitter_mask(k, f), again.emitter_mask(k, f));
+    }
+}
