@@ -62,8 +62,9 @@ pub enum EmitterMasks {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Normals {
-    /// The dataset's where it has them, else none (the measured better of the two fallbacks;
-    /// the README's "Missing maps").
+    /// The dataset's where it has them, else derived from depth where that exists: as good as
+    /// the true normals on a synthetic room, where no normal loss lost 0.08 F-score (the README's
+    /// "Missing maps").
     #[default]
     Auto,
     /// The dataset's, required of every training view.

@@ -3,7 +3,8 @@
 //! - emitter masks (`maps.emitter_masks`): the dataset's, else found from the images
 //!   ([`i2sdf_data::emitter_detect`]); they supervise stage 1's F_e and make stage 2's emitters;
 //! - normal maps (`maps.normals`): the dataset's, else derived from depth
-//!   ([`i2sdf_data::depth_normals`]) or none; they supervise stage 1's normal loss;
+//!   ([`i2sdf_data::depth_normals`]; measured as good as the true normals on a synthetic room,
+//!   where no normal loss lost 0.08 F-score) or none; they supervise stage 1's normal loss;
 //! - depth: without it stage 1 has no depth loss and no error-guided sampling, and takes its
 //!   smoothness and bubble points from the rendered surface (`crate::stage1`);
 //! - HDR: stage 2 fits the LDR images instead (`crate::targets`).
@@ -242,7 +243,8 @@ impl TrainingMaps {
         };
         match self.normal_policy {
             Normals::Off => None,
-            Normals::Dataset | Normals::Auto => frame.normal.as_ref().map(Cow::Borrowed),
+            Normals::Dataset => frame.normal.as_ref().map(Cow::Borrowed),
+            Normals::Auto => frame.normal.as_ref().map(Cow::Borrowed).or_else(derived),
             Normals::Depth => derived(),
         }
     }
@@ -284,8 +286,16 @@ impl TrainingMaps {
                 (Normals::Depth, _) => {
                     format!("derived from depth ({depth} views) for the normal loss (maps.normals = \"depth\")")
                 }
-                (_, 0) => "no normal loss (maps.normals = \"depth\" derives them from depth)".into(),
                 (_, n) if n == views => "normal loss".into(),
+                (Normals::Auto, n) => {
+                    let derived = count(&|f| f.normal.is_none() && f.depth.is_some());
+                    match (n, derived) {
+                        (0, 0) => "no normal loss (no depth to derive them from)".into(),
+                        (0, d) => format!("derived from depth ({d} views) for the normal loss"),
+                        (_, 0) => "normal loss where given".into(),
+                        (_, d) => format!("normal loss; derived from depth for {d} views without"),
+                    }
+                }
                 _ => "normal loss where given".into(),
             },
         ));
@@ -439,15 +449,20 @@ mod tests {
         // The fixture's ceiling patch is not bright: found, and empty.
         let found = maps.emitter_mask(k, f).expect("a found mask");
         assert!(found.data.iter().all(|v| *v == 0.0) && maps.detection.is_some());
-        assert!(maps.normal(f).is_none());
+        assert!(matches!(maps.normal(f), Some(Cow::Owned(_))));
         let lines: Vec<String> = maps.describe(&bare).iter().map(|l| l.to_string()).collect();
-        assert!(lines[1].starts_with("normals: absent → no normal loss"), "{}", lines[1]);
+        assert_eq!(
+            lines[1],
+            "normals: absent → derived from depth (4 views) for the normal loss"
+        );
         assert!(
             lines[2].starts_with("emitter masks: absent → found from the images: 0 px in 0 of 4 views"),
             "{}",
             lines[2]
         );
 
+        let off = TrainingMaps::prepare(&bare, &config(&["maps.normals=off"])).unwrap();
+        assert!(off.normal(&full.frames[k]).is_none());
         let maps = TrainingMaps::prepare(&bare, &config(&["maps.normals=depth", "maps.emitter_masks=off"])).unwrap();
         let n = maps.normal(f).expect("derived normals");
         // The fixture is a box room: every derived normal is an axis, as the dataset's were.
