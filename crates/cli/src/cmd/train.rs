@@ -232,7 +232,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let (surface, emitter) = stage.counts();
         if stage.fields.emitters.is_empty() {
             crate::progress::line(&format!(
-                "warning: stage 2 found no emitters: no training pixel's emitter probability passed stage2.emitter_threshold = {} (does the dataset have emitter masks?). The re-render has no direct light, relight ops have nothing to change, and relit renders in edit, eval and the report are black",
+                "warning: stage 2 found no emitters: no training pixel's emitter probability passed stage2.emitter_threshold = {} (F_e learns from the emitter masks said above: are there any?). The re-render has no direct light, relight ops have nothing to change, and relit renders in edit, eval and the report are black",
                 run_threshold(&run)
             ));
         }
