@@ -504,7 +504,7 @@ mod tests {
         let e = file(&run.join("run.json"), true).check().unwrap_err();
         assert!(e.to_string().contains("run's own file"), "{e}");
         // Nor inside the run's own folders.
-        let e = file(&run.join("emitter_masks").join("a.png"), true)
+        let e = file(&run.join("emitter_masks").join("a.json"), true)
             .check()
             .unwrap_err();
         assert!(e.to_string().contains("run's own file"), "{e}");
