@@ -207,12 +207,19 @@ impl TrainingMaps {
     }
 
     /// Writes the found masks into `dir`, which is created; each file atomically, the folder
-    /// itself last (built aside and renamed), so a killed session leaves none or all of them.
+    /// itself last (built aside and renamed), so a killed session leaves none or all of them (and
+    /// the folder it was building aside, removed here by the next).
     fn write_masks(&self, dir: &Path, dataset: &Dataset) -> Result<(), DataError> {
-        let aside = dir.with_extension(format!("{}.partial", std::process::id()));
-        if aside.exists() {
-            std::fs::remove_dir_all(&aside).map_err(|e| DataError::io(&aside, format!("cannot clear: {e}")))?;
+        let name = dir.file_name().and_then(|n| n.to_str()).unwrap_or("emitter_masks");
+        if let Some(parent) = dir.parent() {
+            for stale in i2sdf_data::output::entries(parent) {
+                if stale.starts_with(&format!("{name}.")) && stale.ends_with(".partial") {
+                    let p = parent.join(&stale);
+                    std::fs::remove_dir_all(&p).map_err(|e| DataError::io(&p, format!("cannot clear: {e}")))?;
+                }
+            }
         }
+        let aside = dir.with_extension(format!("{}.partial", std::process::id()));
         std::fs::create_dir_all(&aside).map_err(|e| DataError::io(&aside, format!("cannot create: {e}")))?;
         for (i, mask) in self.found.iter().enumerate() {
             if let Some(mask) = mask {
@@ -497,9 +504,13 @@ mod tests {
         }
         let run_dir = tempfile::tempdir().unwrap();
         let run = RunDir::new(run_dir.path());
+        // What a session killed while writing them left aside.
+        let stale = run_dir.path().join("emitter_masks.1.partial");
+        std::fs::create_dir(&stale).unwrap();
+        std::fs::write(stale.join("0000.png"), b"torn").unwrap();
         let c = config(&["maps.emitter_masks=images"]);
         let first = TrainingMaps::for_run(&run, &ds, &c).unwrap();
-        assert!(matches!(first.masks_in_run, Some(MasksInRun::Written(_))));
+        assert!(matches!(first.masks_in_run, Some(MasksInRun::Written(_))) && !stale.exists());
         let again = TrainingMaps::for_run(&run, &ds, &c).unwrap();
         assert!(matches!(again.masks_in_run, Some(MasksInRun::Read(_))) && again.detection.is_none());
         for (k, f) in train_frames(&ds) {
