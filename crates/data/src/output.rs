@@ -27,9 +27,9 @@ pub const DATASET_MARKERS: [&str; 3] = ["transforms.json", "cameras_normalize.np
 /// The file that makes a folder a training run (`RunDir`'s `run.json`).
 pub const RUN_MARKER: &str = "run.json";
 
-/// A run's own files, which no command but `train` writes (`RunDir`'s paths; its test keeps the
-/// two lists equal).
-pub const RUN_FILES: [&str; 7] = [
+/// A run's own files and folders, which no command but `train` writes (`RunDir`'s paths; its
+/// test keeps the two lists equal).
+pub const RUN_FILES: [&str; 8] = [
     "poses.json",
     "run.json",
     "config.toml",
@@ -37,6 +37,7 @@ pub const RUN_FILES: [&str; 7] = [
     "stage2.safetensors",
     "log.jsonl",
     "emitters.json",
+    "emitter_masks",
 ];
 
 /// Room kept free beyond an output's estimated size (file-system metadata, the temporaries).
@@ -91,6 +92,14 @@ pub fn is_dataset(dir: &Path) -> bool {
 /// Whether `dir` is a training run's folder.
 pub fn is_run(dir: &Path) -> bool {
     dir.join(RUN_MARKER).is_file()
+}
+
+/// Whether `abs` is one of a run's own files or folders ([`RUN_FILES`]) or lies inside one.
+fn in_run_own(abs: &Path) -> bool {
+    abs.ancestors().any(|a| {
+        let name = a.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        RUN_FILES.contains(&name) && a.parent().is_some_and(is_run)
+    })
 }
 
 /// The dataset folder that `path` is or lies inside, if any.
@@ -244,14 +253,11 @@ impl OutputFile<'_> {
         let abs = absolute(path);
         check_outside_datasets(flag, path, &abs)?;
         check_inputs(flag, &abs, self.inputs)?;
-        if let Some(parent) = abs.parent() {
-            let name = abs.file_name().and_then(|n| n.to_str()).unwrap_or("");
-            if is_run(parent) && RUN_FILES.contains(&name) {
-                return Err(DataError::invalid(format!(
-                    "{flag} {}: is the run's own file; only `train` writes it",
-                    path.display()
-                )));
-            }
+        if in_run_own(&abs) {
+            return Err(DataError::invalid(format!(
+                "{flag} {}: is the run's own file; only `train` writes it",
+                path.display()
+            )));
         }
         if path.exists() && !self.force {
             return Err(DataError::invalid(format!(
@@ -305,6 +311,12 @@ impl OutputDir<'_> {
         if is_run(&abs) {
             return Err(DataError::invalid(format!(
                 "{flag} {}: is a training run; choose a folder of its own (a new subfolder of the run is fine)",
+                path.display()
+            )));
+        }
+        if in_run_own(&abs) {
+            return Err(DataError::invalid(format!(
+                "{flag} {}: is the run's own folder; only `train` writes it",
                 path.display()
             )));
         }
@@ -492,6 +504,11 @@ mod tests {
         std::fs::write(run.join("run.json"), "{}").unwrap();
         let e = file(&run.join("run.json"), true).check().unwrap_err();
         assert!(e.to_string().contains("run's own file"), "{e}");
+        // Nor inside the run's own folders.
+        let e = file(&run.join("emitter_masks").join("a.json"), true)
+            .check()
+            .unwrap_err();
+        assert!(e.to_string().contains("run's own file"), "{e}");
         // A new file inside a run is fine.
         assert!(file(&run.join("metrics.json"), false).check().is_ok());
         assert!(!run.join("metrics.json").exists());
@@ -607,6 +624,8 @@ mod tests {
         };
         assert!(check(&run, &[]).unwrap_err().to_string().contains("is a training run"));
         assert!(check(&run.join("render"), &[]).is_ok());
+        let e = check(&run.join("emitter_masks"), &[]).unwrap_err().to_string();
+        assert!(e.contains("run's own folder"), "{e}");
         let spec = dir.path().join("spec");
         std::fs::create_dir(&spec).unwrap();
         assert!(check(&spec, &[&spec])

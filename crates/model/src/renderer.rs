@@ -315,6 +315,74 @@ pub fn forward_with_samples(
     }
 }
 
+/// Per ray, the distance of the sample where the ray's termination density T(t)·σ(t) peaks (the
+/// surface the ray renders: the first it meets, where an expected depth would average a thin
+/// object with the wall behind it), for rays whose opacity reaches `min_opacity` (else `None`),
+/// from the samples [`sample`] placed in `ws`: an SDF inference at them, nothing kept for a
+/// backward (the points are detached). Stage 1 takes its smoothness and bubble points there when
+/// the dataset has no depth.
+pub fn rendered_surface_distances(
+    scene: &NeuralScene,
+    origins: &[[f32; 3]],
+    dirs: &[[f32; 3]],
+    ws: &RenderWorkspace,
+    min_opacity: f32,
+) -> Vec<Option<f32>> {
+    let set = &ws.samples;
+    let rays = origins.len();
+    let n = set.t.len();
+    let mut points = Vec::with_capacity(n * 3);
+    for r in 0..rays {
+        let (o, d) = (origins[r], dirs[r]);
+        for &t in &set.t[set.ray_offsets[r] as usize..set.ray_offsets[r + 1] as usize] {
+            points.extend_from_slice(&[o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]);
+        }
+    }
+    const CHUNK: usize = 4096;
+    let mut sdf = vec![0.0f32; n];
+    sdf.par_chunks_mut(CHUNK)
+        .zip(points.par_chunks(CHUNK * 3))
+        .for_each_init(SdfInferWorkspace::default, |sws, (out, pts)| {
+            scene.sdf.infer(pts, sws, out, None, None)
+        });
+    let mut sigma = vec![0.0f32; n];
+    laplace_density_batch(&sdf, scene.beta.value(), &mut sigma);
+    let (mut weights, mut depth, mut opacity) = (vec![0.0f32; n], vec![0.0f32; rays], vec![0.0f32; rays]);
+    composite_batch(
+        &PackedSamples {
+            ray_offsets: &set.ray_offsets,
+            t: &set.t,
+            delta: &set.delta,
+            sigma: &sigma,
+            channels: &[],
+            num_channels: 0,
+        },
+        CompositeOutputs {
+            channels: &mut [],
+            depth: &mut depth,
+            opacity: &mut opacity,
+            weights: &mut weights,
+        },
+    );
+    (0..rays)
+        .map(|r| {
+            // The peak of the termination density T(t)·σ(t), not of the weights: a weight is that
+            // density times its interval, and the intervals vary tenfold along a ray.
+            let range = set.ray_offsets[r] as usize..set.ray_offsets[r + 1] as usize;
+            let mut transmittance = 1.0f32;
+            let (mut best, mut peak) = (f32::NEG_INFINITY, None);
+            for i in range {
+                let density = transmittance * sigma[i];
+                if density > best {
+                    (best, peak) = (density, Some(set.t[i]));
+                }
+                transmittance -= weights[i];
+            }
+            peak.filter(|_| opacity[r] >= min_opacity)
+        })
+        .collect()
+}
+
 /// Upstream gradients of a [`forward`]'s per-ray outputs.
 pub struct RayGrads<'a> {
     pub rgb: &'a [f32],
@@ -648,6 +716,8 @@ mod tests {
         assert!(checked > 10);
     }
 
+    /// The expected depth and the peak of the termination density (`rendered_surface_distances`) both
+    /// lie at the SDF's zero crossing.
     #[test]
     fn rendered_depth_is_the_sdf_zero_crossing() {
         let s = scene();
@@ -657,6 +727,10 @@ mod tests {
         let mut ws = RenderWorkspace::default();
         let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
         forward(&s, &settings, &o, &d, &[], &mut ws, Some(&mut rng));
+        let peaks = rendered_surface_distances(&s, &o, &d, &ws, 0.5);
+        assert!(rendered_surface_distances(&s, &o, &d, &ws, 1.01)
+            .iter()
+            .all(Option::is_none));
         let mut q = crate::SceneQuery::new(&s);
         for r in 0..3 {
             // The initial field is an inverted sphere (free space inside): bisect its zero crossing.
@@ -683,6 +757,8 @@ mod tests {
                 ws.out.depth[r]
             );
             assert!(ws.out.opacity[r] > 0.99);
+            let peak = peaks[r].expect("an opaque ray has a peak");
+            assert!((peak - lo).abs() < beta, "peak {peak} vs zero crossing {lo}");
             // Inverted sphere: the surface normal (∇d) points inwards, against the ray.
             let dot: f32 = (0..3).map(|c| ws.out.normal[r * 3 + c] * d[r][c]).sum();
             assert!(dot < -0.8, "normal {:?}", ws.out.normal);

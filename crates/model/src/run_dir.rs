@@ -7,6 +7,7 @@
 //! RUN/checkpoint.safetensors     fields + optimizer state, written atomically
 //! RUN/log.jsonl                  one JSON object of losses per logged step
 //! RUN/poses.json                 the training views' corrected poses (when stage 1 corrects them)
+//! RUN/emitter_masks/NAME.png     emitter masks found from the images (datasets without them)
 //! ```
 //!
 //! The configuration is stored as TOML text: its type (the trainer's `TrainConfig`) lives above
@@ -174,6 +175,11 @@ impl RunDir {
     pub fn log_path(&self) -> PathBuf {
         self.root.join("log.jsonl")
     }
+    /// `RUN/emitter_masks/`: the emitter masks training found from the images, one PNG per
+    /// training view (`i2sdf_train::maps`), which every later session of the run reads back.
+    pub fn emitter_masks_dir(&self) -> PathBuf {
+        self.root.join("emitter_masks")
+    }
 
     pub fn exists(&self) -> bool {
         self.info_path().is_file()
@@ -207,7 +213,7 @@ impl RunDir {
 
     /// The files of this run that no other command may write ([`i2sdf_data::output::RUN_FILES`]
     /// lists their names for the output checks).
-    pub fn own_files(&self) -> [PathBuf; 7] {
+    pub fn own_files(&self) -> [PathBuf; 8] {
         [
             self.poses_path(),
             self.info_path(),
@@ -216,6 +222,7 @@ impl RunDir {
             self.stage2_checkpoint_path(),
             self.log_path(),
             self.emitters_path(),
+            self.emitter_masks_dir(),
         ]
     }
 

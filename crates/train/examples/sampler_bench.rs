@@ -11,6 +11,7 @@ use i2sdf_model::{NeuralScene, RunDir};
 use i2sdf_render::volume::deltas_from_t;
 use i2sdf_train::config::TrainConfig;
 use i2sdf_train::driver::render_settings;
+use i2sdf_train::maps::TrainingMaps;
 use i2sdf_train::rays::train_images;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -44,7 +45,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     let (scene, _) = NeuralScene::load(&run.checkpoint_path())?;
-    let images = train_images(&dataset);
+    let images = train_images(&dataset, &TrainingMaps::prepare(&dataset, &config)?);
     let mut rng = Pcg64::seed_from_u64(7);
     let (mut origins, mut dirs) = (Vec::new(), Vec::new());
     for _ in 0..rays {

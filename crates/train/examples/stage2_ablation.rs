@@ -14,6 +14,7 @@ use i2sdf_model::{NeuralScene, RunDir};
 use i2sdf_render::Ray;
 use i2sdf_train::config::TrainConfig;
 use i2sdf_train::driver::{read_run_config, TrainStage, Trainer};
+use i2sdf_train::maps::TrainingMaps;
 use i2sdf_train::stage2::{radiometry, target_views, Stage2};
 use std::time::Instant;
 
@@ -39,7 +40,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let first = config_of(&variants[0])?;
     let (scene, _) = NeuralScene::load(&run.checkpoint_path())?;
     let t0 = Instant::now();
-    let views = target_views(&dataset, first.stage2.use_hdr);
+    let maps = TrainingMaps::for_run(&run, &dataset, &first)?;
+    let views = target_views(&dataset, first.stage2.use_hdr, &maps);
     let mut stage = Stage2::new(first.clone(), scene, &views, radiometry(&dataset), None, &|m| {
         eprintln!("{m}")
     })?;

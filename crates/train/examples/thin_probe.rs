@@ -17,6 +17,7 @@ use i2sdf_nn::sdf::SdfInferWorkspace;
 use i2sdf_synth::scene::{Geometry, SceneDesc};
 use i2sdf_train::config::TrainConfig;
 use i2sdf_train::driver::render_settings;
+use i2sdf_train::maps::TrainingMaps;
 use i2sdf_train::rays::train_images;
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
@@ -73,7 +74,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (scene, _) = NeuralScene::load(&run.checkpoint_path())?;
     let norm = &dataset.normalization;
     let scale = norm.scale as f32;
-    let images = train_images(&dataset);
+    let images = train_images(&dataset, &TrainingMaps::prepare(&dataset, &config)?);
     let total: usize = images.iter().map(|i| i.pixels()).sum();
     // The thin and suspended shapes, grouped by object.
     let (objects, object_of) = desc.objects();

@@ -25,6 +25,8 @@ pub struct TrainConfig {
     pub material: MaterialConfig,
     /// Stage 1's per-camera pose correction.
     pub pose: PoseConfig,
+    /// What training does for each map the dataset may lack (`crate::maps`).
+    pub maps: MapsConfig,
 }
 
 impl Default for TrainConfig {
@@ -39,8 +41,50 @@ impl Default for TrainConfig {
             stage2: Stage2Config::default(),
             material: MaterialConfig::default(),
             pose: PoseConfig::default(),
+            maps: MapsConfig::default(),
         }
     }
+}
+
+/// Where the emitter masks of training come from (`maps.emitter_masks`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EmitterMasks {
+    /// The dataset's where it has them, else found from the images (`i2sdf_data::emitter_detect`).
+    #[default]
+    Auto,
+    /// The dataset's, required of every training view.
+    Dataset,
+    /// Found from the images for every training view, the dataset's ignored.
+    Images,
+    /// None: no emitter loss in stage 1, no emitters in stage 2.
+    Off,
+}
+
+/// Where the normal maps of stage 1's normal loss come from (`maps.normals`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Normals {
+    /// The dataset's where it has them, else derived from depth where that exists: as good as
+    /// the true normals on a synthetic room, where no normal loss lost 0.08 F-score (the README's
+    /// "Missing maps").
+    #[default]
+    Auto,
+    /// The dataset's, required of every training view.
+    Dataset,
+    /// Derived from the depth maps for every training view (`i2sdf_data::depth_normals`), the
+    /// dataset's ignored.
+    Depth,
+    /// None: no normal loss.
+    Off,
+}
+
+/// What training does for each map the dataset may lack; the maps in force are `crate::maps`'.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MapsConfig {
+    pub emitter_masks: EmitterMasks,
+    pub normals: Normals,
 }
 
 /// Which Monte Carlo estimator of eq:render stage 2 fits the materials with.

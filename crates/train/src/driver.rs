@@ -6,6 +6,7 @@
 //! time in `run.json`; progress events for the CLI. The CLI only displays them.
 
 use crate::config::TrainConfig;
+use crate::maps::TrainingMaps;
 use crate::resume::{append_record, check_config, check_dataset, repair};
 use crate::stage1::{Stage1, StepStats};
 use crate::stage2::{radiometry, target_views, Stage2, Stage2Stats};
@@ -127,6 +128,8 @@ pub enum Event<'a, T> {
     },
     /// A slow step is about to run.
     Pause(&'static str),
+    /// A line the user should read before training starts (what each map of the dataset does).
+    Note(String),
     Checkpoint {
         iteration: u64,
     },
@@ -309,24 +312,30 @@ pub fn open_run(
 }
 
 /// Runs (or resumes) stage 1 into `run`. On resume the configuration is the run's own unless
-/// `config` is given (the CLI applies `--set` overrides on top of the run's).
+/// `config` is given (the CLI applies `--set` overrides on top of the run's). The maps in force
+/// (`TrainingMaps::for_run`: emitter masks found from the images are written into the run, or read
+/// back from it) are said first, one [`Event::Note`] per map.
 pub fn train_geometry(
     run: &RunDir,
     dataset: &Dataset,
     data_arg: &str,
     config: Option<TrainConfig>,
     resume: bool,
-    on_event: impl FnMut(Event<StepStats>),
+    mut on_event: impl FnMut(Event<StepStats>),
 ) -> Result<Stage1, DataError> {
     let (config, mut info) = open_run(run, dataset, data_arg, config, resume)?;
+    let maps = TrainingMaps::for_run(run, dataset, &config)?;
+    for line in maps.describe(dataset) {
+        on_event(Event::Note(line.to_string()));
+    }
     let options = DriveOptions {
         checkpoint_every: config.train.checkpoint_every,
         log_every: config.train.log_every,
     };
     let stage = if resume && run.checkpoint_path().is_file() {
-        Stage1::resume(dataset, config, &run.checkpoint_path())?
+        Stage1::resume(dataset, config, &maps, &run.checkpoint_path())?
     } else {
-        Stage1::new(dataset, config)
+        Stage1::new(dataset, config, &maps)
     };
     let mut trainer = Trainer::new(stage);
     drive(run, &mut info, &mut trainer, options, on_event)?;
@@ -339,8 +348,9 @@ pub fn train_geometry(
 /// stage 2 has a checkpoint). Refused, as bad input, when stage 1 has not finished, when the
 /// data or the configuration is not the run's, or when stage 2 has a checkpoint already and
 /// `resume` is not set. Writes `RUN/emitters.json` once the emitters are clustered and again at
-/// the end. `progress` hears the slow setup steps. `None`: stage 2 had finished already (with
-/// `resume`; nothing is written).
+/// the end. `progress` hears the slow setup steps; the emitter masks and HDR images in force are
+/// said first ([`Event::Note`]; masks found from the images are the run's, as stage 1 wrote them).
+/// `None`: stage 2 had finished already (with `resume`; nothing is written).
 pub fn train_materials(
     run: &RunDir,
     dataset: &Dataset,
@@ -348,7 +358,7 @@ pub fn train_materials(
     config: Option<TrainConfig>,
     resume: bool,
     progress: &dyn Fn(&str),
-    on_event: impl FnMut(Event<Stage2Stats>),
+    mut on_event: impl FnMut(Event<Stage2Stats>),
 ) -> Result<Option<Stage2>, DataError> {
     if !run.exists() || !run.checkpoint_path().is_file() {
         return Err(DataError::file(
@@ -403,8 +413,14 @@ pub fn train_materials(
     }
     repair(&run.root, &run.log_path())?;
     write_if_changed(&run.config_path(), &config.to_toml())?;
+    let maps = TrainingMaps::for_run(run, dataset, &config)?;
+    for line in maps.describe(dataset) {
+        if matches!(line.map, "emitter masks" | "hdr") {
+            on_event(Event::Note(line.to_string()));
+        }
+    }
     let (scene, _) = i2sdf_model::NeuralScene::load(&run.checkpoint_path())?;
-    let views = target_views(dataset, config.stage2.use_hdr);
+    let views = target_views(dataset, config.stage2.use_hdr, &maps);
     let rm = radiometry(dataset);
     let options = DriveOptions {
         checkpoint_every: config.train.checkpoint_every,
@@ -535,6 +551,7 @@ mod tests {
                 Event::Started { key, iteration, total } => format!("start {key} {iteration}/{total}"),
                 Event::Step { .. } => "step".into(),
                 Event::Pause(w) => w.into(),
+                Event::Note(line) => line,
                 Event::Checkpoint { iteration } => format!("ckpt {iteration}"),
             })
         })

@@ -6,6 +6,7 @@ pub mod config;
 pub mod driver;
 pub mod kmeans;
 pub mod losses;
+pub mod maps;
 pub mod memory;
 pub mod pdf_map;
 pub mod pose_correction;

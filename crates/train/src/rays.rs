@@ -1,9 +1,10 @@
 //! Training rays: the training pixels of a dataset as rays in the normalized frame (the scene inside
 //! the unit sphere) with their supervision — LDR colour, depth as distance along the unit ray, the
 //! world normal (the normalization is a similarity without rotation, so normals do not change) and
-//! the emitter mask.
+//! the emitter mask, as [`TrainingMaps`] says (the dataset's, or what stands in for them).
 
-use i2sdf_data::{Dataset, Frame, Normalization, Split};
+use crate::maps::TrainingMaps;
+use i2sdf_data::{Dataset, Frame, ImageF32, Normalization, Split};
 use rand::Rng;
 
 /// One image's supervision in flat per-pixel arrays, ready for random access.
@@ -29,7 +30,14 @@ pub struct TrainImage {
 }
 
 impl TrainImage {
-    pub fn new(frame_index: usize, frame: &Frame, norm: &Normalization) -> Self {
+    /// `frame`'s supervision, with `normal` and `emitter` the maps training uses for it.
+    pub fn new(
+        frame_index: usize,
+        frame: &Frame,
+        norm: &Normalization,
+        normal: Option<&ImageF32>,
+        emitter: Option<&ImageF32>,
+    ) -> Self {
         let cam = &frame.camera;
         let (w, h) = (cam.width, cam.height);
         let o = norm.to_normalized(cam.center());
@@ -58,11 +66,8 @@ impl TrainImage {
                 .collect(),
             None => vec![0.0; w * h],
         };
-        let normal = frame
-            .normal
-            .as_ref()
-            .map(|n| n.data.chunks(3).map(|c| [c[0], c[1], c[2]]).collect());
-        let emitter = frame.emitter_mask.as_ref().map(|m| m.data.clone());
+        let normal = normal.map(|n| n.data.chunks(3).map(|c| [c[0], c[1], c[2]]).collect());
+        let emitter = emitter.map(|m| m.data.clone());
         TrainImage {
             frame_index,
             width: w,
@@ -112,13 +117,21 @@ impl TrainImage {
 
 const IDENTITY: [[f32; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
 
-/// All training images of a dataset.
-pub fn train_images(ds: &Dataset) -> Vec<TrainImage> {
+/// All training images of a dataset, with the maps in force.
+pub fn train_images(ds: &Dataset, maps: &TrainingMaps) -> Vec<TrainImage> {
     ds.frames
         .iter()
         .enumerate()
         .filter(|(_, f)| f.split == Split::Train)
-        .map(|(i, f)| TrainImage::new(i, f, &ds.normalization))
+        .map(|(i, f)| {
+            TrainImage::new(
+                i,
+                f,
+                &ds.normalization,
+                maps.normal(f).as_deref(),
+                maps.emitter_mask(i, f),
+            )
+        })
         .collect()
 }
 
@@ -209,7 +222,8 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         fixture::write_native(dir.path(), &FixtureOptions::default());
         let ds = i2sdf_data::load(dir.path()).unwrap();
-        let images = train_images(&ds);
+        let maps = TrainingMaps::prepare(&ds, &Default::default()).unwrap();
+        let images = train_images(&ds, &maps);
         assert_eq!(images.len(), 4);
         // Every depth pixel's surface point maps back (in world units) onto a wall of the room.
         for im in &images {

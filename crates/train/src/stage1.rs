@@ -6,12 +6,16 @@
 //! An iteration: draw rays uniformly over the training pixels; draw the extra points of the point
 //! losses (uniform eikonal points, bubble points from the PDF maps, smoothness pairs near the
 //! depth surface); one forward of the renderer over rays and points; the losses and their
-//! gradients; one backward; Adam. Stage 1 is a [`TrainStage`]: the shared driver seeds each
-//! iteration's RNG, skips non-finite steps and writes the checkpoints.
+//! gradients; one backward; Adam. A dataset without depth has no depth loss and no PDF maps: its
+//! bubble points and smoothness pairs lie on the surface the batch's rays render (each ray's
+//! sample where the termination density peaks, detached), so that neither term goes silently
+//! inert. Stage 1 is a [`TrainStage`]: the shared driver seeds each iteration's RNG, skips
+//! non-finite steps and writes the checkpoints.
 
 use crate::config::TrainConfig;
 use crate::driver::{render_settings, StepOutcome, TrainStage};
 use crate::losses;
+use crate::maps::TrainingMaps;
 use crate::pdf_map::{PdfMaps, PixelRef};
 use crate::pose_correction::PoseCorrection;
 use crate::rays::{train_images, RayBatch, TrainImage};
@@ -37,6 +41,10 @@ const SMOOTH_EPS: f32 = 0.01;
 /// along the ray has the point inside; a thinner sheet is rarer indoors than a thin pole.
 const INSIDE_DEPTH: f32 = 8e-4;
 
+/// Without depth, a ray of the batch gives a surface point (for the bubble and smoothness terms)
+/// where its rendered opacity reaches this: it hits something.
+const SURFACE_OPACITY: f32 = 0.5;
+
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct StepStats {
     pub iteration: u64,
@@ -57,6 +65,10 @@ pub struct StepStats {
     pub samples_per_ray: f32,
     /// Pixels the PDF maps can currently draw from (bubble step).
     pub pdf_active: usize,
+    /// Bubble points and smoothness pairs of the step (on the depth surface, or without depth
+    /// on the rendered one).
+    pub bubble_points: usize,
+    pub smooth_pairs: usize,
     /// The step produced a non-finite loss and was skipped.
     pub skipped: bool,
     /// Milliseconds spent placing samples, in the forward, and in backward + Adam.
@@ -125,18 +137,22 @@ pub struct Stage1 {
     /// Per training image: its frame's name, index and given pose (for `RUN/poses.json`).
     given_poses: Vec<(String, usize, glam::DMat4)>,
     normalization: i2sdf_data::Normalization,
+    /// No training pixel has depth: bubble and smoothness points come from the rendered surface.
+    no_depth: bool,
     /// The training data's fingerprint (JSON), kept in every checkpoint so that a resume or a
     /// stage 2 against other data is refused.
     dataset: String,
 }
 
 impl Stage1 {
-    pub fn new(dataset: &Dataset, config: TrainConfig) -> Self {
+    /// A fresh stage 1 on `dataset` with the maps in force `maps` (`TrainingMaps::prepare` of the
+    /// dataset and `config`, or a run's own: `TrainingMaps::for_run`).
+    pub fn new(dataset: &Dataset, config: TrainConfig, maps: &TrainingMaps) -> Self {
         let scene = NeuralScene::new(&config.model, dataset.normalization, config.train.seed);
-        Self::with_scene(dataset, config, scene)
+        Self::with_scene(dataset, config, scene, maps)
     }
 
-    fn with_scene(dataset: &Dataset, config: TrainConfig, scene: NeuralScene) -> Self {
+    fn with_scene(dataset: &Dataset, config: TrainConfig, scene: NeuralScene, maps: &TrainingMaps) -> Self {
         let t = &config.train;
         let schedule = |lr_warmup: u64| LrSchedule::WarmupCosine {
             warmup: lr_warmup,
@@ -160,7 +176,7 @@ impl Stage1 {
         let settings = render_settings(&config);
         let grads = SceneGrads::new(&scene);
         let fingerprint = serde_json::to_string(&DatasetFingerprint::of(dataset)).expect("serializes");
-        let images = train_images(dataset);
+        let images = train_images(dataset, maps);
         let hash_grid = matches!(config.model.backbone, i2sdf_model::Backbone::HashGrid);
         let poses = PoseCorrection::new(dataset, &config.pose, hash_grid, images.len(), t.iterations);
         let given_poses = images
@@ -175,6 +191,7 @@ impl Stage1 {
             given_poses,
             normalization: dataset.normalization,
             dataset: fingerprint,
+            no_depth: images.iter().all(|im| im.depth.iter().all(|d| *d <= 0.0)),
             images,
             adam,
             specs,
@@ -190,11 +207,17 @@ impl Stage1 {
         }
     }
 
-    /// Resumes from a checkpoint written by [`TrainStage::write_checkpoint`]. Optimizer groups of
-    /// optional modules that the checkpoint lacks start with zero moments.
-    pub fn resume(dataset: &Dataset, config: TrainConfig, checkpoint: &Path) -> Result<Self, DataError> {
+    /// Resumes from a checkpoint written by [`TrainStage::write_checkpoint`], with the maps the run
+    /// trained with. Optimizer groups of optional modules that the checkpoint lacks start with
+    /// zero moments.
+    pub fn resume(
+        dataset: &Dataset,
+        config: TrainConfig,
+        maps: &TrainingMaps,
+        checkpoint: &Path,
+    ) -> Result<Self, DataError> {
         let (scene, meta) = NeuralScene::load_config(checkpoint)?;
-        let mut s = Self::with_scene(dataset, config, scene);
+        let mut s = Self::with_scene(dataset, config, scene, maps);
         // The PDF maps of the bubble step: they learn from every batch, so a run resumed inside
         // the step continues with the maps it had, not ones re-initialised from its fields.
         let has_pdf = meta.get(PDF_META).is_some_and(|v| v == "1");
@@ -263,7 +286,12 @@ impl Stage1 {
     /// Will the next step initialise the PDF maps (a pause of a few seconds)?
     pub fn needs_pdf(&self) -> bool {
         let w = self.config.schedule.weights(self.phase(), &self.config.loss);
-        w.bubble > 0.0 && self.pdf.is_none()
+        w.bubble > 0.0 && self.pdf.is_none() && !self.no_depth
+    }
+
+    /// Does the dataset lack depth (bubble and smoothness points from the rendered surface)?
+    pub fn without_depth(&self) -> bool {
+        self.no_depth
     }
 
     pub fn phase(&self) -> Phase {
@@ -356,7 +384,7 @@ impl Stage1 {
         let total = self.config.train.iterations;
         let phase = self.config.schedule.phase(self.iteration, total);
         let w = self.config.schedule.weights(phase, &self.config.loss);
-        if w.bubble > 0.0 && self.pdf.is_none() {
+        if w.bubble > 0.0 && self.pdf.is_none() && !self.no_depth {
             self.init_pdf();
         }
         if w.bubble == 0.0 && phase == Phase::Smooth {
@@ -364,6 +392,37 @@ impl Stage1 {
         }
         let t = &self.config.train;
         self.batch.sample_uniform(&self.images, t.rays, rng);
+        let t0 = std::time::Instant::now();
+        // Without depth the surface each ray renders stands in for its depth's: the samples are
+        // placed first and each ray's surface read off them (where its termination density peaks;
+        // detached).
+        let rendered = (self.no_depth && (w.bubble > 0.0 || w.smooth > 0.0)).then(|| {
+            renderer::sample(
+                &self.scene,
+                &self.settings,
+                &self.batch.origin,
+                &self.batch.dir,
+                &mut self.ws,
+                Some(&mut *rng),
+            );
+            renderer::rendered_surface_distances(
+                &self.scene,
+                &self.batch.origin,
+                &self.batch.dir,
+                &self.ws,
+                SURFACE_OPACITY,
+            )
+        });
+        // The surface point of ray r of the batch: by its pixel's depth, or rendered.
+        let ray_surface = |r: usize| -> Option<[f32; 3]> {
+            match &rendered {
+                Some(distances) => distances[r].map(|t| {
+                    let (o, d) = (self.batch.origin[r], self.batch.dir[r]);
+                    [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]
+                }),
+                None => self.images[self.batch.image[r] as usize].surface_point(self.batch.pixel[r] as usize),
+            }
+        };
 
         // Extra points: [eikonal | bubble | inside | smooth x | smooth x + ε].
         self.extra.clear();
@@ -377,7 +436,14 @@ impl Stage1 {
             self.extra.extend_from_slice(&p);
         }
         let mut n_bub = 0;
-        if w.bubble > 0.0 {
+        if w.bubble > 0.0 && rendered.is_some() {
+            // The rendered surfaces pin the SDF's zero there; no inside points: nothing says
+            // where the ray entered a surface.
+            for x in (0..self.batch.len()).filter_map(ray_surface).take(t.bubble_points) {
+                self.extra.extend_from_slice(&x);
+                n_bub += 1;
+            }
+        } else if w.bubble > 0.0 {
             let mut picks = Vec::new();
             if let Some(pdf) = &self.pdf {
                 pdf.sample(t.bubble_points, rng, &mut picks);
@@ -398,18 +464,10 @@ impl Stage1 {
                 }
             }
         }
-        let n_in = if w.inside > 0.0 { n_bub } else { 0 };
+        let n_in = if w.inside > 0.0 && rendered.is_none() { n_bub } else { 0 };
         let mut n_smooth = 0;
         if w.smooth > 0.0 {
-            let mut pairs = Vec::new();
-            for (r, &has) in self.batch.has_depth.iter().enumerate() {
-                if has {
-                    let im = &self.images[self.batch.image[r] as usize];
-                    if let Some(x) = im.surface_point(self.batch.pixel[r] as usize) {
-                        pairs.push(x);
-                    }
-                }
-            }
+            let mut pairs: Vec<[f32; 3]> = (0..self.batch.len()).filter_map(ray_surface).collect();
             pairs.truncate(t.eikonal_points);
             n_smooth = pairs.len();
             for x in &pairs {
@@ -421,15 +479,16 @@ impl Stage1 {
             }
         }
 
-        let t0 = std::time::Instant::now();
-        renderer::sample(
-            &self.scene,
-            &self.settings,
-            &self.batch.origin,
-            &self.batch.dir,
-            &mut self.ws,
-            Some(rng),
-        );
+        if rendered.is_none() {
+            renderer::sample(
+                &self.scene,
+                &self.settings,
+                &self.batch.origin,
+                &self.batch.dir,
+                &mut self.ws,
+                Some(rng),
+            );
+        }
         let t1 = std::time::Instant::now();
         renderer::forward_with_samples(
             &self.scene,
@@ -453,6 +512,8 @@ impl Stage1 {
             iteration: self.iteration,
             phase: Some(phase),
             beta: self.scene.beta.value(),
+            bubble_points: n_bub,
+            smooth_pairs: n_smooth,
             ..Default::default()
         };
         st.rgb = losses::rgb_l1(&pred_rgb, &self.batch.rgb, w.rgb, &mut g_rgb);

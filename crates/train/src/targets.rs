@@ -1,7 +1,8 @@
 //! Stage 2's targets: the training views in linear radiance in the units of the input images
-//! (the README's "Stage 2: emitters and materials"), with which channels are saturated, the emitter masks and
-//! the dataset's normals.
+//! (the README's "Stage 2: emitters and materials"), with which channels are saturated, the emitter masks
+//! in force ([`TrainingMaps`]: the dataset's, or found from the images) and the dataset's normals.
 
+use crate::maps::TrainingMaps;
 use i2sdf_data::{Dataset, Split};
 use i2sdf_model::intrinsic::{Radiometry, Transfer};
 
@@ -17,6 +18,7 @@ pub struct TargetView {
     pub rgb: Vec<[f32; 3]>,
     /// Per pixel, bit c set when channel c only bounds the prediction from below.
     pub saturated: Vec<u8>,
+    /// The emitter mask in force (`maps.emitter_masks`), if any.
     pub emitter_mask: Option<Vec<bool>>,
     /// The dataset's world-space normal per pixel, where it has normal maps (zero: none).
     pub normal: Option<Vec<[f32; 3]>>,
@@ -35,12 +37,16 @@ pub fn radiometry(dataset: &Dataset) -> Radiometry {
     }
 }
 
-/// The training views' targets (see the module comment for the radiometry).
-pub fn target_views(dataset: &Dataset, use_hdr: bool) -> Vec<TargetView> {
+/// The training views' targets (see the module comment for the radiometry), with the emitter
+/// masks of `maps`.
+pub fn target_views(dataset: &Dataset, use_hdr: bool, maps: &TrainingMaps) -> Vec<TargetView> {
     let rm = radiometry(dataset);
     dataset
-        .split(Split::Train)
-        .map(|f| {
+        .frames
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.split == Split::Train)
+        .map(|(index, f)| {
             let n = f.pixel_count();
             let (mut rgb, mut saturated) = (Vec::with_capacity(n), Vec::with_capacity(n));
             match (&f.hdr, use_hdr) {
@@ -62,9 +68,8 @@ pub fn target_views(dataset: &Dataset, use_hdr: bool) -> Vec<TargetView> {
                 camera: f.camera.clone(),
                 rgb,
                 saturated,
-                emitter_mask: f
-                    .emitter_mask
-                    .as_ref()
+                emitter_mask: maps
+                    .emitter_mask(index, f)
                     .map(|m| m.data.iter().map(|&v| v > 0.5).collect()),
                 normal: f
                     .normal

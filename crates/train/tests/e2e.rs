@@ -7,6 +7,7 @@ mod common;
 use i2sdf_model::run_dir::RunDir;
 use i2sdf_train::config::TrainConfig;
 use i2sdf_train::driver::{render_settings, train_geometry, Trainer};
+use i2sdf_train::maps::TrainingMaps;
 use i2sdf_train::stage1::Stage1;
 
 fn tiny_config(iterations: u64) -> TrainConfig {
@@ -39,7 +40,8 @@ fn depth_errors(stats: &[f32], k: usize) -> (f32, f32) {
 #[test]
 fn tiny_scene_training_reduces_depth_error() {
     let (_dir, ds) = common::dataset();
-    let mut stage = Trainer::new(Stage1::new(&ds, tiny_config(300)));
+    let maps = TrainingMaps::prepare(&ds, &TrainConfig::default()).unwrap();
+    let mut stage = Trainer::new(Stage1::new(&ds, tiny_config(300), &maps));
     let mut depth = Vec::new();
     let mut psnr = Vec::new();
     while !stage.done() {
@@ -72,6 +74,7 @@ fn tiny_scene_training_reduces_depth_error() {
 #[test]
 fn interrupted_and_resumed_run_continues_exactly() {
     let (_dir, ds) = common::dataset();
+    let maps = TrainingMaps::prepare(&ds, &TrainConfig::default()).unwrap();
     let runs = tempfile::tempdir().unwrap();
     // Uninterrupted: 120 iterations (warm-up 0–30, bubble 30–90, smooth 90–120).
     let full = RunDir::new(&runs.path().join("full"));
@@ -80,13 +83,13 @@ fn interrupted_and_resumed_run_continues_exactly() {
     // inside the bubble step re-initialises the PDF maps from the current fields, so it continues
     // equivalently rather than bit for bit; the smooth step is exact.)
     let ckpt = runs.path().join("at100.safetensors");
-    let mut part = Trainer::new(Stage1::new(&ds, tiny_config(120)));
+    let mut part = Trainer::new(Stage1::new(&ds, tiny_config(120), &maps));
     while part.stage.iteration < 100 {
         part.step().unwrap();
     }
     part.save(&ckpt).unwrap();
     drop(part);
-    let mut b = Trainer::new(Stage1::resume(&ds, tiny_config(120), &ckpt).unwrap());
+    let mut b = Trainer::new(Stage1::resume(&ds, tiny_config(120), &maps, &ckpt).unwrap());
     assert_eq!(b.stage.iteration, 100);
     while !b.done() {
         b.step().unwrap();
@@ -112,8 +115,9 @@ fn interrupted_and_resumed_run_continues_exactly() {
 #[test]
 fn non_finite_losses_are_skipped_and_never_checkpointed() {
     let (_dir, ds) = common::dataset();
+    let maps = TrainingMaps::prepare(&ds, &TrainConfig::default()).unwrap();
     let runs = tempfile::tempdir().unwrap();
-    let mut stage = Trainer::new(Stage1::new(&ds, tiny_config(100)));
+    let mut stage = Trainer::new(Stage1::new(&ds, tiny_config(100), &maps));
     stage.step().unwrap();
     let ckpt = runs.path().join("ok.safetensors");
     stage.save(&ckpt).unwrap();

@@ -5,6 +5,7 @@
 use i2sdf_data::fixture::{self, FixtureOptions};
 use i2sdf_train::config::TrainConfig;
 use i2sdf_train::driver::Trainer;
+use i2sdf_train::maps::TrainingMaps;
 use i2sdf_train::stage1::Stage1;
 use std::time::Instant;
 
@@ -27,7 +28,8 @@ fn paper_sized_scene_loads_and_trains() {
     eprintln!("loaded in {:.1} s", t.elapsed().as_secs_f64());
     // Iterations chosen so the bubble step (and its PDF maps over all 55 M training pixels) runs.
     let config = TrainConfig::load(None, &["train.iterations=40".into()]).unwrap();
-    let mut stage = Trainer::new(Stage1::new(&ds, config));
+    let maps = TrainingMaps::prepare(&ds, &config).unwrap();
+    let mut stage = Trainer::new(Stage1::new(&ds, config, &maps));
     let t = Instant::now();
     while !stage.done() {
         let s = stage.step().unwrap().stats;

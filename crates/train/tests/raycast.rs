@@ -12,6 +12,7 @@ use i2sdf_model::SceneQuery;
 use i2sdf_render::Bvh;
 use i2sdf_train::config::TrainConfig;
 use i2sdf_train::driver::{render_settings, Trainer};
+use i2sdf_train::maps::TrainingMaps;
 use i2sdf_train::stage1::Stage1;
 use rayon::prelude::*;
 use std::time::Instant;
@@ -20,6 +21,7 @@ use std::time::Instant;
 #[ignore]
 fn sphere_tracing_against_the_mesh_in_the_bvh() {
     let (_dir, ds) = common::dataset();
+    let maps = TrainingMaps::prepare(&ds, &TrainConfig::default()).unwrap();
     let config = TrainConfig::load(
         None,
         &[
@@ -38,7 +40,7 @@ fn sphere_tracing_against_the_mesh_in_the_bvh() {
     )
     .unwrap();
     let settings = render_settings(&config);
-    let mut trainer = Trainer::new(Stage1::new(&ds, config));
+    let mut trainer = Trainer::new(Stage1::new(&ds, config, &maps));
     while !trainer.done() {
         trainer.step().unwrap();
     }

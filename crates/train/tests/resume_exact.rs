@@ -7,6 +7,7 @@ mod common;
 
 use i2sdf_train::config::TrainConfig;
 use i2sdf_train::driver::Trainer;
+use i2sdf_train::maps::TrainingMaps;
 use i2sdf_train::resume::{checkpoint_metadata, DatasetFingerprint, DATASET_META};
 use i2sdf_train::stage1::Stage1;
 
@@ -30,8 +31,9 @@ fn config() -> TrainConfig {
 #[test]
 fn stage1_resumes_bit_for_bit_at_every_step_of_the_schedule() {
     let (_dir, ds) = common::dataset();
+    let maps = TrainingMaps::prepare(&ds, &TrainConfig::default()).unwrap();
     let runs = tempfile::tempdir().unwrap();
-    let mut full = Trainer::new(Stage1::new(&ds, config()));
+    let mut full = Trainer::new(Stage1::new(&ds, config(), &maps));
     while !full.done() {
         full.step().unwrap();
     }
@@ -40,7 +42,7 @@ fn stage1_resumes_bit_for_bit_at_every_step_of_the_schedule() {
     // In warm-up, at the bubble step's first iteration (no maps yet), inside it, in the smooth step.
     for at in [5u64, 10, 11, 20, 29, 35] {
         let ckpt = runs.path().join(format!("at{at}.safetensors"));
-        let mut part = Trainer::new(Stage1::new(&ds, config()));
+        let mut part = Trainer::new(Stage1::new(&ds, config(), &maps));
         while part.stage.iteration < at {
             part.step().unwrap();
         }
@@ -51,10 +53,10 @@ fn stage1_resumes_bit_for_bit_at_every_step_of_the_schedule() {
         // The maps exist from the bubble step's second iteration on, and into the smooth step
         // where bubbles persist there (`schedule.smooth_bubble`).
         let persist = config().schedule.smooth_bubble > 0.0;
-        let maps = (11..=30).contains(&at) || (persist && at > 30);
-        assert_eq!(meta.contains_key("pdf_maps"), maps, "at {at}");
+        let has_pdf = (11..=30).contains(&at) || (persist && at > 30);
+        assert_eq!(meta.contains_key("pdf_maps"), has_pdf, "at {at}");
         drop(part);
-        let mut b = Trainer::new(Stage1::resume(&ds, config(), &ckpt).unwrap());
+        let mut b = Trainer::new(Stage1::resume(&ds, config(), &maps, &ckpt).unwrap());
         while !b.done() {
             b.step().unwrap();
         }

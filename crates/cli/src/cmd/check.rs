@@ -1,10 +1,13 @@
 //! `i2sdf check --data SCENE [--config FILE] [--set KEY=VALUE]...`: validate a dataset (every
-//! file is read and checked), summarize it, and state what training it with that configuration
-//! will hold in memory (stage 1 and stage 2, `i2sdf_train::memory`) against the machine's memory,
-//! with a warning when it does not fit: better said now than by the OOM killer an hour in.
+//! file is read and checked), summarize it, say per map what training with that configuration
+//! does with it or instead of it (`i2sdf_train::maps`: emitter masks found from the images,
+//! normals derived from depth, …), and state what training will hold in memory (stage 1 and
+//! stage 2, `i2sdf_train::memory`) against the machine's memory, with a warning when it does not
+//! fit: better said now than by the OOM killer an hour in.
 
 use clap::Args as ClapArgs;
 use i2sdf_train::config::TrainConfig;
+use i2sdf_train::maps::TrainingMaps;
 use i2sdf_train::memory::{self, gib, DatasetShape, MachineMemory};
 use std::path::PathBuf;
 
@@ -30,6 +33,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let config = TrainConfig::load(args.config.as_deref(), &args.set)?;
     let dataset = i2sdf_data::load(&args.data)?;
     let summary = i2sdf_data::Summary::of(&dataset);
+    let maps = TrainingMaps::prepare(&dataset, &config)?;
+    let map_lines = maps.describe(&dataset);
     let exposure = i2sdf_data::exposure::estimate_exposure(&dataset);
     let radiometry_warnings = exposure.as_ref().map(|e| e.warnings(&dataset)).unwrap_or_default();
     let estimate = memory::estimate(&DatasetShape::of(&dataset), &config);
@@ -44,6 +49,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     });
     if args.json {
         let mut v = serde_json::to_value(&summary)?;
+        v["training_maps"] = serde_json::json!({
+            "maps": map_lines,
+            "emitter_detection": maps.detection,
+        });
         v["exposure"] = serde_json::json!({
             "declared": dataset.ldr_exposure,
             "measured": exposure,
@@ -61,6 +70,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         println!("{summary}");
+        // What training with this configuration does per map, in the summary's columns.
+        for (k, line) in map_lines.iter().enumerate() {
+            println!("{:13}{line}", if k == 0 { "training" } else { "" });
+        }
         match &exposure {
             Some(e) => println!(
                 "exposure     declared {}, measured {:.4} from the LDR/HDR pairs ({} channels, spread {:.1} %)",

@@ -232,7 +232,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let (surface, emitter) = stage.counts();
         if stage.fields.emitters.is_empty() {
             crate::progress::line(&format!(
-                "warning: stage 2 found no emitters: no training pixel's emitter probability passed stage2.emitter_threshold = {} (does the dataset have emitter masks?). The re-render has no direct light, relight ops have nothing to change, and relit renders in edit, eval and the report are black",
+                "warning: stage 2 found no emitters: no training pixel's emitter probability passed stage2.emitter_threshold = {} (F_e learns from the emitter masks said above: are there any?). The re-render has no direct light, relight ops have nothing to change, and relit renders in edit, eval and the report are black",
                 run_threshold(&run)
             ));
         }
@@ -265,6 +265,7 @@ fn progress_events<'a, T>(
             bar.set_position(iteration);
         }
         Event::Pause(what) => bar.set_message(format!("{what}…")),
+        Event::Note(line) => crate::progress::line(&line),
         Event::Step { iteration, stats, .. } => {
             bar.set_position(iteration + 1);
             if iteration % 10 == 0 {

@@ -1,4 +1,6 @@
 //! Shared by the integration tests that compare the ray caster with the volume renderer.
+// Each test binary includes this module and uses part of it.
+#![allow(dead_code)]
 
 use i2sdf_data::Dataset;
 use i2sdf_model::raycast::{CastSettings, Hit, SdfCaster};
