@@ -533,6 +533,35 @@ pub fn write_png(path: &Path, img: &ImageF32) -> Result<()> {
     })
 }
 
+/// Writes an 8-bit JPEG (1 or 3 channels) at `quality` (1–100, the image crate's encoder);
+/// values are clamped and quantized as [`write_png`] does.
+pub fn write_jpeg(path: &Path, img: &ImageF32, quality: u8) -> Result<()> {
+    if !matches!(img.channels, 1 | 3) {
+        return Err(DataError::file(
+            path,
+            format!("cannot write {} channels as JPEG", img.channels),
+        ));
+    }
+    let bytes: Vec<u8> = img
+        .data
+        .iter()
+        .map(|v| (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8)
+        .collect();
+    write_atomic(path, |tmp| {
+        let file = std::fs::File::create(tmp).map_err(|e| e.to_string())?;
+        let mut out = std::io::BufWriter::new(file);
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality.clamp(1, 100))
+            .encode(
+                &bytes,
+                img.width as u32,
+                img.height as u32,
+                png_color(img.channels, false),
+            )
+            .map_err(|e| e.to_string())?;
+        std::io::Write::flush(&mut out).map_err(|e| e.to_string())
+    })
+}
+
 /// Writes a 16-bit PNG of values in [0,1] (clamped).
 pub fn write_png16(path: &Path, img: &ImageF32) -> Result<()> {
     let raw: Vec<u16> = img
@@ -657,6 +686,24 @@ mod tests {
         let m = read_float_map(&p).unwrap();
         assert_eq!((m.width, m.height, m.channels), (3, 2, 1));
         assert_eq!(m.data[5], 6.5);
+    }
+
+    #[test]
+    fn jpeg_writes_decode_near_the_original() {
+        let dir = tempfile::tempdir().unwrap();
+        // A smooth image (JPEG's blocks are lossy on the ramp's per-pixel oscillation).
+        let data = (0..32 * 24 * 3)
+            .map(|i| ((i / 3) % 32) as f32 / 40.0 + (i % 3) as f32 * 0.1)
+            .collect();
+        let img = ImageF32::from_data(32, 24, 3, data);
+        let p = dir.path().join("a.jpg");
+        write_jpeg(&p, &img, 95).unwrap();
+        let back = read_image(&p).unwrap();
+        assert_eq!((back.width, back.height, back.channels), (32, 24, 3));
+        let mean = back.data.iter().zip(&img.data).map(|(a, b)| (a - b).abs()).sum::<f32>() / img.data.len() as f32;
+        assert!(mean < 0.01, "mean error {mean}");
+        let e = write_jpeg(&dir.path().join("b.jpg"), &ramp(4, 4, 2), 90).unwrap_err();
+        assert!(e.to_string().contains("b.jpg"), "{e}");
     }
 
     #[test]

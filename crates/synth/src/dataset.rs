@@ -4,6 +4,7 @@
 //! each id.
 
 use crate::camera::place_camera;
+use crate::capture::{self, CaptureOptions, SensorDepth};
 use crate::edit::{self, EditOp, EditSpec};
 use crate::noise::DepthNoise;
 use crate::output::{self, FramePaths};
@@ -36,6 +37,8 @@ pub struct SynthOptions {
     /// in transforms.json's `generator`) unless `--unbiased` asks for [`Estimator::UNBIASED`].
     /// Every view and every relit view is rendered with it.
     pub estimator: Estimator,
+    /// A phone capture's degradations (`crate::capture`); the default is the exact room.
+    pub capture: CaptureOptions,
 }
 
 impl Default for SynthOptions {
@@ -53,6 +56,7 @@ impl Default for SynthOptions {
             depth_noise: DepthNoise::None,
             preset: None,
             estimator: Estimator::DATASET,
+            capture: CaptureOptions::default(),
         }
     }
 }
@@ -103,7 +107,7 @@ impl SynthOptions {
                 self.max_depth
             )));
         }
-        Ok(())
+        self.capture.validate(self.width, self.height)
     }
 }
 
@@ -211,7 +215,15 @@ pub fn generate(
     std::fs::create_dir_all(out).map_err(|e| DataError::io(out, format!("cannot create: {e}")))?;
     let mut scene = RenderScene::new(desc);
     scene.estimator = opts.estimator;
-    let views = plan_views(&scene, opts)?;
+    let mut views = plan_views(&scene, opts)?;
+    // The whole capture is taken through the lens; the cameras are placed as in the exact room,
+    // so one seed gives the same room, poses and test views whatever the capture options.
+    for v in &mut views {
+        v.camera.lens = opts.capture.lens;
+        v.camera
+            .validate_intrinsics()
+            .map_err(|(_, m)| DataError::invalid(format!("--lens {}: {m}", opts.capture.lens.model_name())))?;
+    }
     let start = std::time::Instant::now();
     let renders: Vec<ViewRender> = views
         .iter()
@@ -234,17 +246,29 @@ pub fn generate(
     let exposure = auto_exposure(&pairs);
     let noisy = opts.depth_noise != DepthNoise::None;
     let ones = vec![Vec3::ONE; scene.emitters.len()];
+    let cap = &opts.capture;
 
-    let frame_paths: Vec<FramePaths> = views.iter().map(|v| FramePaths::new(&v.stem, noisy)).collect();
+    let frame_paths: Vec<FramePaths> = views.iter().map(|v| FramePaths::new(&v.stem, noisy, cap)).collect();
     pairs
         .par_iter()
         .zip(&frame_paths)
         .enumerate()
-        .try_for_each(|(i, ((_, r), paths))| {
-            let mut depth = r.depth.clone();
+        .try_for_each(|(i, ((v, r), paths))| {
             let mut rng = Pcg64::seed_from_u64(opts.seed ^ (0xD3_9751 + i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
-            opts.depth_noise.apply(&mut depth, &mut rng);
-            output::write_view(out, paths, r, &r.hdr(&ones), &depth, exposure)
+            let depth = if cap.depth_grid.is_some() || cap.confidence {
+                let size = cap.depth_size(r.width, r.height);
+                capture::sensor_depth(&scene, &v.camera, size, opts.depth_noise, cap.confidence, &mut rng)
+            } else {
+                let mut depth = r.depth.clone();
+                opts.depth_noise.apply(&mut depth, &mut rng);
+                SensorDepth {
+                    width: r.width,
+                    height: r.height,
+                    depth,
+                    confidence: None,
+                }
+            };
+            output::write_view(out, paths, r, &r.hdr(&ones), &depth, exposure, cap.jpeg_quality)
         })?;
 
     // Relit ground truth of the test views (exact by linearity in the emitters; see `i2sdf_render::integrator`).
@@ -270,7 +294,48 @@ pub fn generate(
     let (objects, object_of_shape) = scene.desc.objects();
     scene.mesh.write_ply(&out.join("mesh.ply"), &object_of_shape)?;
     i2sdf_data::imageio::write_bytes_atomic(&out.join("scene.toml"), scene.desc.to_toml_string().as_bytes())?;
-    let transforms = transforms_json(&scene, opts, &views, &frame_paths, exposure, relight_json, &objects);
+    // The training poses as written: perturbed when the options say so (the images were rendered
+    // at the true ones, which go to poses_true.json); the test poses stay exact.
+    let written: Vec<Camera> = match cap.pose_perturbation() {
+        None => views.iter().map(|v| v.camera.clone()).collect(),
+        Some(noise) => {
+            let mut rng = Pcg64::seed_from_u64(opts.seed ^ 0x9053_E5A1_7ED0_0001);
+            let written = views
+                .iter()
+                .map(|v| {
+                    if v.test {
+                        v.camera.clone()
+                    } else {
+                        noise.perturb(&v.camera, &mut rng)
+                    }
+                })
+                .collect();
+            let truth: serde_json::Map<String, serde_json::Value> = views
+                .iter()
+                .zip(&frame_paths)
+                .map(|(v, p)| (p.image.clone(), matrix_json(&v.camera)))
+                .collect();
+            let poses_true = json!({
+                "note": "the true camera-to-world matrices (OpenGL axes, as transforms.json) of every frame, keyed by file_path; transforms.json's training poses are these perturbed",
+                "transform_matrix": truth,
+            });
+            i2sdf_data::imageio::write_bytes_atomic(
+                &out.join(POSES_TRUE_FILE),
+                serde_json::to_string_pretty(&poses_true).expect("JSON").as_bytes(),
+            )?;
+            written
+        }
+    };
+    let transforms = transforms_json(
+        &scene,
+        opts,
+        &views,
+        &written,
+        &frame_paths,
+        exposure,
+        relight_json,
+        &objects,
+    );
     i2sdf_data::imageio::write_bytes_atomic(
         &out.join("transforms.json"),
         serde_json::to_string_pretty(&transforms).expect("JSON").as_bytes(),
@@ -308,31 +373,50 @@ fn matrix_json(cam: &Camera) -> serde_json::Value {
         .collect::<Vec<_>>())
 }
 
+/// The side file of a dataset with perturbed training poses: every frame's true pose.
+pub const POSES_TRUE_FILE: &str = "poses_true.json";
+
+#[allow(clippy::too_many_arguments)]
 fn transforms_json(
     scene: &RenderScene,
     opts: &SynthOptions,
     views: &[ViewSpec],
+    written: &[Camera],
     paths: &[FramePaths],
     exposure: f32,
     relight: Vec<serde_json::Value>,
     objects: &[SceneObject],
 ) -> serde_json::Value {
     let cam = &views[0].camera;
+    let cap = &opts.capture;
     let frames: Vec<_> = views
         .iter()
+        .zip(written)
         .zip(paths)
-        .map(|(v, p)| {
-            let mut f = json!({
-                "file_path": p.image, "hdr_file_path": p.hdr, "depth_file_path": p.depth,
-                "normal_file_path": p.normal, "emitter_mask_path": p.mask,
-                "albedo_file_path": p.kd, "specular_file_path": p.ks, "roughness_file_path": p.roughness,
-                "split": if v.test { "test" } else { "train" },
-                "transform_matrix": matrix_json(&v.camera),
-            });
+        .map(|((v, pose), p)| {
+            let mut f = serde_json::Map::new();
+            let mut put = |k: &str, v: Option<&String>| {
+                if let Some(v) = v {
+                    f.insert(k.to_string(), json!(v));
+                }
+            };
+            put("file_path", Some(&p.image));
+            put("hdr_file_path", p.hdr.as_ref());
+            put("depth_file_path", Some(&p.depth));
+            put("normal_file_path", p.normal.as_ref());
+            put("emitter_mask_path", p.mask.as_ref());
+            put("albedo_file_path", Some(&p.kd));
+            put("specular_file_path", Some(&p.ks));
+            put("roughness_file_path", Some(&p.roughness));
+            f.insert("split".into(), json!(if v.test { "test" } else { "train" }));
+            f.insert("transform_matrix".into(), matrix_json(pose));
             if let Some(gt) = &p.depth_gt {
-                f["depth_gt_file_path"] = json!(gt);
+                f.insert("depth_gt_file_path".into(), json!(gt));
             }
-            f
+            if let Some(c) = &p.confidence {
+                f.insert("confidence_file_path".into(), json!(c));
+            }
+            serde_json::Value::Object(f)
         })
         .collect();
     let (mu, sigma) = match opts.depth_noise {
@@ -340,24 +424,62 @@ fn transforms_json(
         DepthNoise::Sigma => ("0.0001125 z^2 + 0.0048875", "0.002925 z^2 + 0.003325"),
         DepthNoise::ThreeSigma => ("0.0001125 z^2 + 0.0048875", "3 (0.002925 z^2 + 0.003325)"),
     };
-    json!({
+    let mut depth = json!({"kind": "z-depth along the optical axis", "unit": "metre",
+                           "noise": opts.depth_noise.name(), "noise_mu": mu, "noise_sigma": sigma});
+    if cap.depth_grid.is_some() || cap.confidence {
+        let (w, h) = cap.depth_size(cam.width, cam.height);
+        depth["grid"] = json!([w, h]);
+        depth["sampling"] =
+            json!("the true z-depth at the depth map's pixel centres mapped onto the image (traced through the lens), then the noise");
+    }
+    if cap.depth_grid.is_some() {
+        depth["encoding"] = json!("16-bit PNG, millimetres (x depth_unit_scale_factor = metres), 0 = no depth");
+    }
+    if cap.confidence {
+        depth["confidence"] = json!({
+            "values": "0 low, 1 medium, 2 high (ARKit's)",
+            "edge": "the sample's footprint against a plane: max over its cell's two corner diagonals of |z_centre * mean(1/z_corner) - 1| (0 on any plane)",
+            "low": "edge over 5 %, over 80 deg from the surface normal, or beyond 5 m; its depth is corrupted: on an edge a flying pixel uniform between the footprint's nearest and farthest z, else a 10 % relative Gaussian error",
+            "medium": "edge over 1 %, over 70 deg from the normal, or beyond 3.5 m",
+        });
+    }
+    let mut ldr = json!({"transfer": "srgb"});
+    if cap.hdr {
+        ldr["exposure"] = json!(exposure);
+        ldr["encoding"] = json!("png = srgb(clamp(exposure * hdr, 0, 1)), 8 bit; hdr = linear radiance");
+    }
+    let mut generator = json!({"name": "i2sdf synth", "preset": opts.preset, "seed": opts.seed, "spp": opts.spp,
+                               "max_depth": opts.max_depth, "units": "metre", "up": "+y",
+                               "estimator": estimator_json(&opts.estimator)});
+    if !cap.is_exact() {
+        generator["capture"] = cap.to_json(opts.depth_noise);
+    }
+    let mut top = json!({
         "fl_x": cam.fx as f32, "fl_y": cam.fy as f32, "cx": cam.cx as f32, "cy": cam.cy as f32, "w": cam.width, "h": cam.height,
-        "ldr": {"transfer": "srgb", "exposure": exposure,
-                "encoding": "png = srgb(clamp(exposure * hdr, 0, 1)), 8 bit; hdr = linear radiance"},
-        "depth": {"kind": "z-depth along the optical axis", "unit": "metre",
-                  "noise": opts.depth_noise.name(), "noise_mu": mu, "noise_sigma": sigma},
+        "ldr": ldr,
+        "depth": depth,
+        "poses_exact": cap.pose_perturbation().is_none(),
         "mesh_path": "mesh.ply",
         "scene_path": "scene.toml",
-        // The renderer's own cameras: exact, so training does not correct them.
-        "poses_exact": true,
-        "generator": {"name": "i2sdf synth", "preset": opts.preset, "seed": opts.seed, "spp": opts.spp,
-                      "max_depth": opts.max_depth, "units": "metre", "up": "+y",
-                      "estimator": estimator_json(&opts.estimator)},
+        "generator": generator,
         "emitters": scene.emitters.iter().map(|e| json!({
             "name": e.name, "emission": e.emission.to_array(),
             "bounds_min": e.bounds.0.to_array(), "bounds_max": e.bounds.1.to_array()})).collect::<Vec<_>>(),
         "objects": objects.iter().map(|o| json!({"id": o.id, "name": o.name, "tags": o.tags})).collect::<Vec<_>>(),
         "frames": frames,
         "relight": relight,
-    })
+    });
+    if !cam.lens.is_pinhole() {
+        top["camera_model"] = json!(cam.lens.model_name());
+        for (k, v) in cam.lens.params() {
+            top[k] = json!(v);
+        }
+    }
+    if cap.depth_grid.is_some() {
+        top["depth_unit_scale_factor"] = json!(0.001);
+    }
+    if cap.pose_perturbation().is_some() {
+        top["poses_true_path"] = json!(POSES_TRUE_FILE);
+    }
+    top
 }

@@ -5,6 +5,7 @@
 //! depth, normals, emitter masks, material maps, the mesh and relit test views.
 
 pub mod camera;
+pub mod capture;
 pub mod dataset;
 pub mod edit;
 pub mod mesh;
@@ -15,6 +16,7 @@ pub mod scene;
 pub mod tracer;
 
 pub use camera::looking;
+pub use capture::CaptureOptions;
 pub use dataset::{generate, SynthOptions, SynthSummary};
 pub use edit::{EditOp, EditSpec, RelightOp};
 pub use i2sdf_data::Camera;

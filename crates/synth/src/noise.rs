@@ -56,7 +56,7 @@ impl DepthNoise {
 }
 
 /// Box–Muller standard normal.
-fn standard_normal(rng: &mut impl Rng) -> f32 {
+pub(crate) fn standard_normal(rng: &mut impl Rng) -> f32 {
     let u1: f32 = 1.0 - rng.gen::<f32>();
     let u2: f32 = rng.gen();
     (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos()

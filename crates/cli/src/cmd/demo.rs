@@ -52,9 +52,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             height,
             views,
             spp,
-            depth_noise: "none".into(),
+            depth_noise: None,
             max_depth: 64,
             unbiased: false,
+            capture: false,
+            jpeg_quality: None,
+            lens: None,
+            depth_grid: None,
+            confidence: false,
+            no_normals: false,
+            no_masks: false,
+            no_hdr: false,
+            pose_noise: None,
         })?;
     } else {
         crate::progress::line(&format!("== 1/8 reuse the room in {}", scene.display()));

@@ -4,6 +4,7 @@
 
 use anyhow::Context;
 use i2sdf_data::DataError;
+use i2sdf_synth::capture::{self, CaptureOptions, PoseNoise};
 use i2sdf_synth::tracer::Estimator;
 use i2sdf_synth::{generate, DepthNoise, RoomPreset, SceneDesc, SynthOptions};
 use std::path::PathBuf;
@@ -37,9 +38,10 @@ pub struct Args {
     /// Paths per pixel.
     #[arg(long, default_value_t = SynthOptions::default().spp)]
     pub spp: u32,
-    /// Depth noise of the paper's Sec. 6.3 applied to the written depth: none, sigma or 3sigma.
-    #[arg(long, default_value = "none")]
-    pub depth_noise: String,
+    /// Depth noise of the paper's Sec. 6.3 applied to the written depth: none, sigma or 3sigma
+    /// (default none; sigma with --capture).
+    #[arg(long)]
+    pub depth_noise: Option<String>,
     /// Most scattering events per path (Russian roulette ends most paths far earlier).
     #[arg(long, default_value_t = SynthOptions::default().max_depth)]
     pub max_depth: u32,
@@ -48,15 +50,94 @@ pub struct Args {
     /// transforms.json records which estimator made the images).
     #[arg(long)]
     pub unbiased: bool,
+    /// A phone capture of the room: every degradation below at its phone default (JPEG 90, the
+    /// opencv lens, depth grid 4, sigma depth noise, confidence, no normals, masks or HDR, pose
+    /// noise 1,0.5); the flags with values override it. Same room, cameras and test views as
+    /// without it, so that `eval --data` the exact room scores it.
+    #[arg(long)]
+    pub capture: bool,
+    /// Frames as JPEG at this quality, 1-100 (none: PNG).
+    #[arg(long, value_name = "Q|none")]
+    pub jpeg_quality: Option<String>,
+    /// Render every view through a phone lens, declared in transforms.json: opencv (k1 -0.08,
+    /// k2 0.02, p1 0.0005, p2 -0.0003), fisheye (k1 0.05, k2 -0.02, k3 0.004) or none.
+    #[arg(long)]
+    pub lens: Option<String>,
+    /// Sensor depth at the image size / N per axis, traced at the grid's pixel centres, as a
+    /// 16-bit PNG in millimetres (none: full-resolution float EXR).
+    #[arg(long, value_name = "N|none")]
+    pub depth_grid: Option<String>,
+    /// A confidence map (0/1/2) per depth map; its low samples (depth edges, grazing, far) get
+    /// large errors.
+    #[arg(long)]
+    pub confidence: bool,
+    /// Leave out the normal maps.
+    #[arg(long)]
+    pub no_normals: bool,
+    /// Leave out the emitter masks.
+    #[arg(long)]
+    pub no_masks: bool,
+    /// Leave out the HDR frames and the declared LDR exposure.
+    #[arg(long)]
+    pub no_hdr: bool,
+    /// Perturb the training poses written to transforms.json by CM centimetres and DEG degrees
+    /// (true poses in poses_true.json; test poses exact).
+    #[arg(long, value_name = "CM,DEG")]
+    pub pose_noise: Option<String>,
+}
+
+/// The capture options of the flags: `--capture`'s phone defaults (or the exact room), then each
+/// flag given.
+fn capture_options(args: &Args) -> Result<(CaptureOptions, DepthNoise), DataError> {
+    let mut c = if args.capture {
+        CaptureOptions::phone()
+    } else {
+        CaptureOptions::default()
+    };
+    let mut depth_noise = if args.capture {
+        capture::PHONE_DEPTH_NOISE
+    } else {
+        DepthNoise::None
+    };
+    if let Some(s) = &args.depth_noise {
+        depth_noise = DepthNoise::parse(s)
+            .ok_or_else(|| DataError::invalid(format!("--depth-noise: '{s}' is not none, sigma or 3sigma")))?;
+    }
+    if let Some(q) = &args.jpeg_quality {
+        c.jpeg_quality = match q.as_str() {
+            "none" => None,
+            _ => Some(
+                q.parse::<u8>()
+                    .ok()
+                    .filter(|q| (1..=100).contains(q))
+                    .ok_or_else(|| DataError::invalid(format!("--jpeg-quality: '{q}' is not 1-100 or none")))?,
+            ),
+        };
+    }
+    if let Some(l) = &args.lens {
+        c.lens = capture::lens_preset(l)?;
+    }
+    if let Some(g) = &args.depth_grid {
+        c.depth_grid =
+            match g.as_str() {
+                "none" => None,
+                _ => Some(g.parse::<usize>().ok().filter(|n| *n >= 1).ok_or_else(|| {
+                    DataError::invalid(format!("--depth-grid: '{g}' is not a positive integer or none"))
+                })?),
+            };
+    }
+    if let Some(p) = &args.pose_noise {
+        c.pose_noise = Some(PoseNoise::parse(p)?);
+    }
+    c.confidence |= args.confidence;
+    c.normals &= !args.no_normals;
+    c.masks &= !args.no_masks;
+    c.hdr &= !args.no_hdr;
+    Ok((c, depth_noise))
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let depth_noise = DepthNoise::parse(&args.depth_noise).ok_or_else(|| {
-        DataError::invalid(format!(
-            "--depth-noise: '{}' is not none, sigma or 3sigma",
-            args.depth_noise
-        ))
-    })?;
+    let (capture, depth_noise) = capture_options(&args)?;
     let (desc, preset) = match &args.scene {
         Some(path) => (SceneDesc::read(path)?, None),
         None => {
@@ -78,6 +159,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         } else {
             SynthOptions::default().estimator
         },
+        capture,
     };
     opts.validate()?;
     let inputs: Vec<&std::path::Path> = args.scene.iter().map(PathBuf::as_path).collect();
