@@ -8,6 +8,7 @@ pub mod kdtree;
 pub mod mesh;
 pub mod mesh_metrics;
 pub mod neural;
+pub mod poses;
 pub mod progress;
 pub mod relight;
 pub mod report;

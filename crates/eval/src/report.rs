@@ -20,6 +20,10 @@ pub struct EvalReport {
     pub emitters: EmitterMetrics,
     pub relight: RelightMetrics,
     pub time_s: StageTimes,
+    /// Stage 1's pose correction against the evaluated dataset's training poses (null: the run
+    /// corrected no poses, or the dataset has none of its training views).
+    #[serde(default)]
+    pub poses: Option<crate::poses::PoseMetrics>,
     /// Why figures are null or not meaningful, in plain words, for whoever reads the JSON (and
     /// the HTML report, which shows them). Absent in older reports: read as none.
     #[serde(default)]

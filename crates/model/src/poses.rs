@@ -20,6 +20,9 @@ pub struct CorrectedView {
     pub frame: usize,
     /// The corrected camera-to-world matrix (row-major, OpenGL axes, world units).
     pub transform_matrix: [[f64; 4]; 4],
+    /// The pose the dataset gave (same convention), so that the correction can be scored
+    /// against true poses (`eval --data` a dataset with exact ones).
+    pub given_transform_matrix: [[f64; 4]; 4],
     /// How far the correction turned the view (degrees) and moved its centre (world units).
     pub rotation_deg: f64,
     pub translation: f64,
@@ -31,19 +34,40 @@ impl CorrectedView {
         glam::DMat4::from_cols_array_2d(&self.transform_matrix).transpose() * GL_TO_CV
     }
 
+    /// The given pose (OpenCV axes).
+    pub fn given_c2w(&self) -> glam::DMat4 {
+        glam::DMat4::from_cols_array_2d(&self.given_transform_matrix).transpose() * GL_TO_CV
+    }
+
     /// A view from the given and the corrected camera-to-world poses (OpenCV axes).
     pub fn new(name: &str, frame: usize, given: glam::DMat4, corrected: glam::DMat4) -> Self {
-        let gl = corrected * GL_TO_CV;
-        let r = glam::DMat3::from_mat4(corrected) * glam::DMat3::from_mat4(given).transpose();
-        let cos = ((r.x_axis.x + r.y_axis.y + r.z_axis.z - 1.0) / 2.0).clamp(-1.0, 1.0);
+        let (rotation_deg, translation) = pose_difference(given, corrected);
         CorrectedView {
             name: name.to_string(),
             frame,
-            transform_matrix: gl.transpose().to_cols_array_2d(),
-            rotation_deg: cos.acos().to_degrees(),
-            translation: (corrected.w_axis - given.w_axis).truncate().length(),
+            transform_matrix: (corrected * GL_TO_CV).transpose().to_cols_array_2d(),
+            given_transform_matrix: (given * GL_TO_CV).transpose().to_cols_array_2d(),
+            rotation_deg,
+            translation,
         }
     }
+}
+
+/// How far apart two camera-to-world poses are: the angle of the relative rotation (degrees)
+/// and the distance between the camera centres (world units).
+pub fn pose_difference(a: glam::DMat4, b: glam::DMat4) -> (f64, f64) {
+    let r = glam::DMat3::from_mat4(b) * glam::DMat3::from_mat4(a).transpose();
+    // atan2 of the axis-angle's sine and cosine: acos of the trace alone loses half the digits
+    // of a small angle, and the corrections are tenths of a degree.
+    let cos = (r.x_axis.x + r.y_axis.y + r.z_axis.z - 1.0) / 2.0;
+    let sin = 0.5
+        * glam::DVec3::new(
+            r.y_axis.z - r.z_axis.y,
+            r.z_axis.x - r.x_axis.z,
+            r.x_axis.y - r.y_axis.x,
+        )
+        .length();
+    (sin.atan2(cos).to_degrees(), (b.w_axis - a.w_axis).truncate().length())
 }
 
 impl PoseCorrections {
@@ -126,6 +150,7 @@ mod tests {
         assert!((v.rotation_deg - 0.5).abs() < 1e-9, "{}", v.rotation_deg);
         assert!((v.translation - 0.0005f64.sqrt()).abs() < 1e-12);
         assert!(v.c2w().abs_diff_eq(corrected, 1e-12));
+        assert!(v.given_c2w().abs_diff_eq(given, 1e-12));
         let text = serde_json::to_string(&PoseCorrections { views: vec![v.clone()] }).unwrap();
         let back: PoseCorrections = serde_json::from_str(&text).unwrap();
         // serde_json's default float parser may round the last bit (no `float_roundtrip`).

@@ -132,6 +132,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             bar.finish();
         }
     }
+    if let Some(corrections) = i2sdf_model::poses::PoseCorrections::read(&i2sdf_model::RunDir::new(&args.run))? {
+        report.poses = i2sdf_eval::poses::pose_metrics(&corrections, &dataset);
+    }
     report.time_s.stage1 = (info.stage1.iterations > 0).then_some(info.stage1.seconds);
     report.time_s.stage2 = info.stage2.filter(|s| s.iterations > 0).map(|s| s.seconds);
     let json = report.to_json();
