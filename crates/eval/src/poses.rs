@@ -34,8 +34,16 @@ pub fn pose_metrics(corrections: &PoseCorrections, dataset: &Dataset) -> Option<
         let Some(f) = dataset.split(Split::Train).find(|f| f.name == v.name) else {
             continue;
         };
-        given.push(pose_difference(f.camera.c2w, v.given_c2w()));
-        corrected.push(pose_difference(f.camera.c2w, v.c2w()));
+        // Opened as the run's own dataset, the training frames hold the corrected poses
+        // (`PoseCorrections::apply` sets them from `v.c2w()`, bit for bit): the reference is
+        // then the dataset's own, given pose.
+        let reference = if f.camera.c2w == v.c2w() {
+            v.given_c2w()
+        } else {
+            f.camera.c2w
+        };
+        given.push(pose_difference(reference, v.given_c2w()));
+        corrected.push(pose_difference(reference, v.c2w()));
     }
     (!given.is_empty()).then(|| PoseMetrics {
         views: given.len(),
@@ -94,5 +102,27 @@ mod tests {
         assert!((m.given.translation_median - 0.02).abs() < 1e-12);
         assert!((m.corrected.translation_max - 0.005).abs() < 1e-12);
         assert!(m.given.rotation_deg_max < 1e-6);
+    }
+
+    #[test]
+    fn the_runs_own_dataset_is_scored_against_its_given_poses() {
+        let dir = tempfile::tempdir().unwrap();
+        i2sdf_data::fixture::write_native(dir.path(), &i2sdf_data::fixture::FixtureOptions::default());
+        let mut ds = i2sdf_data::load(dir.path()).unwrap();
+        let (k, f) = ds
+            .frames
+            .iter()
+            .enumerate()
+            .find(|(_, f)| f.split == Split::Train)
+            .unwrap();
+        let mut corrected = f.camera.c2w;
+        corrected.w_axis.y += 0.01;
+        let c = PoseCorrections {
+            views: vec![CorrectedView::new(&f.name, k, f.camera.c2w, corrected)],
+        };
+        c.apply(&mut ds, std::path::Path::new("poses.json")).unwrap();
+        let m = pose_metrics(&c, &ds).unwrap();
+        assert!(m.given.translation_max < 1e-12);
+        assert!((m.corrected.translation_max - 0.01).abs() < 1e-9);
     }
 }
