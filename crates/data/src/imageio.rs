@@ -511,15 +511,19 @@ fn check_png_channels(path: &Path, img: &ImageF32) -> Result<()> {
     Ok(())
 }
 
+/// The image's values clamped to [0,1] and rounded to 8 bits.
+fn to_8bit(img: &ImageF32) -> Vec<u8> {
+    img.data
+        .iter()
+        .map(|v| (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8)
+        .collect()
+}
+
 /// Writes an 8-bit PNG; values are clamped to [0,1] and written as given (apply
 /// [`linear_to_srgb`] first for display-referred images).
 pub fn write_png(path: &Path, img: &ImageF32) -> Result<()> {
     check_png_channels(path, img)?;
-    let bytes: Vec<u8> = img
-        .data
-        .iter()
-        .map(|v| (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8)
-        .collect();
+    let bytes = to_8bit(img);
     write_atomic(path, |tmp| {
         image::save_buffer_with_format(
             tmp,
@@ -542,11 +546,7 @@ pub fn write_jpeg(path: &Path, img: &ImageF32, quality: u8) -> Result<()> {
             format!("cannot write {} channels as JPEG", img.channels),
         ));
     }
-    let bytes: Vec<u8> = img
-        .data
-        .iter()
-        .map(|v| (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8)
-        .collect();
+    let bytes = to_8bit(img);
     write_atomic(path, |tmp| {
         let file = std::fs::File::create(tmp).map_err(|e| e.to_string())?;
         let mut out = std::io::BufWriter::new(file);

@@ -3,12 +3,18 @@
 //! (normalized units), applied to its rays as o' = o + τ, d' = R(ω) d. Poses from ARKit or SfM
 //! are off by millimetres and tenths of a degree; this absorbs it instead of blurring the fields.
 //!
-//! The gradient comes from the rendering losses of the batch's rays: with a sample at
-//! x = o' + t d' (t fixed, as the samples are placed without gradient), ∂L/∂τ = Σ ∂L/∂x and
-//! ∂L/∂ω = Σ t d' × ∂L/∂x, ∂L/∂x being the SDF network's position gradient
-//! ([`i2sdf_nn::SdfNetwork::position_gradient`]). The point losses (bubble, smoothness) move with
-//! the corrected rays but do not steer the correction. A quadratic penalty pulls ω and τ towards
-//! zero, so views the data cannot place stay where the dataset put them.
+//! With depth, a view is aligned to the SDF as a depth camera is tracked against a fused surface
+//! ([`PoseCorrection::align_view`]: point-to-plane Gauss–Newton on its depth points). Without,
+//! the correction follows the rendering losses' gradient with Adam: for the ray samples
+//! x = o' + t d', ∂L/∂τ = Σ ∂L/∂x and ∂L/∂ω = Σ t d' × ∂L/∂x ([`PoseCorrection::step`]). A
+//! quadratic penalty pulls ω and τ towards zero, so views the data cannot place stay where the
+//! dataset put them.
+//!
+//! Gauge: moving every camera and the scene by one rigid motion changes no loss, and the SDF
+//! follows the cameras (its bubble points lie on their rays), so the corrections random-walk
+//! along it together: measured on the exact 80×60 room, every view drifted ~5 cm the same way.
+//! After each step the rigid motion that best explains all corrections is taken out of them
+//! ([`remove_rigid_motion`]): the dataset's frame stays the frame.
 
 use crate::config::{PoseConfig, PoseCorrectionMode};
 use i2sdf_data::{Dataset, Normalization};
@@ -24,6 +30,8 @@ pub struct PoseCorrection {
     config: PoseConfig,
     /// The first iteration that updates the corrections.
     start: u64,
+    /// The views' camera centres (normalized frame), for the gauge.
+    centres: Vec<[f32; 3]>,
 }
 
 impl PoseCorrection {
@@ -33,9 +41,10 @@ impl PoseCorrection {
         dataset: &Dataset,
         config: &PoseConfig,
         hash_grid: bool,
-        images: usize,
+        centres: Vec<[f32; 3]>,
         iterations: u64,
     ) -> Option<Self> {
+        let images = centres.len();
         let on = match config.correction {
             PoseCorrectionMode::Off => false,
             PoseCorrectionMode::On => true,
@@ -60,6 +69,7 @@ impl PoseCorrection {
             grad: vec![0.0; images * 6],
             config: config.clone(),
             start: (config.start * iterations as f32) as u64,
+            centres,
         })
     }
 
@@ -82,6 +92,65 @@ impl PoseCorrection {
         for k in 0..3 {
             g[k] += c[k];
             g[3 + k] += g_origin[k];
+        }
+    }
+
+    /// One alignment of view `i` to the surface from its depth points (point-to-plane
+    /// Gauss–Newton, as a depth camera is tracked against a fused surface): each point x on a
+    /// corrected ray, at offset v = x − c' from the corrected camera centre, with the SDF's d(x)
+    /// and unit normal n there, should move onto the zero set: d + n·(δτ + δω × v) = 0. Residuals
+    /// beyond `clamp` are left out (flying pixels, surfaces not yet fitted); the penalty pulls
+    /// the whole correction towards zero; `damping` scales the step. Returns the points used.
+    pub fn align_view(&mut self, i: usize, points: &[AlignPoint], clamp: f32, damping: f32) -> usize {
+        // Unknowns [δω, δτ, b]: b is a constant offset between the depth points and the zero
+        // set, which volume rendering leaves (its expected depth lies in front of the zero set,
+        // so the depth loss pushes the zero set behind the depth points). Left in the residual it
+        // reads as "move forward", and the corrections drifted ~9 cm along the views on the
+        // exact 80×60 room; a uniform offset is told from a motion by the spread of the normals.
+        let mut a = [[0.0f64; 7]; 7];
+        let mut b = [0.0f64; 7];
+        let mut used = 0;
+        for p in points {
+            let len = (p.normal[0].powi(2) + p.normal[1].powi(2) + p.normal[2].powi(2)).sqrt();
+            if !(p.sdf.abs() <= clamp && len > 1e-3) {
+                continue;
+            }
+            let n = p.normal.map(|v| v / len);
+            // ∂r/∂δω = v × n (n·(δω × v) = δω·(v × n)), ∂r/∂δτ = n, ∂r/∂b = −1.
+            let w = cross(p.offset, n);
+            let j = [w[0], w[1], w[2], n[0], n[1], n[2], -1.0].map(f64::from);
+            for r in 0..7 {
+                b[r] -= j[r] * p.sdf as f64;
+                for c in 0..7 {
+                    a[r][c] += j[r] * j[c];
+                }
+            }
+            used += 1;
+        }
+        if used < 12 {
+            return used;
+        }
+        let mu = self.config.regularization as f64 * used as f64;
+        for r in 0..7 {
+            a[r][r] += 1e-9;
+        }
+        for r in 0..6 {
+            a[r][r] += mu;
+            b[r] -= mu * self.delta[i][r] as f64;
+        }
+        if let Some(step) = solve(a, b) {
+            for r in 0..6 {
+                self.delta[i][r] += damping * step[r] as f32;
+            }
+        }
+        used
+    }
+
+    /// After [`PoseCorrection::align_view`] of every view: takes out the rigid motion of the
+    /// whole scene (the gauge).
+    pub fn finish_alignment(&mut self) {
+        if self.delta.len() >= 2 {
+            remove_rigid_motion(&mut self.delta, &self.centres);
         }
     }
 
@@ -108,6 +177,9 @@ impl PoseCorrection {
                 self.delta[i][3 + k] = trans[i * 3 + k];
             }
         }
+        if n >= 2 {
+            remove_rigid_motion(&mut self.delta, &self.centres);
+        }
         self.grad.fill(0.0);
     }
 
@@ -125,6 +197,16 @@ impl PoseCorrection {
             centre.extend(1.0),
         )
     }
+}
+
+/// A depth point of a view for [`PoseCorrection::align_view`] (normalized frame).
+#[derive(Clone, Copy, Debug)]
+pub struct AlignPoint {
+    /// x − c': from the corrected camera centre to the point.
+    pub offset: [f32; 3],
+    pub sdf: f32,
+    /// ∇d at the point (normalized by the alignment).
+    pub normal: [f32; 3],
 }
 
 /// The checkpoint tensors: `{prefix}.delta`, and Adam's moments and step as `{prefix}.m` /
@@ -153,6 +235,75 @@ impl Parameters for PoseCorrection {
         f(format!("{prefix}.step"), vec![1], &mut step);
         self.adam.step = step[0] as u64;
     }
+}
+
+/// Takes out of the corrections the one small rigid motion (a, b) of the whole scene that best
+/// explains them: to first order it turns every view by ω = a and moves a camera centre c by
+/// τ = b + a × c. Least squares over all views (radians and normalized units weighted alike).
+pub fn remove_rigid_motion(delta: &mut [[f32; 6]], centres: &[[f32; 3]]) {
+    // Per view the Jacobian of (ω, τ) w.r.t. (a, b) is [[I, 0], [−[c]×, I]].
+    let mut ata = [[0.0f64; 6]; 6];
+    let mut aty = [0.0f64; 6];
+    let rows = |c: [f64; 3]| -> [[f64; 6]; 6] {
+        let mut j = [[0.0f64; 6]; 6];
+        for k in 0..3 {
+            j[k][k] = 1.0;
+            j[3 + k][3 + k] = 1.0;
+        }
+        // −[c]× a = a × c: row 3 (x) = a_y c_z − a_z c_y, and so on.
+        j[3][1] = c[2];
+        j[3][2] = -c[1];
+        j[4][0] = -c[2];
+        j[4][2] = c[0];
+        j[5][0] = c[1];
+        j[5][1] = -c[0];
+        j
+    };
+    for (d, c) in delta.iter().zip(centres) {
+        let j = rows(c.map(f64::from));
+        for r in 0..6 {
+            for p in 0..6 {
+                aty[p] += j[r][p] * d[r] as f64;
+                for q in 0..6 {
+                    ata[p][q] += j[r][p] * j[r][q];
+                }
+            }
+        }
+    }
+    let Some(g) = solve(ata, aty) else { return };
+    for (d, c) in delta.iter_mut().zip(centres) {
+        let j = rows(c.map(f64::from));
+        for (r, v) in d.iter_mut().enumerate() {
+            let fit: f64 = (0..6).map(|p| j[r][p] * g[p]).sum();
+            *v -= fit as f32;
+        }
+    }
+}
+
+/// Gaussian elimination with partial pivoting; None when the system is singular (views all
+/// at one centre leave the rotation's lever arm undetermined: nothing is then removed).
+fn solve<const N: usize>(mut a: [[f64; N]; N], mut y: [f64; N]) -> Option<[f64; N]> {
+    for col in 0..N {
+        let piv = (col..N).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
+        if a[piv][col].abs() < 1e-9 {
+            return None;
+        }
+        a.swap(col, piv);
+        y.swap(col, piv);
+        for r in col + 1..N {
+            let f = a[r][col] / a[col][col];
+            for k in col..N {
+                a[r][k] -= f * a[col][k];
+            }
+            y[r] -= f * y[col];
+        }
+    }
+    let mut x = [0.0f64; N];
+    for r in (0..N).rev() {
+        let s: f64 = (r + 1..N).map(|k| a[r][k] * x[k]).sum();
+        x[r] = (y[r] - s) / a[r][r];
+    }
+    Some(x)
 }
 
 /// Rodrigues' formula: the rotation by |ω| about ω/|ω| (row-major).
@@ -218,6 +369,152 @@ mod tests {
         let moved = rotate(&rotation_matrix(eps), v);
         let expected = cross(eps, v);
         assert!((0..3).all(|k| (moved[k] - v[k] - expected[k]).abs() < 1e-7));
+    }
+
+    /// A rigid motion of the whole scene added to per-view corrections is taken out, and the
+    /// per-view part stays.
+    #[test]
+    fn the_scenes_rigid_motion_is_removed_and_the_rest_kept() {
+        let centres: Vec<[f32; 3]> = (0..8)
+            .map(|i| {
+                let a = i as f32 * 0.8;
+                [0.6 * a.cos(), 0.1 * (i % 3) as f32, 0.5 * a.sin()]
+            })
+            .collect();
+        let (a, b) = ([0.01f32, -0.02, 0.005], [0.03f32, 0.01, -0.02]);
+        // Per-view corrections: ±1 mm / ±1 mrad patterns.
+        let own: Vec<[f32; 6]> = (0..8)
+            .map(|i| std::array::from_fn(|k| 0.001 * if (i + k) % 2 == 0 { 1.0 } else { -1.0 }))
+            .collect();
+        let mut delta: Vec<[f32; 6]> = own
+            .iter()
+            .zip(&centres)
+            .map(|(o, c)| {
+                let t = cross(a, *c);
+                [
+                    o[0] + a[0],
+                    o[1] + a[1],
+                    o[2] + a[2],
+                    o[3] + b[0] + t[0],
+                    o[4] + b[1] + t[1],
+                    o[5] + b[2] + t[2],
+                ]
+            })
+            .collect();
+        remove_rigid_motion(&mut delta, &centres);
+        // What is left has no rigid part: removing again changes nothing.
+        let again = {
+            let mut d = delta.clone();
+            remove_rigid_motion(&mut d, &centres);
+            d
+        };
+        for (x, y) in delta.iter().zip(&again) {
+            assert!((0..6).all(|k| (x[k] - y[k]).abs() < 1e-6));
+        }
+        // A motion of the whole scene alone is removed entirely.
+        let mut rigid: Vec<[f32; 6]> = centres
+            .iter()
+            .map(|c| {
+                let t = cross(a, *c);
+                [a[0], a[1], a[2], b[0] + t[0], b[1] + t[1], b[2] + t[2]]
+            })
+            .collect();
+        remove_rigid_motion(&mut rigid, &centres);
+        assert!(rigid.iter().flatten().all(|v| v.abs() < 1e-6), "{rigid:?}");
+        // Per-view corrections with no rigid part (zero mean, uncorrelated with the centres
+        // here only approximately) are mostly kept.
+        let kept: f32 = delta.iter().zip(&own).map(|(d, o)| (d[3] - o[3]).abs()).sum::<f32>() / 8.0;
+        assert!(kept < 2e-3, "{kept}");
+    }
+
+    /// A camera moved and turned in a box room (SDF known exactly) comes back to its true pose
+    /// by a few alignments of its depth points, and a camera at its true pose stays there.
+    #[test]
+    fn alignment_to_the_surface_recovers_a_perturbed_pose() {
+        // Inside of the box [-2,2]×[0,2.5]×[-1.5,1.5] (scaled into the unit sphere by 1/3).
+        let sdf = |x: [f32; 3]| -> (f32, [f32; 3]) {
+            let lo = [-2.0f32 / 3.0, 0.0, -0.5];
+            let hi = [2.0f32 / 3.0, 2.5 / 3.0, 0.5];
+            let mut best = (f32::MAX, [0.0f32; 3]);
+            for k in 0..3 {
+                for (d, s) in [(x[k] - lo[k], 1.0f32), (hi[k] - x[k], -1.0)] {
+                    if d < best.0 {
+                        let mut n = [0.0; 3];
+                        n[k] = s;
+                        best = (d, n);
+                    }
+                }
+            }
+            best
+        };
+        let centre = [0.1f32, 0.4, 0.05];
+        // Rays of a wide camera (true pose: identity rotation), their depths to the box.
+        let mut rays = Vec::new();
+        for a in 0..24 {
+            for e in 0..12 {
+                let (az, el) = (a as f32 * 0.26, -0.6 + e as f32 * 0.1);
+                let d = [az.cos() * el.cos(), el.sin(), az.sin() * el.cos()];
+                let mut t = 0.0f32;
+                for _ in 0..64 {
+                    let x = std::array::from_fn(|k| centre[k] + t * d[k]);
+                    t += sdf(x).0;
+                }
+                rays.push((d, t));
+            }
+        }
+        let config = PoseConfig {
+            correction: PoseCorrectionMode::On,
+            regularization: 0.0,
+            ..Default::default()
+        };
+        // One view (no gauge to take out): its given pose is the truth turned by delta's ω
+        // and moved by its τ; the correction starts at zero and must undo both.
+        let residual_error = |delta: [f32; 6]| -> f32 {
+            let mut pc = PoseCorrection {
+                delta: vec![delta],
+                adam: Adam::new(AdamConfig::default()),
+                grad: vec![0.0; 6],
+                config: config.clone(),
+                start: 0,
+                centres: vec![centre],
+            };
+            pc.delta[0] = [0.0; 6];
+            for _ in 0..8 {
+                let (r, t) = pc.transform(0);
+                let r_err = rotation_matrix([delta[0], delta[1], delta[2]]);
+                let pts: Vec<AlignPoint> = rays
+                    .iter()
+                    .map(|&(d, depth)| {
+                        // The given ray turned by the correction (r, t).
+                        let given = rotate(&r_err, d);
+                        let dir = rotate(&r, given);
+                        let c: [f32; 3] = std::array::from_fn(|k| centre[k] + delta[3 + k] + t[k]);
+                        let x: [f32; 3] = std::array::from_fn(|k| c[k] + depth * dir[k]);
+                        // The zero set 1 cm behind the depth surface (volume rendering's bias).
+                        let (s, n) = sdf(x);
+                        let s = s + 0.01;
+                        AlignPoint {
+                            offset: std::array::from_fn(|k| depth * dir[k]),
+                            sdf: s,
+                            normal: n,
+                        }
+                    })
+                    .collect();
+                pc.align_view(0, &pts, 0.1, 1.0);
+            }
+            // The corrected pose against the truth.
+            let (r, t) = pc.transform(0);
+            let total = rotate(
+                &r,
+                rotate(&rotation_matrix([delta[0], delta[1], delta[2]]), [0.3, 0.5, 0.81]),
+            );
+            let rot_err: f32 = (0..3).map(|k| (total[k] - [0.3f32, 0.5, 0.81][k]).abs()).sum();
+            let trans_err: f32 = (0..3).map(|k| (delta[3 + k] + t[k]).abs()).sum();
+            rot_err + trans_err
+        };
+        assert!(residual_error([0.0; 6]) < 1e-5);
+        let err = residual_error([0.01, -0.015, 0.008, 0.006, -0.004, 0.005]);
+        assert!(err < 2e-4, "{err}");
     }
 
     /// The ray gradient ∂L/∂ω = d' × ∂L/∂d' against a finite difference of a loss of the rotated

@@ -17,7 +17,7 @@ use crate::driver::{render_settings, StepOutcome, TrainStage};
 use crate::losses;
 use crate::maps::TrainingMaps;
 use crate::pdf_map::{PdfMaps, PixelRef};
-use crate::pose_correction::PoseCorrection;
+use crate::pose_correction::{AlignPoint, PoseCorrection};
 use crate::rays::{train_images, RayBatch, TrainImage};
 use crate::resume::{DatasetFingerprint, DATASET_META};
 use crate::schedule::Phase;
@@ -113,6 +113,11 @@ impl Parameters for PdfValues {
 /// The largest SDF residual (normalized units, ~7 cm in the default room) a depth point pulls
 /// its pose with: beyond it the point is more likely a flying pixel or an unfitted surface.
 const POSE_RESIDUAL_CLAMP: f32 = 0.02;
+/// Pose alignment: every how many iterations, depth points per view, and the fraction of the
+/// Gauss–Newton step taken (the surface moves under the poses while both are learned).
+const ALIGN_EVERY: u64 = 10;
+const ALIGN_POINTS: usize = 256;
+const ALIGN_DAMPING: f32 = 0.5;
 
 /// The checkpoint's prefix of the pose corrections, and its metadata key saying they are there.
 pub const POSE_PREFIX: &str = "adam.pose_correction";
@@ -143,11 +148,6 @@ pub struct Stage1 {
     normalization: i2sdf_data::Normalization,
     /// No training pixel has depth: bubble and smoothness points come from the rendered surface.
     no_depth: bool,
-    /// This iteration's pose points (see [`Stage1::correct_poses`]): per batch ray with depth,
-    /// its image, its depth along the corrected ray and the ray's direction; their SDF values
-    /// start at `pose_points_at` in the workspace (after every loss's points, so no loss sees them).
-    pose_points: Vec<(u32, f32, [f32; 3])>,
-    pose_points_at: usize,
     /// The training data's fingerprint (JSON), kept in every checkpoint so that a resume or a
     /// stage 2 against other data is refused.
     dataset: String,
@@ -187,7 +187,8 @@ impl Stage1 {
         let fingerprint = serde_json::to_string(&DatasetFingerprint::of(dataset)).expect("serializes");
         let images = train_images(dataset, maps);
         let hash_grid = matches!(config.model.backbone, i2sdf_model::Backbone::HashGrid);
-        let poses = PoseCorrection::new(dataset, &config.pose, hash_grid, images.len(), t.iterations);
+        let centres = images.iter().map(|im| im.origin).collect();
+        let poses = PoseCorrection::new(dataset, &config.pose, hash_grid, centres, t.iterations);
         let given_poses = images
             .iter()
             .map(|im| {
@@ -201,8 +202,6 @@ impl Stage1 {
             normalization: dataset.normalization,
             dataset: fingerprint,
             no_depth: images.iter().all(|im| im.depth.iter().all(|d| *d <= 0.0)),
-            pose_points: Vec::new(),
-            pose_points_at: 0,
             images,
             adam,
             specs,
@@ -490,20 +489,6 @@ impl Stage1 {
             }
         }
 
-        // Pose points: each batch ray's depth point on its corrected ray (the pose correction
-        // pulls them onto the SDF's zero set; no loss reads them, their cotangents stay zero).
-        self.pose_points.clear();
-        self.pose_points_at = self.extra.len() / 3;
-        if rendered.is_none() && self.poses.as_ref().is_some_and(|p| p.active(self.iteration)) {
-            for r in 0..self.batch.len() {
-                if let Some(x) = ray_surface(r) {
-                    self.extra.extend_from_slice(&x);
-                    self.pose_points
-                        .push((self.batch.image[r], self.batch.depth[r], self.batch.dir[r]));
-                }
-            }
-        }
-
         if rendered.is_none() {
             renderer::sample(
                 &self.scene,
@@ -651,7 +636,7 @@ impl Stage1 {
             &mut self.grads,
         );
         self.apply_adam();
-        self.correct_poses();
+        self.correct_poses(rng);
         st.ms_sampling = (t1 - t0).as_secs_f32() * 1e3;
         st.ms_forward = (t2 - t1).as_secs_f32() * 1e3;
         st.ms_backward = t2.elapsed().as_secs_f32() * 1e3;
@@ -662,36 +647,62 @@ impl Stage1 {
         }
     }
 
-    /// One step of the pose corrections, then the images take the new poses. With depth, each
-    /// view is aligned to the SDF like a depth camera to a fused surface (point-to-surface ICP,
-    /// as KinectFusion tracks): its depth points x = o' + t d' are pulled onto the zero set,
-    /// ∂(½ d(x)²)/∂x = d(x) ∇d(x) (the residual clamped, so flying pixels do not steer). This
-    /// replaced the rendering losses' gradient, which is biased: measured on the 80×60 room, it
-    /// moved exact cameras ~10 cm forward along their view. Without depth that gradient is all
-    /// there is ([`renderer::ray_position_gradients`], samples' t held fixed).
-    fn correct_poses(&mut self) {
+    /// One step of the pose corrections, then the images take the new poses. With depth, every
+    /// [`ALIGN_EVERY`] iterations each view is aligned to the SDF like a depth camera to a fused
+    /// surface (point-to-plane Gauss–Newton on [`ALIGN_POINTS`] of its depth points,
+    /// [`PoseCorrection::align_view`]). That replaced following the rendering losses' gradient
+    /// (with Adam), which is biased and noisy: measured on the 80×60 room it moved exact cameras
+    /// ~10 cm forward along their view. Without depth that gradient is all there is
+    /// ([`renderer::ray_position_gradients`], the samples' t held fixed).
+    fn correct_poses(&mut self, rng: &mut Pcg64) {
         let Some(poses) = &mut self.poses else { return };
         if !poses.active(self.iteration) {
             return;
         }
-        if !self.pose_points.is_empty() {
-            let at = self.ws.n_samples + self.pose_points_at;
-            for (j, &(image, t, dir)) in self.pose_points.iter().enumerate() {
-                let d = self.ws.sdf[at + j].clamp(-POSE_RESIDUAL_CLAMP, POSE_RESIDUAL_CLAMP);
-                let g: [f32; 3] = std::array::from_fn(|k| d * self.ws.gradient[at + j][k]);
-                poses.add_ray_gradient(image as usize, dir, g, g.map(|v| v * t));
+        if !self.no_depth {
+            if self.iteration % ALIGN_EVERY != 0 {
+                return;
             }
-        } else if self.no_depth {
+            // Depth points of every view on its corrected rays, queried in one batch.
+            let mut xs: Vec<f32> = Vec::new();
+            let mut offsets: Vec<(usize, [f32; 3])> = Vec::new();
+            for (i, im) in self.images.iter().enumerate() {
+                let pixels = im.pixels();
+                let (mut found, mut tries) = (0, 0);
+                while found < ALIGN_POINTS && tries < 8 * ALIGN_POINTS {
+                    tries += 1;
+                    let p = rng.gen_range(0..pixels);
+                    let Some(x) = im.surface_point(p) else { continue };
+                    let (o, _) = im.ray(p);
+                    xs.extend_from_slice(&x);
+                    offsets.push((i, std::array::from_fn(|k| x[k] - o[k])));
+                    found += 1;
+                }
+            }
+            let n = offsets.len();
+            let (mut sdf, mut grad) = (vec![0.0f32; n], vec![0.0f32; 3 * n]);
+            i2sdf_model::query::SceneQuery::new(&self.scene).sdf_gradient(&xs, &mut sdf, &mut grad);
+            let mut per_view: Vec<Vec<AlignPoint>> = vec![Vec::new(); self.images.len()];
+            for (j, &(i, offset)) in offsets.iter().enumerate() {
+                per_view[i].push(AlignPoint {
+                    offset,
+                    sdf: sdf[j],
+                    normal: [grad[3 * j], grad[3 * j + 1], grad[3 * j + 2]],
+                });
+            }
+            for (i, pts) in per_view.iter().enumerate() {
+                poses.align_view(i, pts, POSE_RESIDUAL_CLAMP, ALIGN_DAMPING);
+            }
+            poses.finish_alignment();
+        } else {
             let Some(g) = renderer::ray_position_gradients(&self.scene, &self.ws) else {
                 return;
             };
             for (r, g) in g.iter().enumerate() {
                 poses.add_ray_gradient(self.batch.image[r] as usize, self.batch.dir[r], g[0], g[1]);
             }
-        } else {
-            return;
+            poses.step();
         }
-        poses.step();
         self.apply_poses();
     }
 
