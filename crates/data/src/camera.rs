@@ -66,12 +66,7 @@ impl Camera {
         // Rigid inverse: [Rᵀ | −Rᵀ c]; exact and cheaper than a general inverse.
         let r_t = self.rotation().transpose();
         let t = -(r_t * self.center());
-        DMat4::from_cols(
-            r_t.x_axis.extend(0.0),
-            r_t.y_axis.extend(0.0),
-            r_t.z_axis.extend(0.0),
-            t.extend(1.0),
-        )
+        rigid(r_t, t)
     }
 
     /// The intrinsic matrix K (pixel-centre-at-+0.5 convention).
@@ -347,16 +342,21 @@ pub fn decompose_projection(p: [[f64; 4]; 3]) -> Result<(DMat3, DMat4), String> 
     let r_c2w = r_w2c.transpose();
     let c = -(r_c2w * t);
     let k = k * (1.0 / k.z_axis.z);
-    let c2w = DMat4::from_cols(
-        r_c2w.x_axis.extend(0.0),
-        r_c2w.y_axis.extend(0.0),
-        r_c2w.z_axis.extend(0.0),
-        c.extend(1.0),
-    );
+    let c2w = rigid(r_c2w, c);
     Ok((k, c2w))
 }
 
 /// A camera looking from `eye` towards `target`, OpenCV axes, `up` the world's up direction.
+/// The rigid transform [R | t] (a camera-to-world pose from its rotation and centre).
+pub fn rigid(r: DMat3, t: DVec3) -> DMat4 {
+    DMat4::from_cols(
+        r.x_axis.extend(0.0),
+        r.y_axis.extend(0.0),
+        r.z_axis.extend(0.0),
+        t.extend(1.0),
+    )
+}
+
 pub fn look_at(eye: DVec3, target: DVec3, up: DVec3) -> DMat4 {
     let z = (target - eye).normalize();
     let x = z.cross(up).normalize();

@@ -135,12 +135,7 @@ fn interpolate(cameras: &[Camera], frames: usize) -> Vec<Camera> {
             let eye = c0.center().lerp(c1.center(), t);
             let r = DMat3::from_quat(q);
             Camera {
-                c2w: DMat4::from_cols(
-                    r.x_axis.extend(0.0),
-                    r.y_axis.extend(0.0),
-                    r.z_axis.extend(0.0),
-                    eye.extend(1.0),
-                ),
+                c2w: crate::camera::rigid(r, eye),
                 ..cameras[0].clone()
             }
         })

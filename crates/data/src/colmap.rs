@@ -122,12 +122,7 @@ pub fn pose_c2w(qvec: [f64; 4], tvec: [f64; 3]) -> std::result::Result<DMat4, St
     // Camera-to-world rotation = transpose: its columns are those rows.
     let r_c2w = DMat3::from_cols(r_w2c_rows[0], r_w2c_rows[1], r_w2c_rows[2]);
     let center = -(r_c2w * DVec3::from(tvec));
-    Ok(DMat4::from_cols(
-        r_c2w.x_axis.extend(0.0),
-        r_c2w.y_axis.extend(0.0),
-        r_c2w.z_axis.extend(0.0),
-        center.extend(1.0),
-    ))
+    Ok(crate::camera::rigid(r_c2w, center))
 }
 
 /// Intrinsics (fx, fy, cx, cy) and lens of a camera, from COLMAP's parameter order per model.

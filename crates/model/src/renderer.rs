@@ -534,6 +534,17 @@ mod tests {
         s
     }
 
+    /// The scene, settings and two rays of the finite-difference tests.
+    fn two_rays() -> (NeuralScene, RenderSettings, [[f32; 3]; 2], [[f32; 3]; 2]) {
+        let settings = RenderSettings {
+            near: 0.05,
+            ..Default::default()
+        };
+        let o = [[0.1f32, -0.05, 0.0], [-0.2, 0.1, 0.05]];
+        let d = [[0.6f32, 0.8, 0.0], [0.0, -0.6, 0.8]];
+        (scene(), settings, o, d)
+    }
+
     /// L = Σ a·rgb + b·depth + c·normal + e·emitter + Σ_extra (p·d + q·∇d), a deterministic
     /// scalar of every output.
     fn loss(s: &NeuralScene, samples: &RaySampleSet, o: &[[f32; 3]], d: &[[f32; 3]], extra: &[f32]) -> f64 {
@@ -562,13 +573,7 @@ mod tests {
     /// (depth and emitter; colour and normal also see ∇d, whose curvature term is left out).
     #[test]
     fn ray_position_gradients_match_finite_differences() {
-        let s = scene();
-        let settings = RenderSettings {
-            near: 0.05,
-            ..Default::default()
-        };
-        let o = [[0.1f32, -0.05, 0.0], [-0.2, 0.1, 0.05]];
-        let d = [[0.6f32, 0.8, 0.0], [0.0, -0.6, 0.8]];
+        let (s, settings, o, d) = two_rays();
         let mut ws = RenderWorkspace::default();
         forward::<rand_pcg::Pcg64>(&s, &settings, &o, &d, &[], &mut ws, None);
         let samples = ws.samples.clone();
@@ -623,15 +628,9 @@ mod tests {
 
     #[test]
     fn backward_matches_finite_differences() {
-        let s = scene();
         // The sample positions depend on the SDF but are not differentiated (as in VolSDF), so
         // the finite differences reuse the same samples.
-        let settings = RenderSettings {
-            near: 0.05,
-            ..Default::default()
-        };
-        let o = [[0.1f32, -0.05, 0.0], [-0.2, 0.1, 0.05]];
-        let d = [[0.6f32, 0.8, 0.0], [0.0, -0.6, 0.8]];
+        let (s, settings, o, d) = two_rays();
         let extra = [0.3f32, 0.2, -0.1, -0.4, 0.1, 0.5];
         let mut ws = RenderWorkspace::default();
         forward::<rand_pcg::Pcg64>(&s, &settings, &o, &d, &extra, &mut ws, None);

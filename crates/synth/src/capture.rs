@@ -15,7 +15,7 @@
 
 use crate::noise::{standard_normal, DepthNoise};
 use crate::tracer::RenderScene;
-use glam::{DMat3, DMat4, DVec3, Vec3};
+use glam::{DMat3, DVec3, Vec3};
 use i2sdf_data::{Camera, DataError, Lens};
 use i2sdf_render::{Geometry, Hit, Ray};
 use rand::Rng;
@@ -80,12 +80,7 @@ impl PoseNoise {
         let r = rot * cam.rotation();
         let c = cam.center() + dir * (self.cm / 100.0);
         Camera {
-            c2w: DMat4::from_cols(
-                r.x_axis.extend(0.0),
-                r.y_axis.extend(0.0),
-                r.z_axis.extend(0.0),
-                c.extend(1.0),
-            ),
+            c2w: i2sdf_data::camera::rigid(r, c),
             ..cam.clone()
         }
     }

@@ -190,12 +190,7 @@ impl PoseCorrection {
         let r = glam::DMat3::from_cols_array_2d(&r.map(|row| row.map(f64::from))).transpose();
         let rot = r * glam::DMat3::from_mat4(c2w);
         let centre = c2w.w_axis.truncate() + glam::DVec3::from(t.map(f64::from)) * norm.scale;
-        glam::DMat4::from_cols(
-            rot.x_axis.extend(0.0),
-            rot.y_axis.extend(0.0),
-            rot.z_axis.extend(0.0),
-            centre.extend(1.0),
-        )
+        i2sdf_data::camera::rigid(rot, centre)
     }
 }
 
