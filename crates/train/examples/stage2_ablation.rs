@@ -26,6 +26,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let run = RunDir::new(std::path::Path::new(&args[1]));
     let dataset = i2sdf_data::load(std::path::Path::new(&args[2]))?;
+    // GT_DATA=ROOM scores against another dataset of the same views (a capture's exact room).
+    let gt_data = match std::env::var("GT_DATA") {
+        Ok(p) => i2sdf_data::load(std::path::Path::new(&p))?,
+        Err(_) => dataset.clone(),
+    };
     let base = read_run_config(&run)?;
     let variants: Vec<Vec<String>> = args[3..]
         .iter()
@@ -56,7 +61,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // pixels against their targets (what frozen geometry, F_c and the emissions allow).
     {
         use i2sdf_train::stage2::PixelKind;
-        let train: Vec<_> = dataset.split(Split::Train).collect();
+        let train: Vec<_> = gt_data.split(Split::Train).collect();
         let emission: Vec<Vec3> = (0..stage.fields.emitters.len())
             .map(|k| stage.fields.emitters.emission(k))
             .collect();
@@ -214,8 +219,84 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             q(0.9)
         );
     }
+    // EST=1: L[k] from the shading (`emission_from_shading`), printed against the GT; with
+    // EST=hold every variant starts there (hold it with a tiny stage2.lr_emission).
+    let mut estimated: Option<Vec<Vec3>> = None;
+    if let Ok(mode) = std::env::var("EST") {
+        use i2sdf_train::emission_from_shading::{estimate_emission, neighbour_pairs, ShadedPixel, ShadingEstimate};
+        use i2sdf_train::stage2::PixelKind;
+        let t = Instant::now();
+        let (mut px, mut sums) = (Vec::new(), Vec::new());
+        for p in &stage.pixels {
+            if let PixelKind::Surface { index } = p.kind {
+                px.push(ShadedPixel {
+                    position: p.point.position,
+                    normal: p.point.normal,
+                    view: p.view,
+                    pixel: p.pixel,
+                    target: p.target,
+                    saturated: p.saturated,
+                });
+                sums.push(stage.cache.diffuse[index as usize].clone());
+            }
+        }
+        let widths: Vec<usize> = dataset.split(Split::Train).map(|f| f.camera.width).collect();
+        // EST_DUMP=FILE: the estimator's inputs as little-endian f32 rows (position, normal,
+        // target, field, emit[K], view, pixel, saturated), for the `emission_probe` example.
+        if let Ok(path) = std::env::var("EST_DUMP") {
+            let mut raw: Vec<f32> = vec![px.len() as f32, stage.emissions().len() as f32, widths[0] as f32];
+            for e in stage.emissions() {
+                raw.extend(e.to_array());
+            }
+            for (p, d) in px.iter().zip(&sums) {
+                raw.extend(p.position.to_array());
+                raw.extend(p.normal.to_array());
+                raw.extend(p.target.to_array());
+                raw.extend(d.field.to_array());
+                raw.extend(&d.emit);
+                raw.extend([p.view as f32, p.pixel as f32, p.saturated as f32]);
+            }
+            std::fs::write(path, raw.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>())?;
+        }
+        let s = ShadingEstimate::default();
+        let pairs = neighbour_pairs(&px, &widths, &s);
+        let bound = stage.emissions();
+        let est = estimate_emission(&px, &sums, &pairs, &bound, &vec![true; bound.len()], &s);
+        let exposure = gt_data.ldr_exposure.unwrap_or(1.0) as f32;
+        for (k, e) in est.iter().enumerate() {
+            let c = stage.fields.emitters.emitters[k].centre;
+            let gt = gt_data.emitters.iter().min_by(|a, b| {
+                let d = |g: &i2sdf_data::GtEmitter| {
+                    let m = (glam::DVec3::from_array(g.bounds_min) + glam::DVec3::from_array(g.bounds_max)) * 0.5;
+                    (m - glam::DVec3::from_array(c)).length()
+                };
+                d(a).total_cmp(&d(b))
+            });
+            let want = gt.map(|g| glam::DVec3::from_array(g.emission).as_vec3() * exposure);
+            println!(
+                "estimated L{k} {:.3}/{:.3}/{:.3} (bound {:.3}/{:.3}/{:.3}), GT {:?}, ratio {:?}",
+                e.x,
+                e.y,
+                e.z,
+                bound[k].x,
+                bound[k].y,
+                bound[k].z,
+                want,
+                want.map(|w| *e / w)
+            );
+        }
+        println!(
+            "  {} pixels, {} pairs, {:.1} s",
+            px.len(),
+            pairs.len(),
+            t.elapsed().as_secs_f64()
+        );
+        if mode == "hold" {
+            estimated = Some(est);
+        }
+    }
     // Test pixels: cast once.
-    let test: Vec<_> = dataset.split(Split::Test).collect();
+    let test: Vec<_> = gt_data.split(Split::Test).collect();
     let mut rays = Vec::new();
     let mut gt = Vec::new();
     for f in &test {
@@ -248,16 +329,44 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let idx: Vec<usize> = (0..hits.len()).filter(|&i| hits[i].is_some()).collect();
     let world: Vec<Vec3> = idx.iter().map(|&i| hits[i].unwrap().position).collect();
-    let exposure = dataset.ldr_exposure.unwrap_or(1.0) as f32;
+    let exposure = gt_data.ldr_exposure.unwrap_or(1.0) as f32;
     for (vi, sets) in variants.iter().enumerate() {
         let config = config_of(sets)?;
         if vi > 0 {
             stage.restart(config.clone());
         }
+        // SET_L="r,g,b;r,g,b": start each L[k] there (with a tiny stage2.lr_emission: held).
+        if let Ok(v) = std::env::var("SET_L") {
+            for (k, e) in v.split(';').enumerate() {
+                for (c, x) in e.split(',').enumerate() {
+                    stage.fields.emitters.log_emission[k * 3 + c] = x.parse::<f32>()?.ln();
+                }
+            }
+        }
+        if let Some(est) = &estimated {
+            for (k, e) in est.iter().enumerate() {
+                for c in 0..3 {
+                    stage.fields.emitters.log_emission[k * 3 + c] = e[c].ln();
+                }
+            }
+        }
         let t = Instant::now();
         let mut trainer = Trainer::new(stage);
+        let trace = std::env::var("TRACE").is_ok();
+        let mut it = 0;
         while !trainer.done() {
             trainer.step()?;
+            it += 1;
+            // TRACE=1: the emissions and the loss terms every 100 iterations.
+            if trace && it % 100 == 0 {
+                let l: Vec<String> = trainer
+                    .stage
+                    .emissions()
+                    .iter()
+                    .map(|e| format!("{:.3}/{:.3}/{:.3}", e.x, e.y, e.z))
+                    .collect();
+                println!("    it {it}: L {}", l.join(", "));
+            }
         }
         stage = trainer.stage;
         let secs = t.elapsed().as_secs_f64();
@@ -298,7 +407,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .map(|k| {
                 let l = stage.fields.emitters.emission(k);
                 let c = stage.fields.emitters.emitters[k].centre;
-                let gt = dataset.emitters.iter().min_by(|a, b| {
+                let gt = gt_data.emitters.iter().min_by(|a, b| {
                     let d = |e: &i2sdf_data::GtEmitter| {
                         (0..3)
                             .map(|i| ((e.bounds_min[i] + e.bounds_max[i]) / 2.0 - c[i]).powi(2))
@@ -337,7 +446,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         // glossy (GT Ks > 0.2), to set beside the GT materials' L1 on the same pixels (above).
         {
             use i2sdf_train::stage2::PixelKind;
-            let train: Vec<_> = dataset.split(Split::Train).collect();
+            let train: Vec<_> = gt_data.split(Split::Train).collect();
             let emission: Vec<Vec3> = (0..stage.fields.emitters.len())
                 .map(|k| stage.fields.emitters.emission(k))
                 .collect();

@@ -152,6 +152,10 @@ pub struct Stage2Config {
     pub lr_mlp: f32,
     /// Learning rate of log L[k].
     pub lr_emission: f32,
+    /// The L[k] of an emitter the images saw only clipped (LDR without HDR) is estimated from
+    /// the light it throws on the room and held (`emission_from_shading`); off: fitted with the
+    /// materials from its lower bound, which the re-render cannot tell from a brighter Kd.
+    pub emission_from_shading: bool,
     /// Final learning rate as a fraction of the initial one (cosine decay).
     pub lr_final_fraction: f32,
     /// Weight of the smoothness term of eq:material (‖M(x) − M(x+ε)‖₂ per parameter).
@@ -202,6 +206,7 @@ impl Default for Stage2Config {
             lr_grid: 1e-2,
             lr_mlp: 5e-3,
             lr_emission: 5e-2,
+            emission_from_shading: true,
             lr_final_fraction: 0.1,
             smooth: 0.05,
             energy: 1.0,

@@ -23,6 +23,7 @@
 
 use crate::config::{Stage2Estimator, TrainConfig};
 use crate::driver::{StepOutcome, TrainStage};
+use crate::emission_from_shading::{emission_from_the_room, saturated_emitters};
 use crate::kmeans::{cluster_emitters, ClusterSettings};
 use crate::losses::{material_regularizers, rerender_channel, MaterialPriors};
 use crate::shading::{pool_diffuse, shade, shade_backward, trace_incident, DiffuseSums, IncidentSample, ShadingPoint};
@@ -95,6 +96,9 @@ pub struct Stage2 {
     adam: Adam,
     grad: MaterialGrad,
     d_emission: Vec<Vec3>,
+    /// Emitters whose L[k] is held (`stage2.emission_from_shading`): the images saw them only
+    /// clipped, so the re-render cannot tell L[k] from Kd (see `emission_from_shading`).
+    held_emission: Vec<bool>,
     ws: MaterialWorkspace,
     iteration: u64,
     /// K chosen by the clustering (before small clusters were dropped), for the log.
@@ -300,6 +304,7 @@ impl Stage2 {
             None
         };
         let has_masks = views.iter().all(|v| v.emitter_mask.is_some());
+        let fresh = given.is_none();
         let (material, emitters, chosen_k) = match given {
             Some((m, e)) => {
                 let k = e.len();
@@ -467,14 +472,30 @@ impl Stage2 {
         }
         drop(frozen);
         let surface: Vec<u32> = surf.iter().map(|(i, _)| *i as u32).collect();
-        cache.diffuse = if c2.irradiance_radius > 0.0 {
+        let pooled = (c2.irradiance_radius > 0.0).then(|| {
             progress("pooling the diffuse irradiance of nearby pixels");
             let pts: Vec<ShadingPoint> = surf.iter().map(|(_, p)| *p).collect();
             pool_diffuse(&pts, &own, c2.irradiance_radius * scale)
-        } else if cache.bake.is_some() {
-            own
-        } else {
-            Vec::new()
+        });
+        // 5. The emission of lights the images saw only clipped, from the light they throw.
+        let held_emission = saturated_emitters(&pixels, emitters.len());
+        let mut emitters = emitters;
+        if fresh && c2.emission_from_shading && held_emission.contains(&true) {
+            progress("emission of the clipped emitters from the shading of the room");
+            let widths: Vec<usize> = views.iter().map(|v| v.camera.width).collect();
+            let estimate = emission_from_the_room(
+                &pixels,
+                pooled.as_ref().unwrap_or(&own),
+                &widths,
+                &emitters,
+                &held_emission,
+            );
+            emitters = EmitterTable::new(emitters.emitters.clone(), &estimate);
+        }
+        cache.diffuse = match pooled {
+            Some(p) => p,
+            None if cache.bake.is_some() => own,
+            None => Vec::new(),
         };
         let adam = new_adam(&config, &material, &emitters);
         let grad = material.new_grad();
@@ -501,6 +522,11 @@ impl Stage2 {
             adam,
             grad,
             d_emission: vec![Vec3::ZERO; k],
+            held_emission: if c2.emission_from_shading {
+                held_emission
+            } else {
+                vec![false; k]
+            },
             ws: MaterialWorkspace::default(),
             iteration: 0,
             chosen_k,
@@ -599,7 +625,8 @@ impl Stage2 {
         (s, self.pixels.len() - s)
     }
 
-    fn emissions(&self) -> Vec<Vec3> {
+    /// L[k] of each emitter, in linear image units.
+    pub fn emissions(&self) -> Vec<Vec3> {
         (0..self.fields.emitters.len())
             .map(|k| self.fields.emitters.emission(k))
             .collect()
@@ -851,6 +878,9 @@ impl TrainStage for Stage2 {
                 .update(id, &mut self.fields.material.mlp.params, &mut self.grad.mlp);
         }
         if let Some(id) = g_em {
+            for (d, _) in d_raw.chunks_exact_mut(3).zip(&self.held_emission).filter(|(_, h)| **h) {
+                d.fill(0.0);
+            }
             self.adam.update(id, &mut self.fields.emitters.log_emission, &mut d_raw);
         }
         Ok(StepOutcome {

@@ -1,0 +1,60 @@
+//! Runs `emission_from_shading` on inputs dumped by `stage2_ablation` (`EST=1 EST_DUMP=FILE`)
+//! with settings from the environment, so its parameters can be studied without a cache build:
+//! `EST_STEPS=1,2,4,8 EST_DELTA=0.05 EST_COS=0.95 EST_SLOPE=0.1 EST_MIN=0.01
+//! cargo run --release -p i2sdf-train --example emission_probe -- FILE`.
+
+use glam::Vec3;
+use i2sdf_train::emission_from_shading::{estimate_emission, neighbour_pairs, ShadedPixel, ShadingEstimate};
+use i2sdf_train::shading::DiffuseSums;
+
+fn env<T: std::str::FromStr>(key: &str, default: T) -> T {
+    std::env::var(key).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let path = std::env::args().nth(1).ok_or("usage: emission_probe FILE")?;
+    let bytes = std::fs::read(path)?;
+    let raw: Vec<f32> = bytes
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    let (n, k, width) = (raw[0] as usize, raw[1] as usize, raw[2] as usize);
+    let bound: Vec<Vec3> = (0..k).map(|e| Vec3::from_slice(&raw[3 + 3 * e..6 + 3 * e])).collect();
+    let row = 15 + k;
+    let (mut px, mut sums) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for r in raw[3 + 3 * k..].chunks_exact(row) {
+        px.push(ShadedPixel {
+            position: Vec3::from_slice(&r[0..3]),
+            normal: Vec3::from_slice(&r[3..6]),
+            target: Vec3::from_slice(&r[6..9]),
+            view: r[12 + k] as u32,
+            pixel: r[13 + k] as u32,
+            saturated: r[14 + k] as u8,
+        });
+        sums.push(DiffuseSums {
+            field: Vec3::from_slice(&r[9..12]),
+            emit: r[12..12 + k].to_vec(),
+        });
+    }
+    let steps: Vec<usize> = env("EST_STEPS", "1,2,4,8".to_string())
+        .split(',')
+        .map(|v| v.parse().unwrap_or(1))
+        .collect();
+    let d = ShadingEstimate::default();
+    let s = ShadingEstimate {
+        steps: Box::leak(steps.into_boxed_slice()),
+        delta: env("EST_DELTA", d.delta),
+        min_cos: env("EST_COS", d.min_cos),
+        max_slope: env("EST_SLOPE", d.max_slope),
+        min_target: env("EST_MIN", d.min_target),
+        ..d
+    };
+    let views = px.iter().map(|p| p.view as usize + 1).max().unwrap_or(0);
+    let pairs = neighbour_pairs(&px, &vec![width; views], &s);
+    let est = estimate_emission(&px, &sums, &pairs, &bound, &vec![true; k], &s);
+    for (e, l) in est.iter().enumerate() {
+        println!("L{e} {:.3} {:.3} {:.3}", l.x, l.y, l.z);
+    }
+    println!("{} pairs", pairs.len());
+    Ok(())
+}
