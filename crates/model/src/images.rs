@@ -73,7 +73,7 @@ pub fn render_volume_view(scene: &NeuralScene, settings: &RenderSettings, camera
     view
 }
 
-/// The re-render's HDR image (all emitters at their L[k], plus F_c's slot), linear image units,
+/// The re-render's HDR image (all emitters at their L\[k\], plus F_c's slot), linear image units,
 /// 3 channels.
 pub fn rerender_hdr(v: &ViewRender) -> ImageF32 {
     let gains = vec![Vec3::ONE; v.emitters];
@@ -91,7 +91,7 @@ pub fn rgb_map(width: usize, height: usize, values: &[Vec3]) -> ImageF32 {
     ImageF32::from_data(width, height, 3, values.iter().flat_map(|c| c.to_array()).collect())
 }
 
-/// L[k] where the pixel-centre ray sees an emitter (the re-render's emitter mask), else 0: k is
+/// L\[k\] where the pixel-centre ray sees an emitter (the re-render's emitter mask), else 0: k is
 /// `table.index` of the seen point (backprojected from the z-depth), else the nearest centre.
 pub fn emission_map(v: &ViewRender, camera: &Camera, table: &EmitterTable, margin: f64) -> ImageF32 {
     let mut out = ImageF32::new(v.width, v.height, 3);
