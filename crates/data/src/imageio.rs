@@ -82,6 +82,16 @@ pub fn linear_to_srgb(v: f32) -> f32 {
     }
 }
 
+/// The one tone map of linear images for display: each value × `exposure`, clamped to [0, 1],
+/// sRGB-encoded ([`linear_to_srgb`]). The synthetic datasets' LDR images (their exposure),
+/// stage 2's re-renders and edits in an sRGB dataset's encoding, and the linear albedo maps shown
+/// as PNGs (exposure 1) all go through it.
+pub fn tone_map_srgb(linear: &ImageF32, exposure: f32) -> ImageF32 {
+    let mut out = linear.clone();
+    out.data.iter_mut().for_each(|x| *x = linear_to_srgb(*x * exposure));
+    out
+}
+
 fn extension(path: &Path) -> String {
     path.extension()
         .and_then(|e| e.to_str())

@@ -110,12 +110,9 @@ pub fn differential_hdr(
 
 /// Linear HDR → the dataset's LDR tone mapping, both as images.
 pub fn hdr_ldr_images(hdr: &[Vec3], width: usize, height: usize, radiometry: &Radiometry) -> (ImageF32, ImageF32) {
-    let hdr: Vec<f32> = hdr.iter().flat_map(|c| c.to_array()).collect();
-    let ldr = hdr.iter().map(|&x| radiometry.encode(x)).collect();
-    (
-        ImageF32::from_data(width, height, 3, hdr),
-        ImageF32::from_data(width, height, 3, ldr),
-    )
+    let hdr = ImageF32::from_data(width, height, 3, hdr.iter().flat_map(|c| c.to_array()).collect());
+    let ldr = radiometry.encode_image(&hdr);
+    (hdr, ldr)
 }
 
 #[cfg(test)]

@@ -12,7 +12,7 @@ pub use geometry::UnionGeometry;
 pub use material::{brdf_of, values_of, EditedMaterial, MaterialEdit};
 pub use scene::{mesh_box, BaseLights, EditedScene, InsertedObject};
 pub mod recovered;
-pub use recovered::{edit_images, recovered_lights, EditSettings, RecoveredScene, RecoveredSurface};
+pub use recovered::{edit_images, recovered_lights, EditSettings, RecoveredScene, RecoveredSurface, MESH_RESOLUTION};
 pub mod apply;
 pub use apply::{edited_scene, light_gains};
 pub mod differential;

@@ -14,14 +14,14 @@ use crate::differential::hdr_ldr_images;
 use crate::scene::{BaseLights, EditedScene};
 use glam::{DVec3, Vec3};
 use i2sdf_data::edit_spec::EditSpec;
-use i2sdf_data::{Bounds, Camera, DataError, EditAssets, ImageF32, TriangleMesh};
+use i2sdf_data::{Bounds, Camera, DataError, Dataset, EditAssets, ImageF32, TriangleMesh};
 use i2sdf_model::images::render_volume_view;
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::observed::ObservedViews;
 use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::{
     emitter_cone_lights, extract_mesh, EmitterTable, FrozenScene, MaterialField, NeuralMaterial, NeuralScene,
-    Radiometry,
+    OpenedRun, Radiometry,
 };
 use i2sdf_render::{AreaLight, Estimator, Integrator, Light, MeshGeometry, PathStart, ViewRender, ViewSettings};
 
@@ -36,12 +36,14 @@ pub struct RecoveredSurface {
     pub emitter_faces: Vec<Vec<u32>>,
 }
 
-/// Each side of the mesh's bounds is enlarged by this fraction at both ends (walls on the
-/// bounds stay closed), as stage 2's bake.
-const PAD_FRACTION: f64 = 0.05;
+/// The recovered surface's marching-cubes resolution (samples along the bounds' longest side)
+/// unless asked otherwise: `edit`'s, and that of the relit sets `eval` scores and `report` shows.
+pub const MESH_RESOLUTION: usize = 256;
 
 impl RecoveredSurface {
-    /// Extracts the surface at `resolution` samples along the bounds' longest side.
+    /// Extracts the surface at `resolution` samples along the bounds' longest side (padded as
+    /// stage 2's bake, [`i2sdf_model::marching_cubes::PAD_FRACTION`]: walls on the bounds stay
+    /// closed).
     ///
     /// With `cameras` (the training views), triangles inside an emitter's sphere that none of
     /// them sees are that emitter whatever F_e says, as stage 2 labels its hits
@@ -52,7 +54,7 @@ impl RecoveredSurface {
         resolution: usize,
         cameras: Option<&[Camera]>,
     ) -> Result<Self, DataError> {
-        let mesh = extract_mesh(frozen.scene, bounds, resolution, PAD_FRACTION)?;
+        let mesh = extract_mesh(frozen.scene, bounds, resolution)?;
         if mesh.faces.is_empty() {
             return Err(DataError::failed(
                 "the recovered SDF has no surface inside the scene bounds",
@@ -198,6 +200,21 @@ impl<'a> RecoveredScene<'a> {
             material: &fields.material,
             radiometry: fields.radiometry,
         })
+    }
+
+    /// The recovered scene of a trained run's stage 2 (refused without one), with its emitter
+    /// threshold and, where it labelled by them, the training views of `dataset`; the surface
+    /// over the dataset's bounds at `resolution`.
+    pub fn of_run(run: &'a OpenedRun, dataset: &Dataset, resolution: usize) -> Result<Self, DataError> {
+        let observers = run.observers(dataset);
+        Self::new(
+            &run.scene,
+            run.stage2()?,
+            run.config.emitter_threshold,
+            &dataset.bounds,
+            resolution,
+            observers.as_deref(),
+        )
     }
 
     /// The edited scene of `spec` over this one.

@@ -1,16 +1,17 @@
 //! Evaluating stage 2 (materials and emitters) on the test views: the Monte Carlo re-render of
 //! eq:render tone-mapped with the dataset's transfer against the test LDR images, the material
 //! maps (Kd, ρ of the pixel-centre rays) against the GT maps, and the emitters found against the
-//! dataset's GT emitters. Also the image conversions `render --what` writes.
+//! dataset's GT emitters. The frozen scene is the run's as stage 2 built it
+//! ([`i2sdf_model::OpenedRun::frozen`]); the images come from [`i2sdf_model::images`].
 
 use crate::image_metrics::{psnr, psnr_from_mse, ssim, ImageRef};
 use crate::report::{EmitterMatch, EmitterMetrics, MaterialMetrics, RerenderMetrics};
 use glam::{DVec3, Vec3};
 use i2sdf_data::dataset::GtEmitter;
-use i2sdf_data::{Camera, DataError, Dataset, Frame, ImageF32, Split};
+use i2sdf_data::{DataError, Dataset, Frame, ImageF32, Split};
+use i2sdf_model::images::rerender_ldr;
 use i2sdf_model::intrinsic_io::IntrinsicFields;
-use i2sdf_model::{rerender_view, EmitterTable, FrozenScene, NeuralScene, Radiometry};
-use i2sdf_render::ViewRender;
+use i2sdf_model::{rerender_view, EmitterTable, FrozenScene};
 
 /// Options of [`intrinsic_metrics`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -18,88 +19,12 @@ pub struct IntrinsicOptions {
     /// Paths per pixel of the re-render.
     pub spp: u32,
     pub seed: u64,
-    /// F_e threshold of the emitter labels (the run's `stage2.emitter_threshold`).
-    pub emitter_threshold: f32,
-    /// Bake the frozen surface over the dataset's bounds at this resolution for the re-render's
-    /// rays (as stage 2 does; 0: sphere-trace every ray).
-    pub bake_resolution: usize,
-    /// Label the unobserved surface inside emitters as emitting, as stage 2 did (the run's
-    /// `stage2.label_unobserved`; the training views are what was observed).
-    pub label_unobserved: bool,
 }
 
 impl Default for IntrinsicOptions {
     fn default() -> Self {
-        IntrinsicOptions {
-            spp: 64,
-            seed: 0,
-            emitter_threshold: 0.5,
-            bake_resolution: 256,
-            label_unobserved: false,
-        }
+        IntrinsicOptions { spp: 64, seed: 0 }
     }
-}
-
-/// The frozen scene of a run with stage 2, as the re-render and `render` use it.
-pub fn frozen_scene<'a>(
-    scene: &'a NeuralScene,
-    fields: &'a IntrinsicFields,
-    emitter_threshold: f32,
-) -> FrozenScene<'a> {
-    let mut frozen = FrozenScene::new(scene, &fields.emitters, fields.radiometry);
-    frozen.emitter_threshold = emitter_threshold;
-    frozen
-}
-
-/// The re-render's HDR image (all emitters at their L[k], plus F_c's slot), linear image units,
-/// 3 channels.
-pub fn rerender_hdr(v: &ViewRender) -> ImageF32 {
-    let gains = vec![Vec3::ONE; v.emitters];
-    let data = v.hdr(&gains).iter().flat_map(|c| c.to_array()).collect();
-    ImageF32::from_data(v.width, v.height, 3, data)
-}
-
-/// A linear image tone-mapped with the dataset's transfer (clamp, OETF): comparable with its LDR
-/// images.
-pub fn encode_image(linear: &ImageF32, radiometry: &Radiometry) -> ImageF32 {
-    let mut out = linear.clone();
-    out.data.iter_mut().for_each(|x| *x = radiometry.encode(*x));
-    out
-}
-
-/// Per-pixel RGB maps (Kd, Ks) as a 3-channel image.
-pub fn rgb_map(width: usize, height: usize, values: &[Vec3]) -> ImageF32 {
-    ImageF32::from_data(width, height, 3, values.iter().flat_map(|c| c.to_array()).collect())
-}
-
-/// L[k] where the pixel-centre ray sees an emitter (the re-render's emitter mask), else 0: k is
-/// `table.index` of the seen point (backprojected from the z-depth), else the nearest centre.
-pub fn emission_map(v: &ViewRender, camera: &Camera, table: &EmitterTable, margin: f64) -> ImageF32 {
-    let mut out = ImageF32::new(v.width, v.height, 3);
-    if table.is_empty() {
-        return out;
-    }
-    for y in 0..v.height {
-        for x in 0..v.width {
-            let i = y * v.width + x;
-            if !v.emitter_mask[i] || !v.depth[i].is_finite() {
-                continue;
-            }
-            let p = camera.backproject(x, y, v.depth[i] as f64);
-            let k = table.index(p, margin).unwrap_or_else(|| nearest_centre(table, p));
-            out.data[i * 3..i * 3 + 3].copy_from_slice(&table.emission(k).to_array());
-        }
-    }
-    out
-}
-
-fn nearest_centre(table: &EmitterTable, p: DVec3) -> usize {
-    (0..table.len())
-        .min_by(|&a, &b| {
-            let d = |k: usize| DVec3::from_array(table.emitters[k].centre).distance_squared(p);
-            d(a).total_cmp(&d(b))
-        })
-        .expect("a non-empty table")
 }
 
 /// The pixels the material metrics compare: the re-render hit a surface (finite depth) and the
@@ -271,34 +196,28 @@ fn check_dims(f: &Frame, what: &str, img: &ImageF32, channels: usize) -> Result<
     Ok(())
 }
 
-/// Stage 2's metrics over the test views (see the module doc): each view re-rendered once with
-/// `rerender_view` (`spp` paths per pixel). Rerender PSNR/SSIM are means over views; material
-/// figures pool all test views; emitters come from the table and `dataset.emitters`.
+/// Stage 2's metrics over the test views (see the module doc): each view re-rendered once in
+/// `frozen` (the run's, [`i2sdf_model::OpenedRun::frozen`]) with `rerender_view` (`spp` paths per
+/// pixel, the view's index in the test split as its sampler's). Rerender PSNR/SSIM are means over
+/// views; material figures pool all test views; emitters come from the table and
+/// `dataset.emitters`.
 pub fn intrinsic_metrics(
-    scene: &NeuralScene,
+    frozen: &FrozenScene,
     fields: &IntrinsicFields,
     dataset: &Dataset,
     options: &IntrinsicOptions,
 ) -> Result<(RerenderMetrics, MaterialMetrics, EmitterMetrics), DataError> {
-    intrinsic_metrics_with_progress(scene, fields, dataset, options, &|| {})
+    intrinsic_metrics_with_progress(frozen, fields, dataset, options, &|| {})
 }
 
 /// [`intrinsic_metrics`], calling `on_row` after each rendered row (progress).
 pub fn intrinsic_metrics_with_progress(
-    scene: &NeuralScene,
+    frozen: &FrozenScene,
     fields: &IntrinsicFields,
     dataset: &Dataset,
     options: &IntrinsicOptions,
     on_row: &(dyn Fn() + Sync),
 ) -> Result<(RerenderMetrics, MaterialMetrics, EmitterMetrics), DataError> {
-    let mut frozen = frozen_scene(scene, fields, options.emitter_threshold);
-    if options.bake_resolution > 0 {
-        frozen.bake(&dataset.bounds, options.bake_resolution)?;
-    }
-    if options.label_unobserved {
-        let train: Vec<_> = dataset.split(Split::Train).map(|f| f.camera.clone()).collect();
-        frozen.observe(&train);
-    }
     let (mut p, mut s) = (Vec::new(), Vec::new());
     let mut acc = MaterialAccumulator::default();
     for (view, f) in dataset.split(Split::Test).enumerate() {
@@ -313,7 +232,7 @@ pub fn intrinsic_metrics_with_progress(
             }
         }
         let v = rerender_view(
-            &frozen,
+            frozen,
             &fields.material,
             &f.camera,
             options.spp,
@@ -321,7 +240,7 @@ pub fn intrinsic_metrics_with_progress(
             view as u32,
             on_row,
         );
-        let ldr = encode_image(&rerender_hdr(&v), &fields.radiometry);
+        let ldr = rerender_ldr(&v, &fields.radiometry);
         let pred = ImageRef::new(&ldr.data, w, h, 3)?;
         let gt = ImageRef::new(&f.rgb.data, w, h, 3)?;
         if let Some(x) = psnr(pred, gt, None)? {
@@ -354,8 +273,9 @@ pub fn intrinsic_metrics_with_progress(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use i2sdf_model::images::{emission_map, rerender_hdr};
     use i2sdf_model::material_field::{MaterialConfig, MaterialField};
-    use i2sdf_model::{Emitter, ModelConfig};
+    use i2sdf_model::{Emitter, ModelConfig, NeuralScene, Radiometry};
 
     fn emitter(centre: [f64; 3]) -> Emitter {
         Emitter {
@@ -501,12 +421,11 @@ mod tests {
         };
         let options = IntrinsicOptions {
             spp: 2,
-            // Every surface point F_e-positive: the emitter's sphere decides.
-            emitter_threshold: -1.0,
-            bake_resolution: 0,
             ..Default::default()
         };
-        let (rerender, material, emitters) = intrinsic_metrics(&scene, &fields, &dataset, &options).unwrap();
+        // Every surface point F_e-positive: the emitter's sphere decides; rays sphere traced.
+        let frozen = FrozenScene::labelled(&scene, &fields.emitters, fields.radiometry, -1.0, None, None);
+        let (rerender, material, emitters) = intrinsic_metrics(&frozen, &fields, &dataset, &options).unwrap();
         assert!(
             rerender.psnr.unwrap().is_finite() && rerender.ssim.unwrap().is_finite(),
             "{rerender:?}"
@@ -516,7 +435,6 @@ mod tests {
         assert!(material.roughness_l1.unwrap().is_finite());
         assert_eq!(emitters.count, Some(1));
         let f = dataset.split(Split::Test).next().unwrap();
-        let frozen = frozen_scene(&scene, &fields, -1.0);
         let v = rerender_view(&frozen, &fields.material, &f.camera, 1, 0, 0, &|| {});
         let e = emission_map(&v, &f.camera, &fields.emitters, frozen.index_margin);
         for (i, seen) in v.emitter_mask.iter().enumerate() {

@@ -15,11 +15,11 @@ use i2sdf_model::images::render_volume_view;
 use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::NeuralScene;
 
-/// Marching cubes over the scene's SDF inside `bounds` (world units, each side enlarged by 1 %
-/// at both ends), with `resolution` samples along the longest side; vertices in world units
-/// ([`i2sdf_model::marching_cubes::extract_mesh`] with `pad_fraction` 0.01).
+/// Marching cubes over the scene's SDF inside `bounds` (world units, each side enlarged by
+/// [`i2sdf_model::marching_cubes::PAD_FRACTION`] at both ends), with `resolution` samples along
+/// the longest side; vertices in world units ([`i2sdf_model::marching_cubes::extract_mesh`]).
 pub fn extract_mesh(scene: &NeuralScene, bounds: &Bounds, resolution: usize) -> Result<TriangleMesh, DataError> {
-    i2sdf_model::marching_cubes::extract_mesh(scene, bounds, resolution, 0.01)
+    i2sdf_model::marching_cubes::extract_mesh(scene, bounds, resolution)
 }
 
 /// The training views with GT depth, as the mesh metrics' visibility test wants them.
@@ -39,9 +39,10 @@ pub fn culling_views(dataset: &Dataset) -> Vec<CullingView> {
 /// Marching-cubes resolution (samples along the scene box's longest side) of the mesh that `eval`
 /// scores and `mesh` writes. Why 1024: the cells must be well under the thinnest objects and the
 /// 2 cm recall threshold, or the extraction, not the SDF, decides what is found. On the default
-/// room (4.8 m long) 256 gives 1.9 cm cells, wider than the chandelier's 1.2 cm arms: one trained
-/// SDF that holds the arms scored 0.22 recall at 2 cm at 256, 0.44 at 512 and 0.55 at 1024 (5 mm
-/// cells). The narrow band ([`i2sdf_model::marching_cubes::NarrowBand`]) makes 1024 affordable.
+/// room (4.8 m long, 5.3 m with the pad) 256 gives 2.1 cm cells, wider than the chandelier's
+/// 1.2 cm arms: one trained SDF that holds the arms scored 0.22 recall at 2 cm at 256, 0.44 at 512
+/// and 0.55 at 1024 (5 mm cells; measured with the 1 % pad `eval` had before its mesh took
+/// [`i2sdf_model::marching_cubes::PAD_FRACTION`]). The narrow band ([`i2sdf_model::marching_cubes::NarrowBand`]) makes 1024 affordable.
 pub const MESH_RESOLUTION: usize = 1024;
 
 /// Options of [`evaluate`].

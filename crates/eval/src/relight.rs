@@ -16,34 +16,26 @@ use glam::Vec3;
 use i2sdf_data::edit_spec::{EditOp, EditSpec};
 use i2sdf_data::{DataError, Dataset, Frame, ImageF32, RelightSet, Split};
 use i2sdf_edit::{differential_hdr, edit_images, hdr_ldr_images, light_gains, EditSettings, RecoveredScene};
-use i2sdf_model::intrinsic_io::IntrinsicFields;
-use i2sdf_model::renderer::RenderSettings;
-use i2sdf_model::NeuralScene;
+use i2sdf_model::OpenedRun;
 use i2sdf_render::ViewRender;
 use std::collections::{BTreeMap, HashMap};
 
 #[derive(Clone, Debug)]
 pub struct RelightOptions {
     pub render: EditSettings,
-    /// F_e threshold of the emitter labels (the run's `stage2.emitter_threshold`).
-    pub emitter_threshold: f32,
     /// Marching-cubes resolution of the recovered surface.
     pub mesh_resolution: usize,
-    /// Label the unobserved surface inside emitters as emitting (the run's
-    /// `stage2.label_unobserved`).
-    pub label_unobserved: bool,
-    /// The radiance field's render settings (the run's); None: no differential figures.
-    pub volume: Option<RenderSettings>,
+    /// Also score each set by differential rendering (the run's radiance field with its own
+    /// render settings).
+    pub differential: bool,
 }
 
 impl Default for RelightOptions {
     fn default() -> Self {
         RelightOptions {
             render: EditSettings::default(),
-            emitter_threshold: 0.5,
-            mesh_resolution: 256,
-            label_unobserved: false,
-            volume: None,
+            mesh_resolution: i2sdf_edit::MESH_RESOLUTION,
+            differential: false,
         }
     }
 }
@@ -86,8 +78,7 @@ fn set_name(set: &RelightSet, index: usize) -> String {
 /// nothing about relighting. The report says why with
 /// [`crate::report::EvalReport::note_no_emitters`].
 pub fn relight_metrics(
-    scene: &NeuralScene,
-    fields: &IntrinsicFields,
+    run: &OpenedRun,
     dataset: &Dataset,
     options: &RelightOptions,
     on_row: &(dyn Fn() + Sync),
@@ -95,7 +86,7 @@ pub fn relight_metrics(
     if dataset.relight.is_empty() {
         return Ok(RelightMetrics::default());
     }
-    if fields.emitters.is_empty() {
+    if run.stage2()?.emitters.is_empty() {
         let sets = dataset.relight.iter().enumerate().map(|(i, set)| {
             let frames = set.frames.len();
             (
@@ -118,15 +109,8 @@ pub fn relight_metrics(
         let assets = spec.load_assets()?;
         specs.push((spec, assets));
     }
-    let train: Vec<_> = dataset.split(Split::Train).map(|f| f.camera.clone()).collect();
-    let recovered = RecoveredScene::new(
-        scene,
-        fields,
-        options.emitter_threshold,
-        &dataset.bounds,
-        options.mesh_resolution,
-        options.label_unobserved.then_some(&train[..]),
-    )?;
+    let recovered = RecoveredScene::of_run(run, dataset, options.mesh_resolution)?;
+    let volume = options.differential.then_some(&run.config.render);
     let unedited_scene = recovered.edited(&EditSpec::default(), &Default::default());
     let tests: HashMap<Vec<u64>, &Frame> = dataset.split(Split::Test).map(|f| (camera_key(f), f)).collect();
     // Per camera: the unedited render (shared by the relight-only sets, the differential base of
@@ -149,7 +133,7 @@ pub fn relight_metrics(
         let (mut dp, mut ds) = (Vec::new(), Vec::new());
         for f in &set.frames {
             let key = camera_key(f);
-            if !shared.contains_key(&key) && (relight_only || options.volume.is_some()) {
+            if !shared.contains_key(&key) && (relight_only || volume.is_some()) {
                 let r = recovered.render(&unedited_scene, &f.camera, &options.render, view, on_row);
                 shared.insert(key.clone(), (r, view));
                 view += 1;
@@ -172,7 +156,7 @@ pub fn relight_metrics(
             let (x, y) = scores(&relit, &f.rgb)?;
             p.extend(x);
             s.extend(y);
-            if let (Some(volume), Some(base)) = (&options.volume, base) {
+            if let (Some(volume), Some(base)) = (volume, base) {
                 let cap = captured
                     .entry(key.clone())
                     .or_insert_with(|| recovered.captured(&f.camera, volume));
@@ -230,8 +214,9 @@ pub fn relight_metrics(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use i2sdf_model::intrinsic_io::IntrinsicFields;
     use i2sdf_model::material_field::{MaterialConfig, MaterialField};
-    use i2sdf_model::{EmitterTable, ModelConfig, Radiometry};
+    use i2sdf_model::{EmitterTable, InferenceConfig, ModelConfig, NeuralScene, Radiometry};
 
     /// Without emitters nothing is rendered (the spec is not even read: it does not exist) and
     /// every figure is null, each set keeping its frame count.
@@ -263,11 +248,25 @@ mod tests {
             emitters: EmitterTable::new(Vec::new(), &[]),
             radiometry: Radiometry::default(),
         };
+        let run = OpenedRun {
+            dir: i2sdf_model::RunDir::new(dir.path()),
+            info: Default::default(),
+            scene,
+            fields: Some(fields),
+            config: InferenceConfig {
+                render: Default::default(),
+                emitter_threshold: 0.5,
+                label_unobserved: false,
+                bake_resolution: 0,
+            },
+            bake: None,
+            notes: Vec::new(),
+        };
         let rows = std::sync::atomic::AtomicUsize::new(0);
         let on_row = || {
             rows.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         };
-        let m = relight_metrics(&scene, &fields, &dataset, &RelightOptions::default(), &on_row).unwrap();
+        let m = relight_metrics(&run, &dataset, &RelightOptions::default(), &on_row).unwrap();
         assert_eq!(rows.into_inner(), 0, "nothing rendered");
         let sets = m.sets.clone().unwrap();
         assert_eq!(sets.keys().collect::<Vec<_>>(), ["lamp_dim"]);

@@ -31,8 +31,8 @@ use crate::raycast::{CastSettings, Hit as CastHit, SdfCaster, CAST_CHUNK};
 use crate::renderer::sphere_exit;
 use crate::scene::NeuralScene;
 use glam::{DVec3, Vec3};
-use i2sdf_data::imageio::{linear_to_srgb, srgb_to_linear};
-use i2sdf_data::{Bounds, Camera, DataError};
+use i2sdf_data::imageio::{self, linear_to_srgb, srgb_to_linear};
+use i2sdf_data::{Bounds, Camera, DataError, ImageF32};
 use i2sdf_render::{
     render_view, Bvh, ConeLight, Estimator, Geometry, GgxBrdf, Hit as RenderHit, Integrator, Light, LightSet, Material,
     RadianceField, Ray, Scene, SurfacePoint, ViewRender, ViewSettings,
@@ -84,6 +84,20 @@ impl Radiometry {
         match self.transfer {
             Transfer::Srgb => linear_to_srgb(linear),
             Transfer::Linear => linear.clamp(0.0, 1.0),
+        }
+    }
+
+    /// [`Radiometry::encode`] of every value of a linear image: the dataset's tone mapping of a
+    /// whole image ([`imageio::tone_map_srgb`] for the sRGB transfer), comparable with its LDR
+    /// images.
+    pub fn encode_image(&self, linear: &ImageF32) -> ImageF32 {
+        match self.transfer {
+            Transfer::Srgb => imageio::tone_map_srgb(linear, 1.0),
+            Transfer::Linear => {
+                let mut out = linear.clone();
+                out.data.iter_mut().for_each(|x| *x = x.clamp(0.0, 1.0));
+                out
+            }
         }
     }
 
@@ -151,9 +165,21 @@ pub struct BakedSurface {
     voxel: f32,
 }
 
-/// Each side of the bake's bounds is enlarged by this fraction at both ends, so that walls on
-/// the bounds are not clipped.
-pub const BAKE_PAD_FRACTION: f64 = 0.05;
+impl BakedSurface {
+    /// The marching-cubes mesh of `scene`'s SDF over `bounds` (world units, padded by
+    /// [`PAD_FRACTION`](crate::marching_cubes::PAD_FRACTION)) at `resolution` samples along the
+    /// longest side, in a BVH ([`FrozenScene::bake`]).
+    pub fn new(scene: &NeuralScene, bounds: &Bounds, resolution: usize) -> Result<Self, DataError> {
+        let grid = sdf_grid(scene, bounds, resolution)?;
+        let mesh = extract_mesh(scene, bounds, resolution)?;
+        let step = grid.step();
+        let voxel = (step[0].max(step[1]).max(step[2]) * scene.normalization.scale) as f32;
+        Ok(BakedSurface {
+            bvh: Bvh::build(&mesh),
+            voxel,
+        })
+    }
+}
 
 /// Points per block of the labelling and field queries (parallel tasks over blocks).
 const FROZEN_BLOCK: usize = 4096;
@@ -171,6 +197,28 @@ impl<'a> FrozenScene<'a> {
             baked: None,
             observed: None,
         }
+    }
+
+    /// The frozen scene as stage 2 labels its hits: F_e above `emitter_threshold`, the rays cast
+    /// in `baked` where given, and — with `observers` (the training views, where
+    /// `stage2.label_unobserved`) and at least one emitter — the unobserved surface inside an
+    /// emitter labelled as that emitter ([`FrozenScene::observe`]). Stage 2 and every command on a
+    /// trained run ([`crate::opened_run::OpenedRun::frozen`]) build theirs here.
+    pub fn labelled(
+        scene: &'a NeuralScene,
+        emitters: &'a EmitterTable,
+        radiometry: Radiometry,
+        emitter_threshold: f32,
+        baked: Option<Arc<BakedSurface>>,
+        observers: Option<&[Camera]>,
+    ) -> Self {
+        let mut frozen = FrozenScene::new(scene, emitters, radiometry);
+        frozen.emitter_threshold = emitter_threshold;
+        frozen.set_baked_surface(baked);
+        if let Some(cameras) = observers.filter(|_| !emitters.is_empty()) {
+            frozen.observe(cameras);
+        }
+        frozen
     }
 
     /// Records what `cameras` (the training views) see of the frozen surface, for the emitter
@@ -192,7 +240,7 @@ impl<'a> FrozenScene<'a> {
     }
 
     /// Bakes the frozen SDF for ray casting: its marching-cubes mesh over `bounds` (world units;
-    /// each side padded by [`BAKE_PAD_FRACTION`] at both ends, so walls are not clipped) at
+    /// each side padded by [`PAD_FRACTION`](crate::marching_cubes::PAD_FRACTION) at both ends, so walls are not clipped) at
     /// `resolution` samples along the longest side, in the render crate's BVH. From then on
     /// [`FrozenScene::cast`] (and the [`Geometry`] adapter) intersect the BVH first and refine
     /// each hit onto the SDF by one Newton step along the ray (one batched SDF + gradient query
@@ -215,14 +263,7 @@ impl<'a> FrozenScene<'a> {
     /// 1 cm: median 0.05°, p99 10.7° (0.02° / 2.5° with `baked_exact_normals`). At 384: bake
     /// 17.8 s, 99.67 % within 1 cm, same speed.
     pub fn bake(&mut self, bounds: &Bounds, resolution: usize) -> Result<(), DataError> {
-        let grid = sdf_grid(self.scene, bounds, resolution, BAKE_PAD_FRACTION)?;
-        let mesh = extract_mesh(self.scene, bounds, resolution, BAKE_PAD_FRACTION)?;
-        let step = grid.step();
-        let voxel = (step[0].max(step[1]).max(step[2]) * self.scene.normalization.scale) as f32;
-        self.baked = Some(Arc::new(BakedSurface {
-            bvh: Bvh::build(&mesh),
-            voxel,
-        }));
+        self.baked = Some(Arc::new(BakedSurface::new(self.scene, bounds, resolution)?));
         Ok(())
     }
 

@@ -2,7 +2,8 @@
 //! radiance field F_c (z, view direction, normal → LDR colour), the emitter field F_e (z →
 //! probability) and the VolSDF density's β, held together with the normalization as a
 //! [`NeuralScene`]; saved and loaded as safetensors with the configuration in the metadata; the
-//! run directory; inference queries ([`SceneQuery`]), the ray caster of the trained SDF
+//! run directory and a trained run opened for inference ([`OpenedRun`]) with its image products
+//! ([`images`]); inference queries ([`SceneQuery`]), the ray caster of the trained SDF
 //! ([`raycast`]) and marching cubes of its zero level set ([`marching_cubes`]).
 
 pub mod config;
@@ -15,6 +16,7 @@ pub mod material_field;
 pub mod mc_band;
 pub mod mc_tables;
 pub mod observed;
+pub mod opened_run;
 pub mod poses;
 pub mod query;
 pub mod raycast;
@@ -31,6 +33,7 @@ pub use marching_cubes::{extract_mesh, marching_cubes, McGrid, McOptions};
 pub use material_field::{
     MaterialBackbone, MaterialConfig, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
 };
+pub use opened_run::{BakeRecord, InferenceConfig, OpenedRun};
 pub use query::SceneQuery;
 pub use run_dir::{RunDir, RunInfo, StageProgress};
 pub use scene::{Beta, GroupSpec, LrClass, NeuralScene, ParamBlock, SceneGrads, SceneModule, Update};

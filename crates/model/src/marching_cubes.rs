@@ -411,19 +411,20 @@ where
     Ok(mesh)
 }
 
+/// Each side of the box a run's surface is meshed over is enlarged by this fraction of its length
+/// at both ends, so that walls on the bounds are not clipped: the one pad of every mesh of the SDF
+/// (stage 2's bake, the edit renderer's recovered surface, the meshes `eval` scores and `mesh`
+/// writes, the report's preview).
+pub const PAD_FRACTION: f64 = 0.05;
+
 /// The marching-cubes grid of [`extract_mesh`] in the scene's normalized frame: `bounds` (world
-/// units) mapped into the normalized frame, each side enlarged by `pad_fraction` of its length at
-/// both ends, with `resolution` samples along the longest side (cubic cells).
-pub fn sdf_grid(
-    scene: &NeuralScene,
-    bounds: &Bounds,
-    resolution: usize,
-    pad_fraction: f64,
-) -> Result<McGrid, DataError> {
+/// units) mapped into the normalized frame, each side enlarged by [`PAD_FRACTION`] of its length
+/// at both ends, with `resolution` samples along the longest side (cubic cells).
+pub fn sdf_grid(scene: &NeuralScene, bounds: &Bounds, resolution: usize) -> Result<McGrid, DataError> {
     let norm = &scene.normalization;
     let lo = norm.to_normalized(bounds.min.into());
     let hi = norm.to_normalized(bounds.max.into());
-    let pad = (hi - lo) * pad_fraction;
+    let pad = (hi - lo) * PAD_FRACTION;
     let (lo, hi) = (lo - pad, hi + pad);
     McGrid::cubic(
         [lo.x as f32, lo.y as f32, lo.z as f32],
@@ -433,15 +434,10 @@ pub fn sdf_grid(
 }
 
 /// Marching cubes over the scene's SDF (its zero level set) on [`sdf_grid`]`(scene, bounds,
-/// resolution, pad_fraction)`; vertices in world units, faces toward free space. The SDF batches
-/// are evaluated by the (parallel) inference path.
-pub fn extract_mesh(
-    scene: &NeuralScene,
-    bounds: &Bounds,
-    resolution: usize,
-    pad_fraction: f64,
-) -> Result<TriangleMesh, DataError> {
-    let grid = sdf_grid(scene, bounds, resolution, pad_fraction)?;
+/// resolution)`; vertices in world units, faces toward free space. The SDF batches are evaluated
+/// by the (parallel) inference path.
+pub fn extract_mesh(scene: &NeuralScene, bounds: &Bounds, resolution: usize) -> Result<TriangleMesh, DataError> {
+    let grid = sdf_grid(scene, bounds, resolution)?;
     let options = McOptions::for_sdf(resolution);
     // Checked here too so the refusal comes before the query's buffers are allocated.
     let available = MachineMemory::read().map(|m| m.available);

@@ -181,6 +181,14 @@ impl RunDir {
         self.root.join("emitter_masks")
     }
 
+    /// The bad-input error for a stage-2 product asked of a run without stage 2.
+    pub fn no_stage2(&self) -> DataError {
+        DataError::file(
+            self.stage2_checkpoint_path(),
+            "no stage 2: train --stage material first",
+        )
+    }
+
     pub fn exists(&self) -> bool {
         self.info_path().is_file()
     }

@@ -182,15 +182,6 @@ pub fn normal_display(normal: &ImageF32) -> ImageF32 {
     out
 }
 
-/// A linear image sRGB-encoded for display (Kd, Ks maps are linear reflectances).
-pub fn srgb_display(linear: &ImageF32) -> ImageF32 {
-    let mut out = linear.clone();
-    out.data
-        .iter_mut()
-        .for_each(|x| *x = i2sdf_data::imageio::linear_to_srgb(*x));
-    out
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -17,32 +17,22 @@ use charts::{line_chart, top_view, Series, TopView, TrainingLog};
 use html::{esc, format_sig, Assets};
 use i2sdf_data::{DataError, Dataset, Split};
 use i2sdf_edit::{EditSettings, RecoveredScene};
-use i2sdf_model::intrinsic_io::IntrinsicFields;
-use i2sdf_model::renderer::RenderSettings;
-use i2sdf_model::{extract_mesh, NeuralScene, RunInfo};
+use i2sdf_model::{extract_mesh, OpenedRun};
 use i2sdf_render::{Geometry, MeshGeometry};
 use serde_json::Value;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// What the report is about: the loaded run, its dataset and (optionally) its evaluation.
+/// What the report is about: the opened run, its dataset and (optionally) its evaluation.
 pub struct RunInputs<'a> {
-    pub run: &'a Path,
+    /// The run, opened once (its frozen scene, recovered scene and settings are the ones `eval`
+    /// and `edit` use).
+    pub run: &'a OpenedRun,
     pub data: &'a Path,
-    pub info: &'a RunInfo,
-    /// `RUN/config.toml` as written by `train`.
-    pub config_toml: Option<String>,
-    pub scene: &'a NeuralScene,
-    pub fields: Option<&'a IntrinsicFields>,
     pub dataset: &'a Dataset,
     /// The `eval` JSON and its file.
     pub metrics: Option<(&'a Path, &'a Value)>,
-    /// The run's volume-render settings (its `[sampling]`).
-    pub volume: RenderSettings,
-    /// The run's `stage2.emitter_threshold` and `stage2.label_unobserved`.
-    pub emitter_threshold: f32,
-    pub label_unobserved: bool,
 }
 
 /// How much rendering the report does.
@@ -53,8 +43,8 @@ pub struct ReportOptions {
     /// Paths per pixel of the path-traced images (re-render, relit sets, the mirror edit).
     pub spp: u32,
     pub bounces: u32,
-    /// Marching-cubes resolution of the surface (preview, top view, the edit renderer's mesh and
-    /// the re-render's bake): modest, the report is a preview.
+    /// Marching-cubes resolution of the surface (preview, top view, the edit renderer's mesh;
+    /// the re-render casts the surface stage 2 baked).
     pub mesh_resolution: usize,
 }
 
@@ -64,7 +54,7 @@ impl Default for ReportOptions {
             view: 0,
             spp: 32,
             bounces: EditSettings::default().bounces,
-            mesh_resolution: 128,
+            mesh_resolution: i2sdf_edit::MESH_RESOLUTION,
         }
     }
 }
@@ -115,10 +105,14 @@ pub fn write_report(
     };
     let mut body = String::new();
     header(&mut body, input, &frame.name, split);
-    body.push_str(&metrics::metrics_section(input.metrics, input.run, input.data));
+    body.push_str(&metrics::metrics_section(
+        input.metrics,
+        &input.run.dir.root,
+        input.data,
+    ));
 
     progress("training curves");
-    let log = TrainingLog::read(&input.run.join("log.jsonl"))?;
+    let log = TrainingLog::read(&input.run.dir.log_path())?;
     body.push_str(&curves_section(&mut assets, &log)?);
     mark("training curves", &mut timings);
 
@@ -132,26 +126,24 @@ pub fn write_report(
     let mut cache = views::RenderCache::default();
     body.push_str(&views::stage1_grid(
         &mut assets,
-        input.scene,
-        &input.volume,
+        &input.run.scene,
+        &input.run.config.render,
         frame,
         &mut cache,
     )?);
     mark("stage-1 maps", &mut timings);
 
-    if let Some(fields) = input.fields {
+    let run = input.run;
+    if let (Some(fields), Some(frozen)) = (&run.fields, run.frozen(dataset)?) {
         progress("stage-2 maps (re-render)");
-        let mut frozen = i2sdf_eval::intrinsic::frozen_scene(input.scene, fields, input.emitter_threshold);
-        frozen.bake(&dataset.bounds, options.mesh_resolution)?;
-        if input.label_unobserved {
-            let train: Vec<_> = dataset.split(Split::Train).map(|f| f.camera.clone()).collect();
-            frozen.observe(&train);
-        }
+        let cast = match &run.bake {
+            Some(b) => format!("its rays cast in the surface stage 2 baked at {}", b.resolution),
+            None => "its rays sphere traced, as stage 2 traced them".to_string(),
+        };
         let _ = write!(
             body,
-            "<h3>Stage 2: materials</h3><p>From one Monte Carlo re-render ({} paths per pixel), its \
-             secondary rays cast in the surface baked at {}.</p>",
-            options.spp, options.mesh_resolution
+            "<h3>Stage 2: materials</h3><p>From one Monte Carlo re-render ({} paths per pixel), {cast}.</p>",
+            options.spp
         );
         body.push_str(&views::stage2_grid(
             &mut assets,
@@ -167,16 +159,8 @@ pub fn write_report(
     }
 
     progress("surface (marching cubes)");
-    let train: Vec<_> = dataset.split(Split::Train).map(|f| f.camera.clone()).collect();
-    let recovered = match input.fields {
-        Some(fields) => Some(RecoveredScene::new(
-            input.scene,
-            fields,
-            input.emitter_threshold,
-            &dataset.bounds,
-            options.mesh_resolution,
-            input.label_unobserved.then_some(&train[..]),
-        )?),
+    let recovered = match &run.fields {
+        Some(_) => Some(RecoveredScene::of_run(run, dataset, options.mesh_resolution)?),
         None => None,
     };
     let own_mesh;
@@ -184,7 +168,7 @@ pub fn write_report(
     let (mesh, geometry): (&i2sdf_data::TriangleMesh, &dyn Geometry) = match &recovered {
         Some(r) => (&r.surface.mesh, &r.surface.geometry),
         None => {
-            own_mesh = extract_mesh(input.scene, &dataset.bounds, options.mesh_resolution, 0.05)?;
+            own_mesh = extract_mesh(&run.scene, &dataset.bounds, options.mesh_resolution)?;
             own_geometry = MeshGeometry::new(&own_mesh, vec![0; own_mesh.faces.len()]);
             (&own_mesh, &own_geometry)
         }
@@ -215,14 +199,14 @@ pub fn write_report(
     mark("emitters, mesh preview", &mut timings);
 
     body.push_str("<h2 id=\"relight\">Relighting and editing</h2>");
-    if let Some(note) = no_emitters_note(input.fields.map(|f| f.emitters.len())) {
+    if let Some(note) = no_emitters_note(run.fields.as_ref().map(|f| f.emitters.len())) {
         body.push_str(&note);
     }
     match &recovered {
         Some(r) => {
             let ctx = views::EditContext {
                 recovered: r,
-                volume: &input.volume,
+                volume: &run.config.render,
                 settings: EditSettings {
                     spp: options.spp,
                     bounces: options.bounces,
@@ -258,15 +242,18 @@ pub fn write_report(
 
     let total = start.elapsed().as_secs_f64();
     body.push_str(&resources_section(input, &timings, total));
-    if let Some(cfg) = &input.config_toml {
+    if let Ok(cfg) = run.dir.read_config_toml() {
         let _ = write!(
             body,
             "<h2 id=\"config\">Configuration</h2><details><summary>RUN/config.toml</summary><pre>{}</pre></details>",
-            esc(cfg)
+            esc(&cfg)
         );
     }
     let files = assets.files.len() + 1;
-    let index = assets.publish(&html::page(&format!("i2sdf report — {}", input.run.display()), &body))?;
+    let index = assets.publish(&html::page(
+        &format!("i2sdf report — {}", run.dir.root.display()),
+        &body,
+    ))?;
     Ok(ReportSummary {
         index,
         files,
@@ -294,14 +281,14 @@ fn header(body: &mut String, input: &RunInputs, view: &str, split: Split) {
          <a href=\"#images\">images</a> · <a href=\"#emitters\">emitters</a> · \
          <a href=\"#mesh\">surface</a> · <a href=\"#relight\">relighting and editing</a> · \
          <a href=\"#resources\">timings and memory</a></p>",
-        esc(&input.run.display().to_string()),
+        esc(&input.run.dir.root.display().to_string()),
         esc(&input.data.display().to_string()),
         input.dataset.count(Split::Train),
         input.dataset.count(Split::Test),
         input.dataset.frames.first().map_or(0, |f| f.camera.width),
         input.dataset.frames.first().map_or(0, |f| f.camera.height),
-        stage(Some(&input.info.stage1)),
-        stage(input.info.stage2.as_ref()),
+        stage(Some(&input.run.info.stage1)),
+        stage(input.run.info.stage2.as_ref()),
         esc(view),
         split.name()
     );
@@ -394,7 +381,7 @@ fn curves_section(assets: &mut Assets, log: &TrainingLog) -> Result<String, Data
 /// The emitters on a top view and in a table.
 fn emitters_section(assets: &mut Assets, input: &RunInputs, vertices: &[[f32; 3]]) -> Result<String, DataError> {
     let mut s = String::from("<h2 id=\"emitters\">Emitters</h2>");
-    let table = input.fields.map(|f| &f.emitters);
+    let table = input.run.fields.as_ref().map(|f| &f.emitters);
     let recovered: Vec<([f64; 3], String)> = table
         .map(|t| {
             t.emitters
@@ -477,9 +464,9 @@ fn resources_section(input: &RunInputs, timings: &[(String, f64)], total: f64) -
     };
     row(
         "training, stage 1 (run.json)",
-        format!("{} s", format_sig(input.info.stage1.seconds)),
+        format!("{} s", format_sig(input.run.info.stage1.seconds)),
     );
-    if let Some(p) = &input.info.stage2 {
+    if let Some(p) = &input.run.info.stage2 {
         row("training, stage 2 (run.json)", format!("{} s", format_sig(p.seconds)));
     }
     if let Some((_, m)) = input.metrics {

@@ -5,16 +5,14 @@
 //! the differential composite beside them.
 
 use crate::html::{colour_bar, esc, format_sig, grid_row, Assets, Cell};
-use crate::images::{
-    abs_error, depth_display, depth_error, depth_far, normal_display, normal_error, srgb_display, ErrorMap,
-};
+use crate::images::{abs_error, depth_display, depth_error, depth_far, normal_display, normal_error, ErrorMap};
 use glam::{DVec3, Vec3};
 use i2sdf_data::edit_spec::EditOp;
+use i2sdf_data::imageio::tone_map_srgb;
 use i2sdf_data::{Bounds, Camera, DataError, Dataset, EditSpec, Frame, ImageF32};
 use i2sdf_edit::{differential_hdr, edit_images, hdr_ldr_images, light_gains, EditSettings, RecoveredScene};
-use i2sdf_eval::intrinsic::{encode_image, rerender_hdr, rgb_map};
 use i2sdf_eval::{psnr, ImageRef};
-use i2sdf_model::images::render_volume_view;
+use i2sdf_model::images::{render_volume_view, rerender_ldr, rgb_map};
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::{rerender_view, FrozenScene, NeuralScene};
@@ -207,8 +205,8 @@ pub fn stage2_grid(
         Triple {
             key: "albedo",
             label: "albedo Kd",
-            gt: frame.albedo.as_ref().map(srgb_display),
-            ours: srgb_display(&kd),
+            gt: frame.albedo.as_ref().map(|a| tone_map_srgb(a, 1.0)),
+            ours: tone_map_srgb(&kd, 1.0),
             err: frame
                 .albedo
                 .as_ref()
@@ -232,7 +230,7 @@ pub fn stage2_grid(
             unit: "(|Δρ|; emitters excluded)",
         },
     )?);
-    let rerender = encode_image(&rerender_hdr(&v), &fields.radiometry);
+    let rerender = rerender_ldr(&v, &fields.radiometry);
     let p = psnr_of(&rerender, &frame.rgb).map_or("—".into(), format_sig);
     s.push_str(&triple_row(
         assets,
@@ -240,8 +238,8 @@ pub fn stage2_grid(
             key: "rerender",
             label: &format!("re-render ({spp} spp, {p} dB)"),
             gt: Some(frame.rgb.clone()),
+            err: abs_error(&rerender, &frame.rgb, None),
             ours: rerender,
-            err: abs_error(&encode_image(&rerender_hdr(&v), &fields.radiometry), &frame.rgb, None),
             range: None,
             unit: "(|Δ| of LDR values, mean of RGB)",
         },

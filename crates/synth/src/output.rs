@@ -21,15 +21,7 @@ pub fn gray_image(w: usize, h: usize, px: &[f32]) -> ImageF32 {
 
 /// The LDR encoding of an HDR image: sRGB transfer of clamp(exposure · L, 0, 1).
 pub fn ldr_image(w: usize, h: usize, hdr: &[Vec3], exposure: f32) -> ImageF32 {
-    ImageF32::from_data(
-        w,
-        h,
-        3,
-        hdr.iter()
-            .flat_map(|p| p.to_array())
-            .map(|v| imageio::linear_to_srgb((v * exposure).clamp(0.0, 1.0)))
-            .collect(),
-    )
+    imageio::tone_map_srgb(&rgb_image(w, h, hdr), exposure)
 }
 
 /// Paths of one frame's files, relative to the scene directory (`None`: not written).

@@ -13,6 +13,7 @@ use crate::stage2::{radiometry, target_views, Stage2, Stage2Stats};
 use i2sdf_data::{DataError, Dataset};
 use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::run_dir::{RunDir, RunInfo};
+use i2sdf_model::{InferenceConfig, OpenedRun};
 use rand::SeedableRng;
 use rand_pcg::Pcg64;
 use serde::Serialize;
@@ -255,6 +256,24 @@ pub fn render_settings(config: &TrainConfig) -> RenderSettings {
     let mut r = RenderSettings::with_sampling(s.samples, s.coarse, s.epsilon);
     r.sampler.num_samples_upsample = s.upsample.unwrap_or(s.coarse);
     r
+}
+
+/// What inference reads of a run's configuration: its volume-render settings
+/// ([`render_settings`]) and stage 2's emitter labelling and bake.
+pub fn inference_config(config: &TrainConfig) -> InferenceConfig {
+    InferenceConfig {
+        render: render_settings(config),
+        emitter_threshold: config.stage2.emitter_threshold,
+        label_unobserved: config.stage2.label_unobserved,
+        bake_resolution: config.stage2.bake_resolution,
+    }
+}
+
+/// Opens a trained run at `root` for `render`, `eval`, `report` and `edit`
+/// ([`OpenedRun::open`] with the run's own configuration, `RUN/config.toml`).
+pub fn open_trained(root: &Path) -> Result<OpenedRun, DataError> {
+    let config = read_run_config(&RunDir::new(root))?;
+    OpenedRun::open(root, inference_config(&config))
 }
 
 /// Opens a run directory for training: a fresh one (refused if it already holds a run) or, with

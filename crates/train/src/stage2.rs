@@ -38,7 +38,7 @@ use i2sdf_model::material_field::{
     MaterialBackbone, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
 };
 use i2sdf_model::observed::ObservedViews;
-use i2sdf_model::NeuralScene;
+use i2sdf_model::{BakeRecord, NeuralScene};
 use i2sdf_nn::params::ModuleSlot;
 use i2sdf_nn::{Adam, AdamConfig, LrSchedule, Parameters};
 use i2sdf_render::{DirectionMixture, GgxBrdf, Lobe, Ray};
@@ -107,7 +107,11 @@ pub struct Stage2 {
     initial_emission: Vec<f32>,
     /// Index in `pixels` of each surface pixel, in cache order.
     surface: Vec<u32>,
-    /// The frozen surface baked for ray casting (`stage2.bake_resolution`).
+    /// Where the frozen surface was baked for ray casting (`stage2.bake_resolution` over the box
+    /// of what the training pixels see and the cameras), kept in the checkpoint so that every
+    /// command on the run casts the same surface ([`i2sdf_model::OpenedRun::frozen`]).
+    pub bake: Option<BakeRecord>,
+    /// The frozen surface baked there.
     baked: Option<Arc<BakedSurface>>,
     /// What the training cameras see (`stage2.label_unobserved`): the emitter labels of traced
     /// hits ([`FrozenScene::observed`]).
@@ -280,7 +284,7 @@ impl Stage2 {
         // Bake the frozen surface for the secondary rays (a BVH over its marching-cubes mesh, hits
         // refined onto the SDF): over the box of the surface the training pixels see and the
         // cameras, the dataset's own bounds in effect.
-        let baked = if c2.bake_resolution > 0 && !hit_points.is_empty() {
+        let bake = (c2.bake_resolution > 0 && !hit_points.is_empty()).then(|| {
             let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
             for p in hit_points
                 .iter()
@@ -290,18 +294,20 @@ impl Stage2 {
                 lo = lo.min(p);
                 hi = hi.max(p);
             }
-            progress(&format!("baking the frozen surface at {}³", c2.bake_resolution));
-            let mut f = FrozenScene::new(&scene, &no_emitters, radiometry);
-            f.bake(
-                &i2sdf_data::Bounds {
+            BakeRecord {
+                bounds: i2sdf_data::Bounds {
                     min: lo.to_array(),
                     max: hi.to_array(),
                 },
-                c2.bake_resolution,
-            )?;
-            f.baked_surface()
-        } else {
-            None
+                resolution: c2.bake_resolution,
+            }
+        });
+        let baked = match &bake {
+            Some(b) => {
+                progress(&format!("baking the frozen surface at {}³", b.resolution));
+                Some(b.bake(&scene)?)
+            }
+            None => None,
         };
         let has_masks = views.iter().all(|v| v.emitter_mask.is_some());
         let fresh = given.is_none();
@@ -362,14 +368,20 @@ impl Stage2 {
             }
         };
         // 3. Pixel kinds: emitters by the mask where the dataset has one, else by F_e.
-        let mut frozen = FrozenScene::new(&scene, &emitters, radiometry);
-        frozen.emitter_threshold = c2.emitter_threshold;
-        frozen.set_baked_surface(baked.clone());
-        if c2.label_unobserved && !emitters.is_empty() {
+        let observers: Option<Vec<_>> = c2
+            .label_unobserved
+            .then(|| views.iter().map(|v| v.camera.clone()).collect());
+        if observers.is_some() && !emitters.is_empty() {
             progress("finding what the training cameras see (emitter labels of unseen surfaces)");
-            let cameras: Vec<_> = views.iter().map(|v| v.camera.clone()).collect();
-            frozen.observe(&cameras);
         }
+        let frozen = FrozenScene::labelled(
+            &scene,
+            &emitters,
+            radiometry,
+            c2.emitter_threshold,
+            baked.clone(),
+            observers.as_deref(),
+        );
         let observed = frozen.observed.clone();
         let mut pixels = Vec::with_capacity(hit_idx.len());
         let (mut given_normals, mut normal_angle) = (0usize, 0.0f64);
@@ -532,6 +544,7 @@ impl Stage2 {
             chosen_k,
             initial_emission,
             surface,
+            bake,
             baked,
             observed,
             target_scale,
@@ -907,6 +920,7 @@ impl TrainStage for Stage2 {
                 ("iteration", self.iteration.to_string()),
                 ("adam_step", self.adam.step.to_string()),
                 ("chosen_k", self.chosen_k.to_string()),
+                BakeRecord::meta(self.bake.as_ref()),
             ],
             &[("adam", &self.adam as &dyn Parameters)],
         )

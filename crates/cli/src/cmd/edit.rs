@@ -50,7 +50,7 @@ pub struct Args {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Marching-cubes resolution of the recovered surface (samples along the scene's longest side).
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = i2sdf_edit::MESH_RESOLUTION)]
     pub mesh_resolution: usize,
     /// Dataset (defaults to the one the run was trained on).
     #[arg(long)]
@@ -101,7 +101,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let spec = EditSpec::read(&args.spec)?;
     let assets = spec.load_assets()?;
     if !i2sdf_model::RunDir::new(&args.run).stage2_checkpoint_path().is_file() {
-        return Err(super::no_stage2(&args.run).into());
+        return Err(i2sdf_model::RunDir::new(&args.run).no_stage2().into());
     }
     let (data, dataset) = super::run_dataset(&args.run, args.data.as_deref())?;
     let frames: Vec<_> = dataset.split(split).collect();
@@ -138,7 +138,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .map(|(i, (name, cam))| (name, resized(&cam, size), i as u32))
             .collect(),
     };
-    let threshold = super::run_emitter_threshold(&args.run)?;
     let spec_text = std::fs::read(&args.spec).map_err(|e| DataError::file(&args.spec, e.to_string()))?;
     let pixels: u64 = shots.iter().map(|(_, c, _)| (c.width * c.height) as u64).sum();
     let staged = super::output_dir(
@@ -150,28 +149,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &[&data, &args.spec],
         Some(pixels * 16 + spec_text.len() as u64),
     )?;
-    let (scene, fields, _) = super::load_run_intrinsic(&args.run)?;
-    let fields = fields.ok_or_else(|| super::no_stage2(&args.run))?;
-    check_relight_ops(&args.spec, &spec, &fields.emitters)?;
+    let run = super::open_run(&args.run)?;
+    check_relight_ops(&args.spec, &spec, &run.stage2()?.emitters)?;
 
     eprintln!("extracting the recovered surface at {}…", args.mesh_resolution);
-    let train: Vec<Camera> = dataset.split(Split::Train).map(|f| f.camera.clone()).collect();
-    let cameras = super::run_label_unobserved(&args.run)?.then_some(&train[..]);
-    let recovered = RecoveredScene::new(
-        &scene,
-        &fields,
-        threshold,
-        &dataset.bounds,
-        args.mesh_resolution,
-        cameras,
-    )?;
+    let recovered = RecoveredScene::of_run(&run, &dataset, args.mesh_resolution)?;
     let edited = recovered.edited(&spec, &assets);
     // Differential rendering needs the unedited scene's render of the same paths: the edited
     // render itself when the spec only relights (the gains differ, not the paths).
     let relight_only = spec.ops.iter().all(|op| matches!(op, EditOp::Relight(_)));
     let unedited = (composite == Composite::Differential && !relight_only)
         .then(|| recovered.edited(&EditSpec::default(), &Default::default()));
-    let volume = super::run_render_settings(&args.run)?;
+    let volume = &run.config.render;
     let gains = light_gains(&spec, &edited);
     let settings = EditSettings {
         spp: args.spp,
@@ -197,7 +186,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 let base = unedited
                     .as_ref()
                     .map(|u| recovered.render(u, cam, &settings, *v, &|| bar.inc(1)));
-                let captured = recovered.captured(cam, &volume);
+                let captured = recovered.captured(cam, volume);
                 let d = differential_hdr(&captured, &render, &gains, base.as_ref().unwrap_or(&render), rm);
                 hdr_ldr_images(&d, render.width, render.height, rm)
             }

@@ -72,55 +72,50 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             return Err(i2sdf_data::DataError::invalid("--mesh-out and --out name the same file").into());
         }
     }
-    let (scene, fields, info) = super::load_run_intrinsic(&args.run)?;
+    let run = super::open_run(&args.run)?;
     // A mesh resolution that cannot fit is refused now, not after the views are rendered.
-    i2sdf_model::marching_cubes::sdf_grid(&scene, &dataset.bounds, args.mesh_resolution, 0.01)?.check_fits(
+    i2sdf_model::marching_cubes::sdf_grid(&run.scene, &dataset.bounds, args.mesh_resolution)?.check_fits(
         &i2sdf_model::McOptions::for_sdf(args.mesh_resolution),
         i2sdf_model::marching_cubes::MachineMemory::read().map(|m| m.available),
     )?;
     let mut options = EvalOptions {
         mesh_resolution: args.mesh_resolution,
-        render: super::run_render_settings(&args.run)?,
+        render: run.config.render.clone(),
         ..Default::default()
     };
     options.mesh.threshold = args.threshold;
     let steps = EvalSteps::default();
-    let (mut report, mesh) = evaluate_with_progress(&scene, &dataset, &dataset.bounds, &options, &steps)?;
+    let (mut report, mesh) = evaluate_with_progress(&run.scene, &dataset, &dataset.bounds, &options, &steps)?;
     steps.end();
-    if let Some(fields) = &fields {
+    if let (Some(fields), Some(frozen)) = (&run.fields, run.frozen(&dataset)?) {
         let intrinsic = IntrinsicOptions {
             spp: args.spp,
-            emitter_threshold: super::run_emitter_threshold(&args.run)?,
-            label_unobserved: super::run_label_unobserved(&args.run)?,
             ..Default::default()
         };
         let rows: usize = dataset.split(Split::Test).map(|f| f.camera.height).sum();
         let bar = crate::progress::Step::new("stage 2: re-rendering the test views", rows as u64, "rows");
         let (rerender, material, emitters) =
-            intrinsic_metrics_with_progress(&scene, fields, &dataset, &intrinsic, &|| bar.inc(1))?;
+            intrinsic_metrics_with_progress(&frozen, fields, &dataset, &intrinsic, &|| bar.inc(1))?;
         bar.finish();
         report.rerender = rerender;
         report.material = material;
         report.emitters = emitters;
-        let frames = relight_frames(&dataset);
+        let relight = RelightOptions {
+            render: EditSettings {
+                spp: args.spp,
+                bounces: args.bounces,
+                seed: 0,
+            },
+            differential: true,
+            ..Default::default()
+        };
         if fields.emitters.is_empty() {
             // Nothing to relight: no black images are scored, the figures are null (the sets
             // listed with their frames) and a note says why.
             crate::progress::line(&format!("warning: {}", i2sdf_eval::report::zero_emitter_note()));
-            report.relight = relight_metrics(&scene, fields, &dataset, &RelightOptions::default(), &|| {})?;
+            report.relight = relight_metrics(&run, &dataset, &relight, &|| {})?;
             report.note_no_emitters();
-        } else if frames > 0 {
-            let relight = RelightOptions {
-                render: EditSettings {
-                    spp: args.spp,
-                    bounces: args.bounces,
-                    seed: 0,
-                },
-                emitter_threshold: intrinsic.emitter_threshold,
-                label_unobserved: intrinsic.label_unobserved,
-                volume: Some(options.render.clone()),
-                ..Default::default()
-            };
+        } else if relight_frames(&dataset) > 0 {
             let rows: usize = dataset
                 .relight
                 .iter()
@@ -128,13 +123,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .map(|f| f.camera.height)
                 .sum();
             let bar = crate::progress::Step::new("relit sets: path tracing", rows as u64, "rows");
-            report.relight = relight_metrics(&scene, fields, &dataset, &relight, &|| bar.inc(1))?;
+            report.relight = relight_metrics(&run, &dataset, &relight, &|| bar.inc(1))?;
             bar.finish();
         }
     }
-    if let Some(corrections) = i2sdf_model::poses::PoseCorrections::read(&i2sdf_model::RunDir::new(&args.run))? {
+    if let Some(corrections) = i2sdf_model::poses::PoseCorrections::read(&run.dir)? {
         report.poses = i2sdf_eval::poses::pose_metrics(&corrections, &dataset);
     }
+    let info = &run.info;
     report.time_s.stage1 = (info.stage1.iterations > 0).then_some(info.stage1.seconds);
     report.time_s.stage2 = info.stage2.filter(|s| s.iterations > 0).map(|s| s.seconds);
     let json = report.to_json();

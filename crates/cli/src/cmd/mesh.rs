@@ -23,10 +23,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let info = i2sdf_model::RunDir::new(&args.run).read_info()?;
     let data = std::path::PathBuf::from(&info.data);
     super::output_file("--out", &args.out, &["ply"], args.force, &[&data], None)?;
-    let (scene, info) = super::load_run(&args.run)?;
-    let bounds = super::run_bounds(&args.run, &info)?;
+    let run = super::open_run(&args.run)?;
+    let bounds = run.bounds()?;
     let start = std::time::Instant::now();
-    let mesh = i2sdf_eval::neural::extract_mesh(&scene, &bounds, args.resolution)?;
+    let mesh = i2sdf_eval::neural::extract_mesh(&run.scene, &bounds, args.resolution)?;
     i2sdf_eval::write_ply(&args.out, &mesh)?;
     println!(
         "wrote {}: {} vertices, {} triangles ({}³ grid, {:.1} s)",

@@ -16,9 +16,7 @@
 
 use clap::Args as ClapArgs;
 use i2sdf_data::{animation, camera_path, imageio, Camera, DataError, ImageF32, PathKind, Split};
-use i2sdf_eval::intrinsic::{emission_map, encode_image, frozen_scene, rerender_hdr, rgb_map};
-use i2sdf_model::images::render_volume_view;
-use i2sdf_model::rerender_view;
+use i2sdf_model::images::{stage1_maps, stage2_maps, STAGE1_MAPS, STAGE2_MAPS};
 use std::path::PathBuf;
 
 #[derive(ClapArgs)]
@@ -175,10 +173,6 @@ impl PathArgs {
     }
 }
 
-/// Maps of stage 1 (the volume renderer) and of stage 2 (one re-render per view).
-const MAPS: [&str; 4] = ["rgb", "depth", "normal", "emitter"];
-const STAGE2_MAPS: [&str; 5] = ["albedo", "specular", "roughness", "emission", "rerender"];
-
 pub fn run(args: Args) -> anyhow::Result<()> {
     let split = Split::parse(&args.split)
         .ok_or_else(|| DataError::invalid(format!("--split {}: expected train or test", args.split)))?;
@@ -187,16 +181,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Err(DataError::invalid(format!(
             "--what '{}': names no map (available: {}, {})",
             args.what,
-            MAPS.join(", "),
+            STAGE1_MAPS.join(", "),
             STAGE2_MAPS.join(", ")
         ))
         .into());
     }
     for w in &what {
-        if !MAPS.contains(w) && !STAGE2_MAPS.contains(w) {
+        if !STAGE1_MAPS.contains(w) && !STAGE2_MAPS.contains(w) {
             return Err(DataError::invalid(format!(
                 "--what {w}: not available (available: {}, {})",
-                MAPS.join(", "),
+                STAGE1_MAPS.join(", "),
                 STAGE2_MAPS.join(", ")
             ))
             .into());
@@ -205,10 +199,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.spp == 0 {
         return Err(DataError::invalid("--spp 0: must be at least 1").into());
     }
-    let stage1 = what.iter().any(|w| MAPS.contains(w));
+    let stage1 = what.iter().any(|w| STAGE1_MAPS.contains(w));
     let stage2 = what.iter().any(|w| STAGE2_MAPS.contains(w));
     if stage2 && !i2sdf_model::RunDir::new(&args.run).stage2_checkpoint_path().is_file() {
-        return Err(super::no_stage2(&args.run).into());
+        return Err(i2sdf_model::RunDir::new(&args.run).no_stage2().into());
     }
     let (data, dataset) = super::run_dataset(&args.run, args.data.as_deref())?;
     let frames: Vec<_> = dataset.split(split).collect();
@@ -224,23 +218,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &[&data],
         Some(pixels * what.len() as u64 * 16),
     )?;
-    let (scene, fields, _) = super::load_run_intrinsic(&args.run)?;
-    let fields = if stage2 { fields } else { None };
-    let settings = super::run_render_settings(&args.run)?;
-    let threshold = if stage2 {
-        super::run_emitter_threshold(&args.run)?
-    } else {
-        0.5
+    let run = super::open_run(&args.run)?;
+    let frozen = match stage2 {
+        true => run.frozen(&dataset)?,
+        false => None,
     };
-    let mut frozen = fields.as_ref().map(|f| frozen_scene(&scene, f, threshold));
-    if let Some(fr) = frozen.as_mut() {
-        // Baked as stage 2 and eval bake it: the re-render's rays in a BVH, refined onto the SDF.
-        fr.bake(&dataset.bounds, 256)?;
-        if super::run_label_unobserved(&args.run)? {
-            let train: Vec<_> = dataset.split(Split::Train).map(|f| f.camera.clone()).collect();
-            fr.observe(&train);
-        }
-    }
     let animated = args.path.path.is_some();
     let rows: usize = views.iter().map(|(_, c)| c.height).sum();
     let passes = stage1 as usize + stage2 as usize;
@@ -249,72 +231,29 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         (rows * passes) as u64,
         "rows",
     );
-    let wants = |m: &str| what.contains(&m);
-    let file = |m: &str, name: &str, ext: &str| staged.path().join(m).join(format!("{name}.{ext}"));
     // Each map's PNG frames of a path, for its animation.
     let mut anim: Vec<(String, Vec<ImageF32>)> = Vec::new();
-    let mut png = |m: &str, name: &str, img: &ImageF32| -> Result<(), DataError> {
-        imageio::write_png(&file(m, name, "png"), img)?;
-        if animated {
-            match anim.iter_mut().find(|(k, _)| k == m) {
-                Some((_, v)) => v.push(img.clone()),
-                None => anim.push((m.to_string(), vec![img.clone()])),
-            }
-        }
-        Ok(())
-    };
     for (view, (name, camera)) in views.iter().enumerate() {
+        let mut maps = Vec::new();
         if stage1 {
-            let v = render_volume_view(&scene, &settings, camera);
-            if wants("rgb") {
-                png("rgb", name, &v.rgb)?;
-            }
-            if wants("depth") {
-                imageio::write_exr(&file("depth", name, "exr"), &v.depth)?;
-                png("depth", name, &depth_preview(&v.depth))?;
-            }
-            if wants("normal") {
-                imageio::write_exr(&file("normal", name, "exr"), &v.normal)?;
-                let mut vis = v.normal.clone();
-                vis.data.iter_mut().for_each(|x| *x = 0.5 * (*x + 1.0));
-                png("normal", name, &vis)?;
-            }
-            if wants("emitter") {
-                png("emitter", name, &v.emitter)?;
-            }
+            maps.extend(stage1_maps(&run.scene, &run.config.render, camera, &what));
             bar.inc(camera.height as u64);
         }
-        if let (Some(frozen), Some(fields)) = (&frozen, &fields) {
-            let v = rerender_view(frozen, &fields.material, camera, args.spp, 0, view as u32, &|| {
-                bar.inc(1)
-            });
-            let radiometry = &fields.radiometry;
-            let srgb = |img: &ImageF32| {
-                let mut out = img.clone();
-                out.data.iter_mut().for_each(|x| *x = imageio::linear_to_srgb(*x));
-                out
-            };
-            for (m, values) in [("albedo", &v.kd), ("specular", &v.ks)] {
-                if wants(m) {
-                    let img = rgb_map(v.width, v.height, values);
-                    imageio::write_exr(&file(m, name, "exr"), &img)?;
-                    png(m, name, &srgb(&img))?;
+        if let (Some(frozen), Some(fields)) = (&frozen, &run.fields) {
+            let spp_view = (args.spp, view as u32);
+            maps.extend(stage2_maps(frozen, fields, camera, spp_view, &what, &|| bar.inc(1)));
+        }
+        for m in maps {
+            let file = |ext: &str| staged.path().join(m.map).join(format!("{name}.{ext}"));
+            if let Some(exr) = &m.exr {
+                imageio::write_exr(&file("exr"), exr)?;
+            }
+            imageio::write_png(&file("png"), &m.png)?;
+            if animated {
+                match anim.iter_mut().find(|(k, _)| k == m.map) {
+                    Some((_, v)) => v.push(m.png),
+                    None => anim.push((m.map.to_string(), vec![m.png])),
                 }
-            }
-            if wants("roughness") {
-                let img = ImageF32::from_data(v.width, v.height, 1, v.roughness.clone());
-                imageio::write_exr(&file("roughness", name, "exr"), &img)?;
-                png("roughness", name, &img)?;
-            }
-            if wants("emission") {
-                let img = emission_map(&v, camera, &fields.emitters, frozen.index_margin);
-                imageio::write_exr(&file("emission", name, "exr"), &img)?;
-                png("emission", name, &encode_image(&img, radiometry))?;
-            }
-            if wants("rerender") {
-                let img = rerender_hdr(&v);
-                imageio::write_exr(&file("rerender", name, "exr"), &img)?;
-                png("rerender", name, &encode_image(&img, radiometry))?;
             }
         }
     }
@@ -348,19 +287,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 /// Whether an entry of an existing folder is what `render` writes there: a map's folder, or a
 /// path's animation of one (`MAP.gif`, `MAP.mp4`).
 fn previous_render(name: &str, is_dir: bool) -> bool {
-    let is_map = |m: &str| MAPS.contains(&m) || STAGE2_MAPS.contains(&m);
+    let is_map = |m: &str| STAGE1_MAPS.contains(&m) || STAGE2_MAPS.contains(&m);
     if is_dir {
         return is_map(name);
     }
     matches!(name.rsplit_once('.'), Some((m, "gif" | "mp4")) if is_map(m))
-}
-
-/// Depth scaled to [0, 1] by the view's own 99th percentile, near = bright.
-fn depth_preview(depth: &ImageF32) -> ImageF32 {
-    let mut sorted: Vec<f32> = depth.data.iter().copied().filter(|d| d.is_finite()).collect();
-    sorted.sort_by(f32::total_cmp);
-    let far = sorted.get(sorted.len() * 99 / 100).copied().unwrap_or(1.0).max(1e-6);
-    let mut out = depth.clone();
-    out.data.iter_mut().for_each(|d| *d = 1.0 - (*d / far).clamp(0.0, 1.0));
-    out
 }

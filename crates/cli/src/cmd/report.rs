@@ -76,20 +76,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &inputs,
         Some(64 << 20),
     )?;
-    let (scene, fields, info) = super::load_run_intrinsic(&args.run)?;
-    let run_dir = i2sdf_model::RunDir::new(&args.run);
+    let run = super::open_run(&args.run)?;
     let input = RunInputs {
-        run: &args.run,
+        run: &run,
         data: &data,
-        info: &info,
-        config_toml: run_dir.read_config_toml().ok(),
-        scene: &scene,
-        fields: fields.as_ref(),
         dataset: &dataset,
         metrics: metrics.as_ref().map(|(p, v)| (p.as_path(), v)),
-        volume: super::run_render_settings(&args.run)?,
-        emitter_threshold: super::run_emitter_threshold(&args.run)?,
-        label_unobserved: super::run_label_unobserved(&args.run)?,
     };
     let options = ReportOptions {
         view: args.view,
