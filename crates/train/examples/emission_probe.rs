@@ -1,6 +1,6 @@
 //! Runs `emission_from_shading` on inputs dumped by `stage2_ablation` (`EST=1 EST_DUMP=FILE`)
 //! with settings from the environment, so its parameters can be studied without a cache build:
-//! `EST_STEPS=1,2,4,8 EST_DELTA=0.05 EST_COS=0.95 EST_SLOPE=0.1 EST_MIN=0.01
+//! `EST_HOLD=k=r,g,b EST_STEP=0.2 EST_DELTA=0.05 EST_COS=0.95 EST_SLOPE=0.1 EST_MIN=0.01
 //! cargo run --release -p i2sdf-train --example emission_probe -- FILE`.
 
 use glam::Vec3;
@@ -36,13 +36,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             emit: r[12..12 + k].to_vec(),
         });
     }
-    let steps: Vec<usize> = env("EST_STEPS", "1,2,4,8".to_string())
-        .split(',')
-        .map(|v| v.parse().unwrap_or(1))
-        .collect();
     let d = ShadingEstimate::default();
     let s = ShadingEstimate {
-        steps: Box::leak(steps.into_boxed_slice()),
+        max_step: env("EST_STEP", d.max_step),
         delta: env("EST_DELTA", d.delta),
         min_cos: env("EST_COS", d.min_cos),
         max_slope: env("EST_SLOPE", d.max_slope),
@@ -51,7 +47,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let views = px.iter().map(|p| p.view as usize + 1).max().unwrap_or(0);
     let pairs = neighbour_pairs(&px, &vec![width; views], &s);
-    let est = estimate_emission(&px, &sums, &pairs, &bound, &vec![true; k], &s);
+    // EST_HOLD="k=r,g,b": emitter k held there (the others estimated).
+    let (mut bound, mut free) = (bound, vec![true; k]);
+    if let Ok(h) = std::env::var("EST_HOLD") {
+        let (e, v) = h.split_once('=').ok_or("EST_HOLD=k=r,g,b")?;
+        let e: usize = e.parse()?;
+        let v: Vec<f32> = v.split(',').map(|x| x.parse()).collect::<Result<_, _>>()?;
+        bound[e] = Vec3::from_slice(&v);
+        free[e] = false;
+    }
+    let est = estimate_emission(&px, &sums, &pairs, &bound, &free, &s);
     for (e, l) in est.iter().enumerate() {
         println!("L{e} {:.3} {:.3} {:.3}", l.x, l.y, l.z);
     }

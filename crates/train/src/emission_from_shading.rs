@@ -41,8 +41,11 @@ pub struct ShadedPixel {
 /// Settings of [`estimate_emission`].
 #[derive(Clone, Copy, Debug)]
 pub struct ShadingEstimate {
-    /// Image offsets (px) of the neighbour pairs: ±s along x, y and both diagonals for each.
-    pub steps: &'static [usize],
+    /// Image offsets of the neighbour pairs: s = 1, 2, 4, … px up to this fraction of the view's
+    /// width, along x, y and both diagonals for each. Small steps see shadow edges, large ones
+    /// the falloff across a wall; measured on the default room (LDR targets, exact geometry):
+    /// up to 8 px of 160 the lights came out at 0.85× and 0.79×, up to 32 px at 0.98× and 1.06×.
+    pub max_step: f32,
     /// Largest ratio of an estimate to its lower bound searched.
     pub max_ratio: f32,
     /// Scale δ of the Charbonnier penalty √(x² + δ²) on ln-albedo differences.
@@ -59,7 +62,7 @@ pub struct ShadingEstimate {
 impl Default for ShadingEstimate {
     fn default() -> Self {
         ShadingEstimate {
-            steps: &[1, 2, 4, 8],
+            max_step: 0.2,
             max_ratio: 1000.0,
             delta: 0.05,
             min_target: 0.01,
@@ -128,8 +131,8 @@ pub fn neighbour_pairs(pixels: &[ShadedPixel], widths: &[usize], s: &ShadingEsti
             let w = widths[p.view as usize] as i64;
             let (x, y) = (p.pixel as i64 % w, p.pixel as i64 / w);
             let index = &index;
-            s.steps.iter().flat_map(move |&st| {
-                let st = st as i64;
+            let largest = (w as f32 * s.max_step).max(1.0) as i64;
+            (0..).map(|e| 1i64 << e).take_while(move |&st| st <= largest).flat_map(move |st| {
                 [(st, 0), (0, st), (st, st), (st, -st)]
                     .into_iter()
                     .filter_map(move |(dx, dy)| {
