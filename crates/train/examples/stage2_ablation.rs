@@ -223,7 +223,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // EST=hold every variant starts there (hold it with a tiny stage2.lr_emission).
     let mut estimated: Option<Vec<Vec3>> = None;
     if let Ok(mode) = std::env::var("EST") {
-        use i2sdf_train::emission_from_shading::{estimate_emission, neighbour_pairs, ShadedPixel, ShadingEstimate};
+        use i2sdf_train::stage2::emission_from_shading::{
+            estimate_emission, neighbour_pairs, ShadedPixel, ShadingEstimate,
+        };
         use i2sdf_train::stage2::PixelKind;
         let t = Instant::now();
         let (mut px, mut sums) = (Vec::new(), Vec::new());

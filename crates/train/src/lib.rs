@@ -4,7 +4,6 @@
 
 pub mod config;
 pub mod driver;
-pub mod emission_from_shading;
 pub mod kmeans;
 pub mod losses;
 pub mod maps;

@@ -132,21 +132,24 @@ pub fn neighbour_pairs(pixels: &[ShadedPixel], widths: &[usize], s: &ShadingEsti
             let (x, y) = (p.pixel as i64 % w, p.pixel as i64 / w);
             let index = &index;
             let largest = (w as f32 * s.max_step).max(1.0) as i64;
-            (0..).map(|e| 1i64 << e).take_while(move |&st| st <= largest).flat_map(move |st| {
-                [(st, 0), (0, st), (st, st), (st, -st)]
-                    .into_iter()
-                    .filter_map(move |(dx, dy)| {
-                        let (qx, qy) = (x + dx, y + dy);
-                        if qx < 0 || qx >= w || qy < 0 {
-                            return None;
-                        }
-                        let j = *index.get(&(p.view, (qy * w + qx) as u32))?;
-                        let q = &pixels[j as usize];
-                        let d = q.position - p.position;
-                        let on_plane = d.dot(p.normal).abs() <= s.max_slope * d.length();
-                        (p.normal.dot(q.normal) >= s.min_cos && on_plane).then_some((i as u32, j))
-                    })
-            })
+            (0..)
+                .map(|e| 1i64 << e)
+                .take_while(move |&st| st <= largest)
+                .flat_map(move |st| {
+                    [(st, 0), (0, st), (st, st), (st, -st)]
+                        .into_iter()
+                        .filter_map(move |(dx, dy)| {
+                            let (qx, qy) = (x + dx, y + dy);
+                            if qx < 0 || qx >= w || qy < 0 {
+                                return None;
+                            }
+                            let j = *index.get(&(p.view, (qy * w + qx) as u32))?;
+                            let q = &pixels[j as usize];
+                            let d = q.position - p.position;
+                            let on_plane = d.dot(p.normal).abs() <= s.max_slope * d.length();
+                            (p.normal.dot(q.normal) >= s.min_cos && on_plane).then_some((i as u32, j))
+                        })
+                })
         })
         .collect()
 }
