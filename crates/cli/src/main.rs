@@ -117,4 +117,19 @@ mod tests {
         }
         assert!(missing.is_empty(), "README command table: {missing:?}");
     }
+
+    #[test]
+    fn the_readme_configuration_reference_is_the_config_types() {
+        let readme = include_str!("../../../README.md");
+        let want = i2sdf_train::config::TrainConfig::reference();
+        let block = readme
+            .split_once("<!-- configuration reference: TrainConfig::reference() -->\n```toml\n")
+            .and_then(|(_, rest)| rest.split_once("```"))
+            .map(|(b, _)| b);
+        assert_eq!(
+            block,
+            Some(want.as_str()),
+            "the README's configuration reference should read:\n{want}"
+        );
+    }
 }

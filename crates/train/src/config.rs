@@ -521,6 +521,35 @@ impl TrainConfig {
     pub fn to_toml(&self) -> String {
         toml::to_string_pretty(self).expect("config serializes")
     }
+
+    /// The configuration reference of the README: every section with its keys and defaults, one
+    /// `[section] key = value, …` paragraph each, wrapped at 100 columns (a test keeps the
+    /// README's copy equal to this).
+    pub fn reference() -> String {
+        let table: toml::Table = toml::from_str(&Self::default().to_toml()).expect("config round-trips");
+        let mut out = String::new();
+        for (section, keys) in &table {
+            let Some(keys) = keys.as_table() else { continue };
+            let mut line = format!("[{section}]");
+            let items: Vec<String> = keys.iter().map(|(k, v)| format!("{k} = {v}")).collect();
+            for (i, item) in items.iter().enumerate() {
+                let piece = if i + 1 < items.len() {
+                    format!(" {item},")
+                } else {
+                    format!(" {item}")
+                };
+                if line.len() + piece.len() > 100 {
+                    out += line.trim_end();
+                    out.push('\n');
+                    line = " ".repeat(section.len() + 2);
+                }
+                line += &piece;
+            }
+            out += &line;
+            out.push('\n');
+        }
+        out
+    }
 }
 
 /// A configuration file's parse or type error with the dotted key and line in front (the first

@@ -361,7 +361,7 @@ impl TrainingMaps {
             "hdr",
             hdr,
             match (hdr, self.use_hdr) {
-                (0, _) => "stage 2 fits the LDR images (saturated channels as lower bounds)".into(),
+                (0, _) => "stage 2 fits the LDR images (saturated channels as lower bounds; a light seen only clipped gets its L from the light it throws on the room, stage2.emission_from_shading)".into(),
                 (_, false) => "unused: stage 2 fits the LDR images (stage2.use_hdr = false)".into(),
                 (n, true) if n == views => "stage 2 fits the HDR images".into(),
                 _ => "stage 2 fits the HDR images where given, else the LDR ones".into(),
