@@ -14,6 +14,7 @@ pub mod emitter_detect;
 pub mod error;
 pub mod exposure;
 pub mod fingerprint;
+#[cfg(any(test, feature = "test-support"))]
 pub mod fixture;
 pub mod imageio;
 pub mod lens;
