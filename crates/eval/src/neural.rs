@@ -13,14 +13,12 @@ use i2sdf_data::ply::read_ply;
 use i2sdf_data::{Bounds, DataError, Dataset, Frame, Split};
 use i2sdf_model::images::render_volume_view;
 use i2sdf_model::renderer::RenderSettings;
-use i2sdf_model::NeuralScene;
+use i2sdf_model::{extract_mesh, NeuralScene};
 
-/// Marching cubes over the scene's SDF inside `bounds` (world units, each side enlarged by 1 %
-/// at both ends), with `resolution` samples along the longest side; vertices in world units
-/// ([`i2sdf_model::marching_cubes::extract_mesh`] with `pad_fraction` 0.01).
-pub fn extract_mesh(scene: &NeuralScene, bounds: &Bounds, resolution: usize) -> Result<TriangleMesh, DataError> {
-    i2sdf_model::marching_cubes::extract_mesh(scene, bounds, resolution, 0.01)
-}
+/// How much the mesh that `eval` scores and `mesh` writes reaches past the scene's bounds: each
+/// side enlarged by 1 % at both ends (the `pad_fraction` of
+/// [`i2sdf_model::marching_cubes::extract_mesh`]).
+pub const MESH_PAD_FRACTION: f64 = 0.01;
 
 /// The training views with GT depth, as the mesh metrics' visibility test wants them.
 pub fn culling_views(dataset: &Dataset) -> Vec<CullingView> {
@@ -187,7 +185,7 @@ pub fn evaluate_with_progress(
 ) -> Result<(EvalReport, TriangleMesh), DataError> {
     let mut report = view_metrics_with_progress(scene, dataset, &options.render, progress)?;
     progress.step(progress::MESH_EXTRACTION, 0);
-    let mesh = extract_mesh(scene, bounds, options.mesh_resolution)?;
+    let mesh = extract_mesh(scene, bounds, options.mesh_resolution, MESH_PAD_FRACTION)?;
     report.geometry.mesh = match &dataset.mesh_path {
         Some(gt_path) => {
             let gt = read_ply(gt_path)?;

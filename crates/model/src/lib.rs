@@ -14,6 +14,7 @@ pub mod marching_cubes;
 pub mod material_field;
 pub mod mc_band;
 pub mod mc_tables;
+pub mod memory;
 pub mod observed;
 pub mod poses;
 pub mod query;
