@@ -25,6 +25,7 @@ pub mod paper;
 pub mod ply;
 pub mod sensor_depth;
 pub mod summary;
+pub mod validate;
 
 pub use camera::Camera;
 pub use camera_path::{camera_path, PathKind};
