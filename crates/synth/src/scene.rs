@@ -273,6 +273,7 @@ impl SceneDesc {
                 rule.map_err(|m| DataError::field(path, field(f), format!("{m}, found {found}")))
             };
             let v3 = |v: &[f32; 3]| format!("[{}, {}, {}]", v[0], v[1], v[2]);
+            let positive = |f: &str, x: f32| rule(f, validate::positive_up_to(x as f64, f64::INFINITY), &x);
             if s.object.as_ref().is_some_and(|o| o.trim().is_empty()) {
                 return bad("object", "must not be empty (leave it out to use the shape's name)");
             }
@@ -295,11 +296,7 @@ impl SceneDesc {
                     subdivisions,
                 } => {
                     rule("center", validate::each_finite(center), &v3(center))?;
-                    rule(
-                        "radius",
-                        validate::positive_up_to(*radius as f64, f64::INFINITY),
-                        radius,
-                    )?;
+                    positive("radius", *radius)?;
                     rule("subdivisions", validate::int_in(*subdivisions, 0, 5), subdivisions)?;
                 }
                 Geometry::Cylinder { a, b, radius, segments } => {
@@ -308,11 +305,7 @@ impl SceneDesc {
                     if (Vec3::from(*a) - Vec3::from(*b)).length() <= 0.0 {
                         return bad("a/b", "the ends must be distinct");
                     }
-                    rule(
-                        "radius",
-                        validate::positive_up_to(*radius as f64, f64::INFINITY),
-                        radius,
-                    )?;
+                    positive("radius", *radius)?;
                     rule("segments", validate::int_in(*segments, 3, 256), segments)?;
                 }
                 Geometry::Quad { origin, u, v } => {
@@ -329,8 +322,7 @@ impl SceneDesc {
             match &m.texture {
                 Some(TextureDesc::Checker { kd2, scale }) | Some(TextureDesc::Stripe { kd2, scale, .. }) => {
                     rule("material.texture.kd2", validate::each_in(kd2, 0.0, 1.0), &v3(kd2))?;
-                    let positive = validate::positive_up_to(*scale as f64, f64::INFINITY);
-                    rule("material.texture.scale", positive, scale)?;
+                    positive("material.texture.scale", *scale)?;
                 }
                 None => {}
             }
