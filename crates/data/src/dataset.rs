@@ -74,6 +74,37 @@ impl Frame {
     pub fn pixel_count(&self) -> usize {
         self.camera.width * self.camera.height
     }
+
+    /// Every map of the frame, in the order of [`Frame::MAP_NAMES`]: the LDR colour, then the
+    /// optional maps (`None` where the frame has none).
+    pub fn maps(&self) -> [Option<&ImageF32>; 8] {
+        [
+            Some(&self.rgb),
+            self.hdr.as_ref(),
+            self.depth.as_ref(),
+            self.normal.as_ref(),
+            self.emitter_mask.as_ref(),
+            self.albedo.as_ref(),
+            self.specular.as_ref(),
+            self.roughness.as_ref(),
+        ]
+    }
+
+    /// The names of [`Frame::maps`]. The first [`Frame::TRAINING_MAPS`] are the ones training
+    /// reads; the rest are ground truth for evaluation.
+    pub const MAP_NAMES: [&'static str; 8] = [
+        "rgb",
+        "hdr",
+        "depth",
+        "normal",
+        "emitter_mask",
+        "albedo",
+        "specular",
+        "roughness",
+    ];
+
+    /// How many of [`Frame::maps`] (the first ones) training reads.
+    pub const TRAINING_MAPS: usize = 5;
 }
 
 /// A set of relit ground-truth views: the edit spec that produced them and the images.

@@ -15,6 +15,7 @@
 
 use crate::error::{DataError, Result};
 use crate::imageio::ImageF32;
+use crate::validate;
 use glam::{Quat, Vec3};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
@@ -525,31 +526,25 @@ impl OpReader<'_> {
         }
     }
 
+    /// A [`validate`] rule's failure at `key`, with the value found.
+    fn rule(&self, key: &str, rule: std::result::Result<(), String>, found: impl FnOnce() -> String) -> Result<()> {
+        rule.map_err(|m| self.err(key, format!("{m}, found {}", found())))
+    }
+
     fn finite3(&self, key: &str, v: [f32; 3]) -> Result<[f32; 3]> {
-        let ok = v.iter().all(|x| x.is_finite());
-        self.ensure(ok, key, || format!("must be finite, found {}", fmt3(v)))
-            .map(|_| v)
+        self.rule(key, validate::each_finite(&v), || fmt3(v)).map(|_| v)
     }
 
     fn in_range3(&self, key: &str, v: [f32; 3], lo: f32, hi: f32) -> Result<[f32; 3]> {
-        let ok = v.iter().all(|x| x.is_finite() && *x >= lo && *x <= hi);
-        self.ensure(ok, key, || {
-            format!("each component must be in [{lo}, {hi}], found {}", fmt3(v))
-        })
-        .map(|_| v)
+        self.rule(key, validate::each_in(&v, lo, hi), || fmt3(v)).map(|_| v)
     }
 
     fn non_negative3(&self, key: &str, v: [f32; 3]) -> Result<[f32; 3]> {
-        let ok = v.iter().all(|x| x.is_finite() && *x >= 0.0);
-        self.ensure(ok, key, || {
-            format!("each component must be finite and ≥ 0, found {}", fmt3(v))
-        })
-        .map(|_| v)
+        self.rule(key, validate::each_non_negative(&v), || fmt3(v)).map(|_| v)
     }
 
     fn positive(&self, key: &str, x: f32) -> Result<f32> {
-        let ok = x.is_finite() && x > 0.0;
-        self.ensure(ok, key, || format!("must be a finite number > 0, found {x}"))
+        self.rule(key, validate::positive_up_to(x as f64, f64::INFINITY), || x.to_string())
             .map(|_| x)
     }
 
@@ -614,8 +609,7 @@ impl OpReader<'_> {
         self.check_keys("relight", RELIGHT_KEYS)?;
         let at = self.finite3("at", self.require("at")?)?;
         let scale: f32 = self.require("scale")?;
-        let ok = scale.is_finite() && scale >= 0.0;
-        self.ensure(ok, "scale", || format!("must be a finite number ≥ 0, found {scale}"))?;
+        self.rule("scale", validate::non_negative(scale as f64), || scale.to_string())?;
         let color = self.non_negative3("color", self.get("color")?.unwrap_or([1.0; 3]))?;
         Ok(RelightOp { at, scale, color })
     }
@@ -625,8 +619,7 @@ impl OpReader<'_> {
         let ks = self.get("ks")?.map(|v| self.in_range3("ks", v, 0.0, 1.0)).transpose()?;
         let roughness = self.get::<f32>("roughness")?;
         if let Some(r) = roughness {
-            let ok = (0.01..=1.0).contains(&r);
-            self.ensure(ok, "roughness", || format!("must be in [0.01, 1], found {r}"))?;
+            self.rule("roughness", validate::real_in(r, 0.01, 1.0), || r.to_string())?;
         }
         Ok(PartialMaterial { kd, ks, roughness })
     }

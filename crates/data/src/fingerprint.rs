@@ -2,7 +2,7 @@
 //! (so `--resume` refuses other data) and in `run.json` (so `render`, `edit`, `eval` and
 //! `report` say when `--data` names a dataset other than the run's).
 
-use crate::dataset::{Dataset, Split};
+use crate::dataset::{Dataset, Frame, Split};
 use serde::{Deserialize, Serialize};
 
 /// What identifies the data a run trains on: the training views' count, resolution, cameras and
@@ -50,14 +50,7 @@ impl DatasetFingerprint {
             for (_, v) in c.lens.params() {
                 cams.word(v.to_bits());
             }
-            let maps = [
-                Some(&f.rgb),
-                f.hdr.as_ref(),
-                f.depth.as_ref(),
-                f.normal.as_ref(),
-                f.emitter_mask.as_ref(),
-            ];
-            for (k, m) in maps.iter().enumerate() {
+            for (k, m) in f.maps().into_iter().take(Frame::TRAINING_MAPS).enumerate() {
                 // Which maps are present is part of the data (a mask added changes training).
                 imgs.word(k as u64 + 1);
                 if let Some(m) = m {

@@ -14,6 +14,7 @@ pub mod emitter_detect;
 pub mod error;
 pub mod exposure;
 pub mod fingerprint;
+#[cfg(any(test, feature = "test-support"))]
 pub mod fixture;
 pub mod imageio;
 pub mod lens;
@@ -24,6 +25,7 @@ pub mod paper;
 pub mod ply;
 pub mod sensor_depth;
 pub mod summary;
+pub mod validate;
 
 pub use camera::Camera;
 pub use camera_path::{camera_path, PathKind};

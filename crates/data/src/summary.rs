@@ -1,19 +1,19 @@
 //! A dataset's summary, as `i2sdf check` prints it (and as JSON with `--json`).
 
 use crate::colmap::ScaleFix;
-use crate::dataset::{Bounds, BoundsSource, Dataset, Format, Normalization, Split};
+use crate::dataset::{Bounds, BoundsSource, Dataset, Format, Frame, Normalization, Split};
 use crate::sensor_depth::{depth_window, DepthDropped};
 use std::fmt;
 
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct MapCounts {
-    pub hdr: usize,
-    pub depth: usize,
-    pub normal: usize,
-    pub emitter_mask: usize,
-    pub albedo: usize,
-    pub specular: usize,
-    pub roughness: usize,
+/// How many frames carry each optional map: name and count in the order of [`Frame::maps`]
+/// (`rgb`, which every frame has, left out); serialized as a map from name to count.
+#[derive(Clone, Debug)]
+pub struct MapCounts(pub Vec<(&'static str, usize)>);
+
+impl serde::Serialize for MapCounts {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_map(self.0.iter().map(|(k, c)| (k, c)))
+    }
 }
 
 #[derive(Clone, Debug, serde::Serialize)]
@@ -45,16 +45,15 @@ pub struct Summary {
 
 impl Summary {
     pub fn of(ds: &Dataset) -> Summary {
-        let count = |f: &dyn Fn(&crate::Frame) -> bool| ds.frames.iter().filter(|fr| f(fr)).count();
-        let maps = MapCounts {
-            hdr: count(&|f| f.hdr.is_some()),
-            depth: count(&|f| f.depth.is_some()),
-            normal: count(&|f| f.normal.is_some()),
-            emitter_mask: count(&|f| f.emitter_mask.is_some()),
-            albedo: count(&|f| f.albedo.is_some()),
-            specular: count(&|f| f.specular.is_some()),
-            roughness: count(&|f| f.roughness.is_some()),
-        };
+        let count = |k: usize| ds.frames.iter().filter(|f| f.maps()[k].is_some()).count();
+        let maps = MapCounts(
+            Frame::MAP_NAMES
+                .iter()
+                .enumerate()
+                .skip(1)
+                .map(|(k, &name)| (name, count(k)))
+                .collect(),
+        );
         let mut resolutions: Vec<(usize, usize)> =
             ds.frames.iter().map(|f| (f.camera.width, f.camera.height)).collect();
         resolutions.sort();
@@ -109,17 +108,9 @@ impl fmt::Display for Summary {
         writeln!(f, "views        {} train, {} test", self.train_views, self.test_views)?;
         let res: Vec<String> = self.resolutions.iter().map(|(w, h)| format!("{w}×{h}")).collect();
         writeln!(f, "resolution   {}", res.join(", "))?;
-        let m = &self.maps;
-        let maps = [
-            ("hdr", m.hdr),
-            ("depth", m.depth),
-            ("normal", m.normal),
-            ("emitter_mask", m.emitter_mask),
-            ("albedo", m.albedo),
-            ("specular", m.specular),
-            ("roughness", m.roughness),
-        ];
-        let list: Vec<String> = maps
+        let list: Vec<String> = self
+            .maps
+            .0
             .iter()
             .map(|(k, c)| {
                 if *c == 0 {

@@ -10,6 +10,7 @@ use glam::{DVec3, Vec3};
 use i2sdf_data::edit_spec::EditSpec;
 use i2sdf_data::Split;
 use i2sdf_edit::{edit_images, light_gains, EditSettings, RecoveredScene};
+use i2sdf_eval::ImageRef;
 use i2sdf_model::{intrinsic_io, RunDir};
 use i2sdf_render::PathStart;
 use rand::{Rng, SeedableRng};
@@ -28,9 +29,12 @@ fn spec(text: &str) -> EditSpec {
     EditSpec::from_toml_str(text, Path::new("check.toml")).unwrap()
 }
 
+/// PSNR over all the values of `a` and `b` (eval's, on them as one row of one channel).
 fn psnr(a: &[f32], b: &[f32]) -> f64 {
-    let mse = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum::<f64>() / a.len() as f64;
-    -10.0 * mse.log10()
+    fn row(v: &[f32]) -> ImageRef<'_> {
+        ImageRef::new(v, v.len(), 1, 1).unwrap()
+    }
+    i2sdf_eval::psnr(row(a), row(b), None).unwrap().unwrap_or(f64::NAN)
 }
 
 fn main() {

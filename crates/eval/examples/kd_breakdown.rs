@@ -95,7 +95,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!(
         "pixels {count}, Kd RMSE {:.4}, PSNR {:.2} dB",
         (total / (3 * count) as f64).sqrt(),
-        -10.0 * (total / (3 * count) as f64).log10()
+        i2sdf_eval::image_metrics::psnr_from_mse(total / (3 * count) as f64)
     );
     println!("  share   pixels  GT Kd               pred Kd             ks    rho gt/pred");
     for (k, g) in v.iter().take(25) {

@@ -13,14 +13,8 @@ use i2sdf_data::ply::read_ply;
 use i2sdf_data::{Bounds, DataError, Dataset, Frame, Split};
 use i2sdf_model::images::render_volume_view;
 use i2sdf_model::renderer::RenderSettings;
-use i2sdf_model::NeuralScene;
+use i2sdf_model::{extract_mesh, NeuralScene};
 
-/// Marching cubes over the scene's SDF inside `bounds` (world units, each side enlarged by
-/// [`i2sdf_model::marching_cubes::PAD_FRACTION`] at both ends), with `resolution` samples along
-/// the longest side; vertices in world units ([`i2sdf_model::marching_cubes::extract_mesh`]).
-pub fn extract_mesh(scene: &NeuralScene, bounds: &Bounds, resolution: usize) -> Result<TriangleMesh, DataError> {
-    i2sdf_model::marching_cubes::extract_mesh(scene, bounds, resolution)
-}
 
 /// The training views with GT depth, as the mesh metrics' visibility test wants them.
 pub fn culling_views(dataset: &Dataset) -> Vec<CullingView> {

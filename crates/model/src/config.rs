@@ -66,37 +66,8 @@ impl Default for ModelConfig {
 
 /// Range checks for configuration values: each names its dotted key, the value and the allowed
 /// range, so `--set model.hash_levels=0` fails with a message instead of a panic deep in the
-/// engine. Non-finite numbers are always rejected.
-pub mod check {
-    use std::fmt::Display;
-
-    /// `lo ≤ v ≤ hi` for a count or size.
-    pub fn int<T: PartialOrd + Display + Copy>(key: &str, v: T, lo: T, hi: T) -> Result<(), String> {
-        if v < lo || v > hi {
-            return Err(format!("{key} = {v}: must be in {lo}..={hi}"));
-        }
-        Ok(())
-    }
-
-    /// `lo ≤ v ≤ hi` and finite.
-    pub fn real<T: Into<f64> + Copy + std::fmt::Display>(key: &str, v: T, lo: f64, hi: f64) -> Result<(), String> {
-        let x: f64 = v.into();
-        if !(x.is_finite() && x >= lo && x <= hi) {
-            // The value as the user wrote it (an f32 printed through f64 shows its rounding).
-            return Err(format!("{key} = {v}: must be a finite number in [{lo}, {hi}]"));
-        }
-        Ok(())
-    }
-
-    /// `0 < v ≤ hi` and finite.
-    pub fn positive<T: Into<f64> + Copy + std::fmt::Display>(key: &str, v: T, hi: f64) -> Result<(), String> {
-        let x: f64 = v.into();
-        if !(x.is_finite() && x > 0.0 && x <= hi) {
-            return Err(format!("{key} = {v}: must be a finite number in (0, {hi}]"));
-        }
-        Ok(())
-    }
-}
+/// engine (the house's one set of value checks, [`i2sdf_data::validate`]).
+pub use i2sdf_data::validate as check;
 
 impl ModelConfig {
     /// Checks every key (prefix `model.`) against the range the engine supports.

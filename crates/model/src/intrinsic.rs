@@ -24,7 +24,9 @@
 
 use crate::emitters::EmitterTable;
 use crate::marching_cubes::{extract_mesh, sdf_grid};
-use crate::material_field::{MaterialBackbone, MaterialField, MaterialInferWorkspace, MATERIAL_CHANNELS};
+use crate::material_field::{
+    brdf_of_channels, MaterialBackbone, MaterialField, MaterialInferWorkspace, MATERIAL_CHANNELS,
+};
 use crate::observed::ObservedViews;
 use crate::query::SceneQuery;
 use crate::raycast::{CastSettings, Hit as CastHit, SdfCaster, CAST_CHUNK};
@@ -606,7 +608,7 @@ impl Material for NeuralMaterial<'_> {
         self.field
             .infer_with(&norm, &features, &mut MaterialInferWorkspace::default(), &mut m);
         for (o, c) in out.iter_mut().zip(m.chunks_exact(MATERIAL_CHANNELS)) {
-            *o = GgxBrdf::new(Vec3::new(c[0], c[1], c[2]), Vec3::new(c[3], c[4], c[5]), c[6]);
+            *o = brdf_of_channels(c);
         }
     }
 }

@@ -15,6 +15,7 @@ pub mod marching_cubes;
 pub mod material_field;
 pub mod mc_band;
 pub mod mc_tables;
+pub mod memory;
 pub mod observed;
 pub mod opened_run;
 pub mod poses;

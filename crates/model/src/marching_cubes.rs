@@ -7,6 +7,7 @@
 use crate::mc_band::BandMask;
 pub use crate::mc_band::NarrowBand;
 use crate::mc_tables::case_table;
+use crate::memory::{gib, MachineMemory};
 use crate::query::SceneQuery;
 use crate::scene::NeuralScene;
 use i2sdf_data::mesh::TriangleMesh;
@@ -97,42 +98,6 @@ impl McGrid {
 /// 1.57 on the default room at 256 (295 502 vertices for 188 608 face cells of its 256×188×104
 /// grid), rounded up.
 pub const MESH_VERTICES_PER_FACE_CELL: f64 = 2.0;
-
-/// `bytes` as GiB with two decimals, for messages.
-pub fn gib(bytes: f64) -> String {
-    format!("{:.2} GiB", bytes / (1u64 << 30) as f64)
-}
-
-/// The machine's memory in bytes, from `/proc/meminfo`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct MachineMemory {
-    /// `MemAvailable`: what a new allocation can get without swapping.
-    pub available: u64,
-    /// `MemTotal`.
-    pub total: u64,
-}
-
-impl MachineMemory {
-    /// `None` where `/proc/meminfo` cannot be read (not Linux): the checks then accept.
-    pub fn read() -> Option<MachineMemory> {
-        MachineMemory::parse(&std::fs::read_to_string("/proc/meminfo").ok()?)
-    }
-
-    /// Parses `/proc/meminfo` text (`Key:   N kB` lines).
-    pub fn parse(text: &str) -> Option<MachineMemory> {
-        let field = |key: &str| {
-            text.lines().find_map(|l| {
-                let rest = l.strip_prefix(key)?.strip_prefix(':')?;
-                let kb: u64 = rest.trim().trim_end_matches("kB").trim().parse().ok()?;
-                Some(kb * 1024)
-            })
-        };
-        Some(MachineMemory {
-            available: field("MemAvailable")?,
-            total: field("MemTotal")?,
-        })
-    }
-}
 
 #[derive(Clone, Debug)]
 pub struct McOptions {
@@ -647,16 +612,6 @@ mod tests {
         assert!(small.memory_estimate(&batch) < 64e6);
         assert!(small.check_fits(&batch, Some(1 << 30)).is_ok());
         assert!(huge.check_fits(&batch, None).is_ok());
-    }
-
-    #[test]
-    fn meminfo_parses() {
-        let text = "MemTotal:       24683652 kB\nMemFree:  100 kB\nMemAvailable:   23887096 kB\n";
-        let m = MachineMemory::parse(text).unwrap();
-        assert_eq!(m.total, 24683652 * 1024);
-        assert_eq!(m.available, 23887096 * 1024);
-        assert!(MachineMemory::parse("MemTotal: 5 kB\n").is_none());
-        assert!(MachineMemory::read().is_some_and(|m| m.available <= m.total) || !cfg!(target_os = "linux"));
     }
 
     #[test]

@@ -27,6 +27,12 @@ use serde::{Deserialize, Serialize};
 /// Kd (rgb), Ks (rgb), ρ: the outputs per point of [`MaterialField::forward`].
 pub const MATERIAL_CHANNELS: usize = 7;
 
+/// The BRDF of one point's [`MATERIAL_CHANNELS`] outputs (Kd rgb, Ks rgb, ρ).
+pub fn brdf_of_channels(c: &[f32]) -> i2sdf_render::GgxBrdf {
+    use glam::Vec3;
+    i2sdf_render::GgxBrdf::new(Vec3::new(c[0], c[1], c[2]), Vec3::new(c[3], c[4], c[5]), c[6])
+}
+
 /// Points per block of [`MaterialField::infer`] (bounds its buffers whatever the batch).
 pub const MATERIAL_INFER_BLOCK: usize = 1 << 14;
 

@@ -13,6 +13,7 @@
 pub mod area_light;
 pub mod brdf;
 pub mod bvh;
+#[cfg(any(test, feature = "test-support"))]
 pub mod chi2;
 pub mod color;
 pub mod cone_light;

@@ -66,14 +66,6 @@ pub struct ReportSummary {
     pub seconds: f64,
 }
 
-/// The process's peak resident memory (VmHWM) in bytes, where /proc says.
-pub fn peak_rss() -> Option<u64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
-}
-
 /// Writes the report into `out` (created; a previous report there is replaced). `progress` is
 /// told each step as it starts.
 pub fn write_report(
@@ -478,7 +470,7 @@ fn resources_section(input: &RunInputs, timings: &[(String, f64)], total: f64) -
         row(&format!("report: {k}"), format!("{} s", format_sig(*v)));
     }
     row("report: total", format!("{} s", format_sig(total)));
-    if let Some(b) = peak_rss() {
+    if let Some(b) = i2sdf_model::memory::peak_rss() {
         row(
             "report: peak resident memory (VmHWM)",
             format!("{} MiB", format_sig(b as f64 / (1u64 << 20) as f64)),

@@ -11,6 +11,7 @@
 //! `cargo run --release -p i2sdf-synth --example noise_psnr -- [preset|scene.toml] [spp] [view] [seed] [out_dir] [--unbiased] [--regularize=RHO]`
 
 use glam::Vec3;
+use i2sdf_eval::image_metrics::psnr_from_mse;
 use i2sdf_render::render_view;
 use i2sdf_synth::dataset::{auto_exposure, plan_views};
 use i2sdf_synth::tracer::Estimator;
@@ -72,7 +73,7 @@ fn main() {
             .map(|(x, y)| (0..3).map(|c| ((f(x[c]) - f(y[c])) as f64).powi(2)).sum::<f64>())
             .sum::<f64>()
             / (3 * a.len()) as f64;
-        10.0 * (1.0 / mse).log10()
+        psnr_from_mse(mse)
     };
     let ldr = psnr(&|v| i2sdf_data::imageio::linear_to_srgb((v * exposure).clamp(0.0, 1.0)));
     let linear = psnr(&|v| (v * exposure).clamp(0.0, 1.0));
@@ -113,7 +114,7 @@ fn main() {
         let mean_diff = a.iter().zip(&c).map(|(x, y)| (ldr(x.y) - ldr(y.y)) as f64).sum::<f64>() / a.len() as f64;
         println!(
             "same samples, unbiased estimator: PSNR {:.2} dB (sRGB LDR), mean LDR difference (G) {mean_diff:+.5}, fireflies {}",
-            10.0 * (1.0 / mse).log10(),
+            psnr_from_mse(mse),
             fireflies(&i2sdf_synth::output::ldr_image(w, h, &c, exposure), 0.3).len()
         );
     }

@@ -5,7 +5,12 @@
 //! `cargo run --release -p i2sdf-synth --example png_psnr -- A.png B.png [C.png D.png ...]`
 //! (pairs: A vs B, C vs D, …)
 
+use i2sdf_eval::ImageRef;
 use std::path::Path;
+
+fn image(m: &i2sdf_data::ImageF32) -> ImageRef<'_> {
+    ImageRef::new(&m.data, m.width, m.height, m.channels).unwrap()
+}
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -25,14 +30,13 @@ fn main() {
         );
         let c = a.channels;
         let mut mean = vec![0.0f64; c];
-        let mut se = 0.0f64;
         for (i, (x, y)) in a.data.iter().zip(&b.data).enumerate() {
-            let d = *x as f64 - *y as f64;
-            se += d * d;
-            mean[i % c] += d;
+            mean[i % c] += *x as f64 - *y as f64;
         }
         let n = a.data.len() as f64;
-        let psnr = 10.0 * (1.0 / (se / n)).log10();
+        let psnr = i2sdf_eval::psnr(image(&a), image(&b), None)
+            .unwrap()
+            .unwrap_or(f64::NAN);
         let mean: Vec<String> = mean.iter().map(|m| format!("{:+.5}", m / (n / c as f64))).collect();
         println!(
             "{} vs {}: PSNR {psnr:.2} dB, mean difference {}",

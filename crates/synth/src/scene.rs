@@ -3,8 +3,9 @@
 //! TOML (`scene.toml` in every generated dataset), so a room can be edited by hand and re-rendered.
 
 use glam::Vec3;
-use i2sdf_data::DataError;
+use i2sdf_data::{validate, DataError};
 use serde::{Deserialize, Serialize};
+use std::fmt::Display;
 use std::path::Path;
 
 /// A whole synthetic scene, in metres, y up.
@@ -267,6 +268,12 @@ impl SceneDesc {
         for (i, s) in self.shapes.iter().enumerate() {
             let field = |f: &str| format!("shape[{i}] ({}).{f}", s.name);
             let bad = |f: &str, msg: &str| Err(DataError::field(path, field(f), msg));
+            // A rule of the house's value checks, at `f`, with the value found.
+            let rule = |f: &str, rule: Result<(), String>, found: &dyn Display| {
+                rule.map_err(|m| DataError::field(path, field(f), format!("{m}, found {found}")))
+            };
+            let v3 = |v: &[f32; 3]| format!("[{}, {}, {}]", v[0], v[1], v[2]);
+            let positive = |f: &str, x: f32| rule(f, validate::positive_up_to(x as f64, f64::INFINITY), &x);
             if s.object.as_ref().is_some_and(|o| o.trim().is_empty()) {
                 return bad("object", "must not be empty (leave it out to use the shape's name)");
             }
@@ -288,23 +295,18 @@ impl SceneDesc {
                     radius,
                     subdivisions,
                 } => {
-                    if !finite3(center) || !(*radius > 0.0) || *subdivisions > 5 {
-                        return bad("radius", "need a finite centre, radius > 0 and subdivisions ≤ 5");
-                    }
+                    rule("center", validate::each_finite(center), &v3(center))?;
+                    positive("radius", *radius)?;
+                    rule("subdivisions", validate::int_in(*subdivisions, 0, 5), subdivisions)?;
                 }
                 Geometry::Cylinder { a, b, radius, segments } => {
-                    if !finite3(a)
-                        || !finite3(b)
-                        || (Vec3::from(*a) - Vec3::from(*b)).length() <= 0.0
-                        || !(*radius > 0.0)
-                        || *segments < 3
-                        || *segments > 256
-                    {
-                        return bad(
-                            "a/b/radius",
-                            "need distinct finite ends, radius > 0 and 3..=256 segments",
-                        );
+                    rule("a", validate::each_finite(a), &v3(a))?;
+                    rule("b", validate::each_finite(b), &v3(b))?;
+                    if (Vec3::from(*a) - Vec3::from(*b)).length() <= 0.0 {
+                        return bad("a/b", "the ends must be distinct");
                     }
+                    positive("radius", *radius)?;
+                    rule("segments", validate::int_in(*segments, 3, 256), segments)?;
                 }
                 Geometry::Quad { origin, u, v } => {
                     if !finite3(origin) || Vec3::from(*u).cross(Vec3::from(*v)).length() <= 0.0 {
@@ -313,29 +315,24 @@ impl SceneDesc {
                 }
             }
             let m = &s.material;
-            let in01 = |a: &[f32; 3]| a.iter().all(|x| (0.0..=1.0).contains(x));
-            if !in01(&m.kd) || !in01(&m.ks) {
-                return bad("material", "kd and ks must be in [0, 1]");
-            }
-            if !(m.roughness > 0.0 && m.roughness <= 1.0) {
-                return bad("material.roughness", "must be in (0, 1]");
-            }
+            rule("material.kd", validate::each_in(&m.kd, 0.0, 1.0), &v3(&m.kd))?;
+            rule("material.ks", validate::each_in(&m.ks, 0.0, 1.0), &v3(&m.ks))?;
+            let roughness = validate::positive_up_to(m.roughness as f64, 1.0);
+            rule("material.roughness", roughness, &m.roughness)?;
             match &m.texture {
                 Some(TextureDesc::Checker { kd2, scale }) | Some(TextureDesc::Stripe { kd2, scale, .. }) => {
-                    if !in01(kd2) || !(*scale > 0.0) {
-                        return bad("material.texture", "kd2 must be in [0, 1] and scale > 0");
-                    }
+                    rule("material.texture.kd2", validate::each_in(kd2, 0.0, 1.0), &v3(kd2))?;
+                    positive("material.texture.scale", *scale)?;
                 }
                 None => {}
             }
             if let Some(TextureDesc::Stripe { axis, .. }) = &m.texture {
-                if *axis > 2 {
-                    return bad("material.texture.axis", "must be 0, 1 or 2");
-                }
+                rule("material.texture.axis", validate::int_in(*axis, 0, 2), axis)?;
             }
             if let Some(e) = &s.emission {
-                if !e.iter().all(|x| x.is_finite() && *x >= 0.0) || e.iter().all(|x| *x == 0.0) {
-                    return bad("emission", "must be finite, non-negative and not all zero");
+                rule("emission", validate::each_non_negative(e), &v3(e))?;
+                if e.iter().all(|x| *x == 0.0) {
+                    return bad("emission", "must not be all zero");
                 }
                 emitters += 1;
             }

@@ -151,7 +151,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     });
     println!(
         "against {dense} uniform samples: |Δopacity| mean {opacity:.5} max {opacity_max:.4}  |Δdepth| mean {depth_cm:.3} cm  colour PSNR {:.1} dB",
-        -10.0 * mse.max(1e-12).log10()
+        i2sdf_eval::image_metrics::psnr_from_mse(mse.max(1e-12))
     );
     Ok(())
 }

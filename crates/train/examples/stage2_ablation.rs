@@ -8,8 +8,9 @@
 
 use glam::Vec3;
 use i2sdf_data::Split;
+use i2sdf_eval::image_metrics::psnr_from_mse;
 use i2sdf_model::intrinsic::{FrozenScene, LabelledHit};
-use i2sdf_model::material_field::{MaterialBackbone, MATERIAL_CHANNELS};
+use i2sdf_model::material_field::{brdf_of_channels, MaterialBackbone, MATERIAL_CHANNELS};
 use i2sdf_model::{NeuralScene, RunDir};
 use i2sdf_render::Ray;
 use i2sdf_train::config::TrainConfig;
@@ -435,8 +436,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             sets.join(" "),
             stage.iteration(),
             secs,
-            -10.0 * (se / cnt).log10(),
-            -10.0 * (se2 / cnt).log10(),
+            psnr_from_mse(se / cnt),
+            psnr_from_mse(se2 / cnt),
             s[0],
             s[1],
             s[2],
@@ -466,7 +467,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let fr = train[px.view as usize];
                 let Some(ks) = &fr.specular else { continue };
                 let o = &mo[j * MATERIAL_CHANNELS..(j + 1) * MATERIAL_CHANNELS];
-                let brdf = i2sdf_render::GgxBrdf::new(Vec3::from_slice(&o[0..3]), Vec3::from_slice(&o[3..6]), o[6]);
+                let brdf = brdf_of_channels(o);
                 let nv = px.point.normal.dot(px.point.view);
                 let pred = stage.cache.shade(index as usize, &brdf, nv, &emission);
                 let g = (ks.data[px.pixel as usize * 3] > 0.2) as usize;
@@ -486,7 +487,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 "    {name} (GT Ks {} 0.2): {} px, Kd PSNR {:.2}, rho {:.3} (GT {:.3}), Ks {:.3} (GT {:.3})",
                 if *name == "glossy" { ">" } else { "<=" },
                 g[0],
-                -10.0 * (g[1] / n).log10(),
+                psnr_from_mse(g[1] / n),
                 g[2] / n,
                 g[3] / n,
                 g[4] / n,

@@ -14,8 +14,8 @@
 //! it). Connected pieces holding fewer than a fraction of the points are dropped first, as stray
 //! positives of the emitter field.
 
+use crate::neighbour_grid::NeighbourGrid;
 use rand::Rng;
-use std::collections::HashMap;
 
 /// One cluster of a clustering.
 #[derive(Clone, Debug, PartialEq)]
@@ -117,14 +117,11 @@ pub fn inertia(points: &[[f64; 3]], centres: &[[f64; 3]], labels: &[usize]) -> f
 }
 
 /// Connected components of the points when points closer than `link` are joined: a label per
-/// point and the number of components. A uniform grid of cell `link` finds each point's
-/// neighbours among 27 cells (linear in the points).
+/// point and the number of components. A [`NeighbourGrid`] of cell `link` finds each point's
+/// neighbours.
 pub fn components(points: &[[f64; 3]], link: f64) -> (Vec<usize>, usize) {
     let cell = |p: &[f64; 3]| p.map(|v| (v / link).floor() as i64);
-    let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
-    for (i, p) in points.iter().enumerate() {
-        grid.entry(cell(p)).or_default().push(i);
-    }
+    let grid = NeighbourGrid::new(points.len(), |i| cell(&points[i]));
     let mut label = vec![usize::MAX; points.len()];
     let l2 = link * link;
     let mut count = 0;
@@ -136,22 +133,12 @@ pub fn components(points: &[[f64; 3]], link: f64) -> (Vec<usize>, usize) {
         label[start] = count;
         stack.push(start);
         while let Some(i) = stack.pop() {
-            let c = cell(&points[i]);
-            for dx in -1..=1 {
-                for dy in -1..=1 {
-                    for dz in -1..=1 {
-                        let Some(list) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
-                            continue;
-                        };
-                        for &j in list {
-                            if label[j] == usize::MAX && dist2(&points[i], &points[j]) <= l2 {
-                                label[j] = count;
-                                stack.push(j);
-                            }
-                        }
-                    }
+            grid.for_each_near(cell(&points[i]), |j| {
+                if label[j] == usize::MAX && dist2(&points[i], &points[j]) <= l2 {
+                    label[j] = count;
+                    stack.push(j);
                 }
-            }
+            });
         }
         count += 1;
     }

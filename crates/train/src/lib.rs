@@ -8,6 +8,7 @@ pub mod kmeans;
 pub mod losses;
 pub mod maps;
 pub mod memory;
+pub mod neighbour_grid;
 pub mod pdf_map;
 pub mod pose_correction;
 pub mod rays;

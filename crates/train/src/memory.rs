@@ -21,8 +21,9 @@
 //! process itself (code, thread stacks, allocator slack) is part of each stage.
 
 use crate::config::TrainConfig;
-pub use i2sdf_model::marching_cubes::{gib, MachineMemory, MESH_VERTICES_PER_FACE_CELL};
+use i2sdf_model::marching_cubes::MESH_VERTICES_PER_FACE_CELL;
 use i2sdf_model::material_field::MaterialBackbone;
+pub use i2sdf_model::memory::{gib, MachineMemory};
 use i2sdf_model::Backbone;
 use serde::Serialize;
 
@@ -45,17 +46,8 @@ pub struct DatasetShape {
 impl DatasetShape {
     pub fn of(dataset: &i2sdf_data::Dataset) -> DatasetShape {
         let frame_bytes = |f: &i2sdf_data::Frame| {
-            let maps = [
-                Some(&f.rgb),
-                f.hdr.as_ref(),
-                f.depth.as_ref(),
-                f.normal.as_ref(),
-                f.emitter_mask.as_ref(),
-                f.albedo.as_ref(),
-                f.specular.as_ref(),
-                f.roughness.as_ref(),
-            ];
-            maps.into_iter()
+            f.maps()
+                .into_iter()
                 .flatten()
                 .map(|m| m.data.len() as f64 * 4.0)
                 .sum::<f64>()

@@ -16,6 +16,7 @@
 //!    the backward (the pdf is detached), which keeps the gradient of the expectation unbiased:
 //!    ∂/∂θ E_p[f_θ L cos / p] = E_p[∂f_θ/∂θ L cos / p] for any fixed proposal p.
 
+use crate::neighbour_grid::NeighbourGrid;
 use glam::Vec3;
 use i2sdf_model::intrinsic::{FrozenScene, LabelledHit};
 use i2sdf_render::{DirectionMixture, GgxBrdf, GgxGrad, Ray};
@@ -268,47 +269,33 @@ pub fn shade_pooled_backward(
 }
 
 /// Averages each surface pixel's [`DiffuseSums`] over the surface pixels within `radius` (world)
-/// whose normals agree (cos > 0.9): a uniform grid of cell `radius` finds them among 27 cells.
+/// whose normals agree (cos > 0.9): a [`NeighbourGrid`] of cell `radius` finds them.
 /// Irradiance varies slowly across a surface while albedo does not, so the diffuse estimate of
 /// a pixel borrows the samples of its neighbours (from other views too) — the material fit no
 /// longer bakes one noisy draw per pixel into Kd. The bias is the blur of irradiance over the
 /// radius (shadow edges soften by about that much).
 pub fn pool_diffuse(points: &[ShadingPoint], sums: &[DiffuseSums], radius: f32) -> Vec<DiffuseSums> {
-    use std::collections::HashMap;
-    let cell = |p: Vec3| (p / radius).floor().as_ivec3().to_array();
-    let mut grid: HashMap<[i32; 3], Vec<u32>> = HashMap::new();
-    for (i, p) in points.iter().enumerate() {
-        grid.entry(cell(p.position)).or_default().push(i as u32);
-    }
+    let cell = |p: Vec3| (p / radius).floor().as_ivec3().to_array().map(i64::from);
+    let grid = NeighbourGrid::new(points.len(), |i| cell(points[i].position));
     let r2 = radius * radius;
     (0..points.len())
         .into_par_iter()
         .map(|i| {
             let p = &points[i];
-            let c = cell(p.position);
             let mut acc = DiffuseSums {
                 field: Vec3::ZERO,
                 emit: vec![0.0; sums[i].emit.len()],
             };
             let mut n = 0u32;
-            for dx in -1..=1 {
-                for dy in -1..=1 {
-                    for dz in -1..=1 {
-                        let Some(list) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
-                            continue;
-                        };
-                        for &j in list {
-                            let q = &points[j as usize];
-                            if (q.position - p.position).length_squared() <= r2 && q.normal.dot(p.normal) > 0.9 {
-                                let s = &sums[j as usize];
-                                acc.field += s.field;
-                                acc.emit.iter_mut().zip(&s.emit).for_each(|(a, b)| *a += b);
-                                n += 1;
-                            }
-                        }
-                    }
+            grid.for_each_near(cell(p.position), |j| {
+                let q = &points[j];
+                if (q.position - p.position).length_squared() <= r2 && q.normal.dot(p.normal) > 0.9 {
+                    let s = &sums[j];
+                    acc.field += s.field;
+                    acc.emit.iter_mut().zip(&s.emit).for_each(|(a, b)| *a += b);
+                    n += 1;
                 }
-            }
+            });
             let inv = 1.0 / n.max(1) as f32;
             acc.field *= inv;
             acc.emit.iter_mut().for_each(|a| *a *= inv);

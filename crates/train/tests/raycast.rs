@@ -66,7 +66,7 @@ fn sphere_tracing_against_the_mesh_in_the_bvh() {
     // Newton step on the SDF along the ray (t ← t − d / (∇d · v)).
     for resolution in [64usize, 128, 256] {
         let t0 = Instant::now();
-        let mesh = i2sdf_eval::neural::extract_mesh(scene, &ds.bounds, resolution).unwrap();
+        let mesh = i2sdf_model::extract_mesh(scene, &ds.bounds, resolution).unwrap();
         let t_mc = t0.elapsed().as_secs_f64();
         let t0 = Instant::now();
         let bvh = Bvh::build(&mesh);

@@ -76,7 +76,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // A mesh resolution that cannot fit is refused now, not after the views are rendered.
     i2sdf_model::marching_cubes::sdf_grid(&run.scene, &dataset.bounds, args.mesh_resolution)?.check_fits(
         &i2sdf_model::McOptions::for_sdf(args.mesh_resolution),
-        i2sdf_model::marching_cubes::MachineMemory::read().map(|m| m.available),
+        i2sdf_model::memory::MachineMemory::read().map(|m| m.available),
     )?;
     let mut options = EvalOptions {
         mesh_resolution: args.mesh_resolution,

@@ -26,7 +26,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let run = super::open_run(&args.run)?;
     let bounds = run.bounds()?;
     let start = std::time::Instant::now();
-    let mesh = i2sdf_eval::neural::extract_mesh(&run.scene, &bounds, args.resolution)?;
+    let mesh = i2sdf_model::extract_mesh(&run.scene, &bounds, args.resolution)?;
     i2sdf_eval::write_ply(&args.out, &mesh)?;
     println!(
         "wrote {}: {} vertices, {} triangles ({}³ grid, {:.1} s)",

@@ -38,7 +38,7 @@ use i2sdf_model::emitters::{Emitter, EmitterTable};
 use i2sdf_model::intrinsic::{BakedSurface, FrozenScene, LabelledHit, Radiometry};
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::material_field::{
-    MaterialBackbone, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
+    brdf_of_channels, MaterialBackbone, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
 };
 use i2sdf_model::observed::ObservedViews;
 use i2sdf_model::{BakeRecord, NeuralScene};
@@ -630,10 +630,6 @@ impl Stage2 {
     }
 }
 
-fn brdf_of(m: &[f32]) -> GgxBrdf {
-    GgxBrdf::new(Vec3::new(m[0], m[1], m[2]), Vec3::new(m[3], m[4], m[5]), m[6])
-}
-
 impl TrainStage for Stage2 {
     type Stats = Stage2Stats;
     fn key(&self) -> &'static str {
@@ -699,7 +695,7 @@ impl TrainStage for Stage2 {
         self.material_forward(&world, &mut out);
         let brdfs: Vec<GgxBrdf> = out[..b * MATERIAL_CHANNELS]
             .chunks_exact(MATERIAL_CHANNELS)
-            .map(brdf_of)
+            .map(brdf_of_channels)
             .collect();
         let live = match c2.estimator {
             Stage2Estimator::Live => Some(self.live_samples(&batch, &brdfs, rng)),
