@@ -1,4 +1,4 @@
-//! `i2sdf`: the command-line contract of the README's "Command line". Each subcommand lives in `cmd/<name>.rs` with
+//! `i2sdf`: the command-line contract of the README's "Commands". Each subcommand lives in `cmd/<name>.rs` with
 //! its own clap `Args` and a `run` function; this file only dispatches and maps errors to exit codes.
 
 mod cmd;

@@ -1,4 +1,4 @@
-//! Exit codes by class (the README's "Command line"), per command: bad input — a dataset, a run
+//! Exit codes by class (the README's "Commands"), per command: bad input — a dataset, a run
 //! directory, a config key, a `--set` value or an argument that is wrong — exits 2 with the key or
 //! file named; a write that fails exits 1 and leaves nothing half-written; nothing panics (a panic
 //! exits 101, which every assertion here would report).

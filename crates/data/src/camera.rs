@@ -1,4 +1,4 @@
-//! Pinhole cameras in the one internal convention of the house (the README's "Dataset formats"):
+//! Pinhole cameras in the one internal convention of the house (docs/DATASETS.md):
 //! OpenCV axes (x right, y down, z forward), camera-to-world pose in world units, and continuous
 //! pixel coordinates whose pixel centres sit at +0.5 (pixel (i, j) covers [i, i+1) × [j, j+1)).
 //! Every loader converts into this; nothing downstream knows about OpenGL poses or integer-pixel

@@ -1,4 +1,4 @@
-//! The COLMAP format (the README's "Dataset formats", format 3): a sparse model as COLMAP writes
+//! The COLMAP format (docs/DATASETS.md, format 3): a sparse model as COLMAP writes
 //! it and the images it was made from.
 //!
 //! ```text

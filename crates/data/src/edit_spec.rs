@@ -1,4 +1,4 @@
-//! The edit spec of the house (the README's "Editing and relighting"): a TOML list of `[[op]]`
+//! The edit spec of the house (docs/EDITING.md): a TOML list of `[[op]]`
 //! tables in the dataset's world units, read by `i2sdf edit` and written by `synth` for its relit
 //! views. Each op has a `kind`:
 //! - `relight`: `at`, `scale` (≥ 0), optional `color` (≥ 0, default white): the emitter whose box is

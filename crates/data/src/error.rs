@@ -1,4 +1,4 @@
-//! The one error type of the house, classified by whose fault it is (the README's "Command line" exit codes):
+//! The one error type of the house, classified by whose fault it is (the README's "Commands" exit codes):
 //! bad input — a dataset, config key, `--set` value, edit spec or argument that is wrong — exits 2
 //! with a message naming the file and field or key; everything else — a write that failed (full
 //! disk, permissions), a run that diverged, an internal failure — exits 1. The CLI asks

@@ -1,4 +1,4 @@
-//! The native format (the README's "Dataset formats", format 1): a nerfstudio-style `transforms.json`.
+//! The native format (docs/DATASETS.md, format 1): a nerfstudio-style `transforms.json`.
 //!
 //! Cameras: `fl_x fl_y cx cy w h` at the top level or per frame (per-frame values win),
 //! `camera_model` (PINHOLE by default; SIMPLE_PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV,

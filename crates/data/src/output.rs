@@ -1,6 +1,6 @@
 //! Where a command may write, checked before its first second of work.
 //!
-//! The rules every command keeps (the README's "Command line" states them for users):
+//! The rules every command keeps (the README's "Commands" states them for users):
 //! - it writes only where the user said, and never into a dataset folder (one that holds
 //!   `transforms.json`, `cameras_normalize.npz` or `cameras.npz`, at any depth below it);
 //! - never over a run's own files (`run.json`, `config.toml`, the checkpoints, the log, …); a new

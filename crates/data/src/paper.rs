@@ -1,4 +1,4 @@
-//! The paper's dataset release format (the README's "Dataset formats", format 2; VolSDF/IDR style):
+//! The paper's dataset release format (docs/DATASETS.md, format 2; VolSDF/IDR style):
 //!
 //! ```text
 //! cameras_normalize.npz   world_mat_i = K·W2C (world units), scale_mat_i, val_mat_i

@@ -1,4 +1,4 @@
-//! Depth as sensors write it (the README's "Dataset formats", depth): a float map in world units
+//! Depth as sensors write it (docs/DATASETS.md, depth): a float map in world units
 //! or a 16-bit PNG of integers times `depth_unit_scale_factor`, possibly at another resolution
 //! than its image (a phone's LiDAR grid is 256×192 beside a 1920×1440 image), possibly with a
 //! per-sample confidence map (ARKit's 0 low / 1 medium / 2 high), and with holes and outliers:

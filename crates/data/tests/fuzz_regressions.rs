@@ -1,4 +1,4 @@
-//! Inputs the fuzz targets (`fuzz/`, README "Fuzzing") found or that stand for a class of
+//! Inputs the fuzz targets (`fuzz/`, docs/ARCHITECTURE.md, "Fuzzing") found or that stand for a class of
 //! hostile files, kept so the normal test suite guards them: each must be refused with an error
 //! that names the file — no panic, no abort, and no allocation sized by a header's claim (a
 //! header claiming 10⁹ × 10⁹ pixels or 10¹² vertices is refused before anything is reserved, so

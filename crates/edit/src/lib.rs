@@ -1,5 +1,4 @@
-//! Editing and relighting the intrinsic scene (paper Sec. "Scene Editing"; the README's "Editing
-//! and relighting"): the spec's operations applied to what stage 2 recovered — relight gains on
+//! Editing and relighting the intrinsic scene (paper Sec. "Scene Editing"; docs/EDITING.md): the spec's operations applied to what stage 2 recovered — relight gains on
 //! the emitters, material overrides in regions of the SDF's surface, inserted objects (which may
 //! emit) — and the result rendered by the shared path tracer of `i2sdf_render` (NEE over every
 //! emitter with MIS, GGX sampling, several bounces, Russian roulette).

@@ -15,7 +15,6 @@ use i2sdf_model::images::render_volume_view;
 use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::{extract_mesh, NeuralScene};
 
-
 /// The training views with GT depth, as the mesh metrics' visibility test wants them.
 pub fn culling_views(dataset: &Dataset) -> Vec<CullingView> {
     dataset

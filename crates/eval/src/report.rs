@@ -1,4 +1,4 @@
-//! The `eval` command's JSON (the README's "Command line"): every figure that cannot be computed
+//! The `eval` command's JSON (the README's "Commands"): every figure that cannot be computed
 //! is `null`, never absent. Extra keys beyond the contract: `geometry.mesh.per_object_recall`
 //! (with the dataset's object names and tags), `geometry.thin_objects`, `material.pixels` and
 //! `material.albedo_scale`, `emitters.emission` and `emitters.matches`, `relight.unedited`,

@@ -19,7 +19,7 @@
 //! L[k] or F_c.
 //!
 //! Radiometry: the integrator works in linear radiance in the units of the input images
-//! (the README's "Stage 2: emitters and materials"); F_c is display-referred (trained on LDR pixels), so its
+//! (docs/results.md, "Stage 2: emitters and materials"); F_c is display-referred (trained on LDR pixels), so its
 //! values are linearized by the dataset's transfer ([`Radiometry`]).
 
 use crate::emitters::EmitterTable;

@@ -1,4 +1,4 @@
-//! i2sdf fields (the README's "Layout"): the SDF field F_d (distance + geometry feature z), the
+//! i2sdf fields (docs/ARCHITECTURE.md, "Rooms and data flow"): the SDF field F_d (distance + geometry feature z), the
 //! radiance field F_c (z, view direction, normal → LDR colour), the emitter field F_e (z →
 //! probability) and the VolSDF density's β, held together with the normalization as a
 //! [`NeuralScene`]; saved and loaded as safetensors with the configuration in the metadata; the

@@ -1,5 +1,5 @@
 //! Checkpoints whose metadata would have made a loader panic or allocate what the header claims
-//! (the `checkpoint` fuzz target's class of input, README "Fuzzing"): each is refused with an
+//! (the `checkpoint` fuzz target's class of input, docs/ARCHITECTURE.md, "Fuzzing"): each is refused with an
 //! error naming the file and the metadata field, before a field is allocated.
 
 use i2sdf_data::Normalization;

@@ -1,4 +1,4 @@
-//! `i2sdf report`: one self-contained static HTML page about a run (the README's "Command line"):
+//! `i2sdf report`: one self-contained static HTML page about a run (the README's "Commands"):
 //! the metrics against the paper's, training curves, GT | ours | error grids of a test view,
 //! the emitters from above, the recovered surface, relit and edited views, timings and memory.
 //! `index.html` with its images under `img/` and SVG charts beside it; relative links only, no

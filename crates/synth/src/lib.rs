@@ -1,7 +1,7 @@
 //! Synthetic indoor scenes with full ground truth (issue 3): procedural rooms described in TOML,
 //! tessellated into one triangle mesh (which is also the ground-truth PLY), rendered by the shared
 //! Monte Carlo integrator of `i2sdf-render` (next-event estimation + MIS, Russian roulette, the
-//! supplementary's GGX BRDF), and written in the native dataset format (the README's "Dataset formats") with
+//! supplementary's GGX BRDF), and written in the native dataset format (docs/DATASETS.md) with
 //! depth, normals, emitter masks, material maps, the mesh and relit test views.
 
 pub mod camera;

@@ -1,4 +1,4 @@
-//! Writing one rendered view in the native format (the README's "Dataset formats"): LDR PNG (sRGB of
+//! Writing one rendered view in the native format (docs/DATASETS.md): LDR PNG (sRGB of
 //! clamp(exposure · HDR, 0, 1)), HDR RGB EXR, z-depth EXR (channel Y, metres), world-space normal
 //! EXR, emitter mask PNG (255 = emitter), and the GT material maps Kd, Ks (RGB EXR) and roughness
 //! ρ (EXR, channel Y); a capture's variants of them (`crate::capture`): JPEG frames, a 16-bit PNG

@@ -66,7 +66,7 @@ pub enum EmitterMasks {
 #[serde(rename_all = "snake_case")]
 pub enum Normals {
     /// The dataset's where it has them, else derived from depth where that exists: as good as
-    /// the true normals on a synthetic room, where no normal loss lost 0.08 F-score (the README's
+    /// the true normals on a synthetic room, where no normal loss lost 0.08 F-score (docs/DATASETS.md,
     /// "Missing maps").
     #[default]
     Auto,

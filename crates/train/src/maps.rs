@@ -1,5 +1,5 @@
-//! The maps training uses, per training view, and what stands in for each the dataset lacks (the
-//! README's "Missing maps"):
+//! The maps training uses, per training view, and what stands in for each the dataset lacks (docs/DATASETS.md,
+//! "Missing maps"):
 //! - emitter masks (`maps.emitter_masks`): the dataset's, else found from the images
 //!   ([`i2sdf_data::emitter_detect`]); they supervise stage 1's F_e and make stage 2's emitters;
 //! - normal maps (`maps.normals`): the dataset's, else derived from depth

@@ -1,5 +1,5 @@
 //! Stage 2's targets: the training views in linear radiance in the units of the input images
-//! (the README's "Stage 2: emitters and materials"), with which channels are saturated, the emitter masks
+//! (docs/results.md, "Stage 2: emitters and materials"), with which channels are saturated, the emitter masks
 //! in force ([`TrainingMaps`]: the dataset's, or found from the images) and the dataset's normals.
 
 use crate::maps::TrainingMaps;

@@ -1,4 +1,4 @@
-//! Training without the maps a real capture lacks (the README's "Missing maps"): emitter masks
+//! Training without the maps a real capture lacks (the docs/DATASETS.md, "Missing maps"): emitter masks
 //! found from the images agree with a synthetic room's true masks, and without depth stage 1's
 //! bubble and smoothness points still exist and lie on the surface the rays render.
 

@@ -19,7 +19,7 @@ pub struct Args {
     /// The stage-2 run to edit.
     #[arg(long)]
     pub run: PathBuf,
-    /// The edit spec (TOML `[[op]]` list of relight, material and insert ops; README "Editing").
+    /// The edit spec (TOML `[[op]]` list of relight, material and insert ops; docs/EDITING.md).
     #[arg(long)]
     pub spec: PathBuf,
     /// Output folder (created; built aside and moved into place when every view is written).

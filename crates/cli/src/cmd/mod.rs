@@ -9,7 +9,7 @@ pub mod report;
 pub mod synth;
 pub mod train;
 
-/// The exit codes of the README's "Command line": 2 for bad input (a `DataError` in the chain that says so: a file, field,
+/// The exit codes of the README's "Commands": 2 for bad input (a `DataError` in the chain that says so: a file, field,
 /// key or argument at fault), 1 for anything else (a failed write, a diverged run, an internal
 /// error).
 pub fn exit_code(e: &anyhow::Error) -> u8 {

@@ -15,7 +15,7 @@
 //! materials' GGX mixture, traced every iteration — is [`Stage2Estimator::Live`], the reference
 //! the cached fit is checked against.
 //!
-//! Radiometry (the README's "Stage 2: emitters and materials"): targets are linear radiance in the units of the
+//! Radiometry (docs/results.md, "Stage 2: emitters and materials"): targets are linear radiance in the units of the
 //! input images — LDR pixels linearized by the dataset's transfer, or HDR pixels × the dataset's
 //! exposure when `stage2.use_hdr` and the dataset has them. Saturated LDR channels bound the
 //! prediction from below only. Pixels that see an emitter are not shaded: their prediction is
@@ -455,6 +455,13 @@ impl Stage2 {
                 &emitters,
                 &held_emission,
             );
+            for (k, l) in estimate.iter().enumerate().filter(|(k, _)| held_emission[*k]) {
+                let b = emitters.emission(k);
+                progress(&format!(
+                    "emitter {k}: L = {:.3} {:.3} {:.3} (the images' lower bound {:.3} {:.3} {:.3})",
+                    l[0], l[1], l[2], b.x, b.y, b.z
+                ));
+            }
             emitters = EmitterTable::new(emitters.emitters.clone(), &estimate);
         }
         cache.diffuse = match pooled {
