@@ -722,6 +722,7 @@ impl TrainStage for Stage2 {
         // Re-render and emitter terms, pixel-parallel; per-chunk emission gradients reduced after.
         let pixels = &self.pixels;
         let cache = &self.cache;
+        let held = &self.held_emission;
         let parts: Vec<(f32, f32, Vec<Vec3>)> = d_out[..b * MATERIAL_CHANNELS]
             .par_chunks_mut(MATERIAL_CHANNELS * 256)
             .enumerate()
@@ -756,6 +757,8 @@ impl TrainStage for Stage2 {
                             dj[3..6].copy_from_slice(&gr.ks.to_array());
                             dj[6] = gr.rho;
                         }
+                        // A held L[k] is not the images' (they saw it clipped): its pixels say nothing.
+                        PixelKind::Emitter(e) if held[e as usize] => {}
                         PixelKind::Emitter(e) => {
                             let pred = emission[e as usize];
                             for c in 0..3 {
