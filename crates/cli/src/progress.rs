@@ -1,6 +1,6 @@
 //! Every progress bar of the binary lives in one `MultiProgress`, so that a command that runs
 //! others (`demo`) can keep its own bar across theirs: the steps' bars appear under it and go,
-//! the demo's stays on top. Lines printed through [`line`] go above the bars instead of through
+//! the demo's stays on top. Lines printed through [`line()`] go above the bars instead of through
 //! them.
 
 use indicatif::{MultiProgress, ProgressBar};

@@ -53,7 +53,7 @@ pub struct Frame {
     pub camera: Camera,
     /// The image file (for messages).
     pub image_path: PathBuf,
-    /// LDR colour in [0,1], 3 channels, as stored (display-referred; see `Dataset::ldr_transfer`).
+    /// LDR colour in \[0,1\], 3 channels, as stored (display-referred; see `Dataset::ldr_transfer`).
     pub rgb: ImageF32,
     /// Linear HDR radiance, 3 channels.
     pub hdr: Option<ImageF32>,

@@ -6,7 +6,7 @@
 //!
 //! A sensor's coarser depth grid mapped onto the image leaves most pixels without depth (1 in 16
 //! for a grid of 4): a pixel's neighbour along an axis is then the nearest pixel with depth within
-//! [`MAX_GAP`], and the thresholds scale with the gap. Without that no normal could be derived
+//! `MAX_GAP`, and the thresholds scale with the gap. Without that no normal could be derived
 //! from such a depth map at all, and training silently had no normal loss.
 
 use crate::camera::Camera;

@@ -63,7 +63,7 @@ impl ImageF32 {
     }
 }
 
-/// The sRGB electro-optical transfer: encoded [0,1] value → linear.
+/// The sRGB electro-optical transfer: encoded \[0,1\] value → linear.
 pub fn srgb_to_linear(v: f32) -> f32 {
     if v <= 0.04045 {
         v / 12.92
@@ -72,7 +72,7 @@ pub fn srgb_to_linear(v: f32) -> f32 {
     }
 }
 
-/// The sRGB opto-electronic transfer: linear → encoded [0,1] value.
+/// The sRGB opto-electronic transfer: linear → encoded \[0,1\] value.
 pub fn linear_to_srgb(v: f32) -> f32 {
     let v = v.clamp(0.0, 1.0);
     if v <= 0.0031308 {
@@ -119,7 +119,7 @@ fn read_all(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|e| DataError::file(path, format!("cannot read: {e}")))
 }
 
-/// Reads a colour or grey image: PNG (8 or 16 bit), JPEG, TIFF, BMP or WebP (scaled to [0,1],
+/// Reads a colour or grey image: PNG (8 or 16 bit), JPEG, TIFF, BMP or WebP (scaled to \[0,1\],
 /// values as stored, no transfer function applied), or EXR (linear floats). Grey images give 1
 /// channel, grey+alpha 2, RGB 3, RGBA 4.
 pub fn read_image(path: &Path) -> Result<ImageF32> {
@@ -166,7 +166,7 @@ fn float_map_format(path: &Path) -> Result<&'static str> {
 }
 
 /// Reads a float map (depth, normals, material maps): EXR or `.npy` (float32/float64, H×W or
-/// H×W×C), or a PNG read as [0,1] values.
+/// H×W×C), or a PNG read as \[0,1\] values.
 pub fn read_float_map(path: &Path) -> Result<ImageF32> {
     ensure_exists(path)?;
     float_map_format(path)?;
@@ -529,7 +529,7 @@ fn to_8bit(img: &ImageF32) -> Vec<u8> {
         .collect()
 }
 
-/// Writes an 8-bit PNG; values are clamped to [0,1] and written as given (apply
+/// Writes an 8-bit PNG; values are clamped to \[0,1\] and written as given (apply
 /// [`linear_to_srgb`] first for display-referred images).
 pub fn write_png(path: &Path, img: &ImageF32) -> Result<()> {
     check_png_channels(path, img)?;
@@ -572,7 +572,7 @@ pub fn write_jpeg(path: &Path, img: &ImageF32, quality: u8) -> Result<()> {
     })
 }
 
-/// Writes a 16-bit PNG of values in [0,1] (clamped).
+/// Writes a 16-bit PNG of values in \[0,1\] (clamped).
 pub fn write_png16(path: &Path, img: &ImageF32) -> Result<()> {
     let raw: Vec<u16> = img
         .data

@@ -1,6 +1,6 @@
 //! What stage 2 recovered, as the edit renderer's base: the frozen SDF's surface as a labelled
 //! triangle mesh ([`RecoveredSurface`]), the material fields for materials, and each K-means
-//! emitter as an area light over its own triangles with L[k].
+//! emitter as an area light over its own triangles with L\[k\].
 //!
 //! Why a mesh and not stage 2's baked cast (BVH hit refined onto the SDF by a Newton step): a
 //! path tracer samples points *on* its emitters and tests the segment to them; on a refined
@@ -98,7 +98,7 @@ impl RecoveredSurface {
     }
 
     /// The recovered emitters as cone lights (without a surface to sample): label 0 ordinary surface, k + 1 emitter k;
-    /// emitter k an area light over its triangles emitting L[k] (a cone light about its
+    /// emitter k an area light over its triangles emitting L\[k\] (a cone light about its
     /// cluster where it has none), its box its cluster's (centre ± extent / 2).
     pub fn lights(&self, table: &EmitterTable) -> BaseLights {
         let mut base = recovered_lights(table);

@@ -125,9 +125,9 @@ pub fn distance_to_box(p: [f64; 3], min: [f64; 3], max: [f64; 3]) -> f64 {
         .sqrt()
 }
 
-/// The emitters of the table (count, centres, L[k]) and, where `gt` lists GT emitters, the
-/// nearest predicted emitter to each with the ratio of its L[k] to the GT emission × exposure
-/// (L[k] is in linear image units, exposure × physical radiance; exposure 1 when `None`).
+/// The emitters of the table (count, centres, L\[k\]) and, where `gt` lists GT emitters, the
+/// nearest predicted emitter to each with the ratio of its L\[k\] to the GT emission × exposure
+/// (L\[k\] is in linear image units, exposure × physical radiance; exposure 1 when `None`).
 pub fn emitter_metrics(table: &EmitterTable, gt: &[GtEmitter], exposure: Option<f64>) -> EmitterMetrics {
     let exposure = exposure.unwrap_or(1.0);
     let emission: Vec<[f64; 3]> = (0..table.len())

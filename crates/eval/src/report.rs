@@ -190,7 +190,7 @@ pub struct EmitterMetrics {
     pub count: Option<usize>,
     /// Cluster centres, world units.
     pub centres: Option<Vec<[f64; 3]>>,
-    /// L[k], RGB, linear image units (exposure × physical radiance).
+    /// L\[k\], RGB, linear image units (exposure × physical radiance).
     pub emission: Option<Vec<[f64; 3]>>,
     /// One per GT emitter; `null` when the dataset lists none.
     pub matches: Option<Vec<EmitterMatch>>,
@@ -205,9 +205,9 @@ pub struct EmitterMatch {
     pub predicted: Option<usize>,
     /// Distance (world units) from that emitter's centre to the GT box, 0 inside.
     pub distance: Option<f64>,
-    /// L[k] / (GT emission × exposure), per channel (exposure 1 when the dataset states none).
+    /// L\[k\] / (GT emission × exposure), per channel (exposure 1 when the dataset states none).
     pub emission_ratio: Option<[f64; 3]>,
-    /// Σ_c L[k]_c / Σ_c (GT emission × exposure)_c.
+    /// Σ_c L\[k\]_c / Σ_c (GT emission × exposure)_c.
     pub emission_ratio_mean: Option<f64>,
 }
 

@@ -1,12 +1,12 @@
 //! The K emitters of stage 2 (paper Sec. "Emitter Semantic Field"): the emitter field F_e marks
 //! surface points as emitting; the train crate clusters those points by K-means into K emitters;
-//! each has a learnable HDR RGB emission L[k]. This module stores the clusters and L[·], answers
+//! each has a learnable HDR RGB emission L\[k\]. This module stores the clusters and L\[·\], answers
 //! index(x) of eq:radiance, and reads and writes `RUN/emitters.json`.
 //!
-//! L[k] is kept as its logarithm: L = exp(raw) stays positive whatever the optimizer does, and a
+//! L\[k\] is kept as its logarithm: L = exp(raw) stays positive whatever the optimizer does, and a
 //! log-space step moves a dim lamp and the sun-lit window (orders of magnitude apart in HDR) at
 //! the same relative rate — the LDR radiance field under-estimates emitters by a factor that is
-//! unknown per emitter, which is exactly what L[k] has to learn.
+//! unknown per emitter, which is exactly what L\[k\] has to learn.
 
 use crate::scene::{GroupSpec, LrClass, ParamBlock, SceneModule, Update};
 use glam::{DVec3, Vec3};
@@ -33,17 +33,17 @@ pub struct Emitter {
     pub points: usize,
 }
 
-/// The K emitters and their learnable emissions L[k].
+/// The K emitters and their learnable emissions L\[k\].
 #[derive(Clone, Debug, PartialEq)]
 pub struct EmitterTable {
     pub emitters: Vec<Emitter>,
-    /// ln of each HDR RGB emission L[k] (K×3, row-major), learnable: L = exp(raw) keeps it
+    /// ln of each HDR RGB emission L\[k\] (K×3, row-major), learnable: L = exp(raw) keeps it
     /// positive.
     pub log_emission: Vec<f32>,
 }
 
 impl EmitterTable {
-    /// `emission[k]` is L[k] (linear HDR, image units); values below [`MIN_EMISSION`] are raised
+    /// `emission[k]` is L\[k\] (linear HDR, image units); values below [`MIN_EMISSION`] are raised
     /// to it.
     pub fn new(emitters: Vec<Emitter>, emission: &[[f32; 3]]) -> Self {
         assert_eq!(emitters.len(), emission.len(), "one emission per emitter");
@@ -62,7 +62,7 @@ impl EmitterTable {
         self.emitters.is_empty()
     }
 
-    /// L[k] = exp(raw[k]).
+    /// L\[k\] = exp(raw\[k\]).
     pub fn emission(&self, k: usize) -> Vec3 {
         let r = &self.log_emission[k * 3..k * 3 + 3];
         Vec3::new(r[0].exp(), r[1].exp(), r[2].exp())
@@ -88,7 +88,7 @@ impl EmitterTable {
 
     /// Writes `RUN/emitters.json`, atomically:
     /// `{"emitters": [{"centre": [x,y,z], "extent": [dx,dy,dz], "radius": r, "points": n,
-    /// "emission": [r,g,b], "radiance": [r,g,b] or null}]}` — world units; `emission` is L[k] in
+    /// "emission": [r,g,b], "radiance": [r,g,b] or null}]}` — world units; `emission` is L\[k\] in
     /// image units, `radiance` = emission / exposure (the physical radiance) when the dataset
     /// states its exposure, else null.
     pub fn write_json(&self, path: &Path, exposure: Option<f64>) -> Result<(), DataError> {

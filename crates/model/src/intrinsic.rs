@@ -13,10 +13,10 @@
 //! The adapters map the pieces onto the integrator's interfaces: [`FrozenScene`] is the
 //! [`Geometry`] (hits labelled 0 for ordinary surfaces, k + 1 for emitter k) and the
 //! [`RadianceField`]; [`NeuralMaterial`] is the [`Material`] (the material fields of
-//! eq:material's Kd, Ks, ρ); [`emitter_lights`] gives one [`ConeLight`] per emitter with L[k].
+//! eq:material's Kd, Ks, ρ); [`emitter_lights`] gives one [`ConeLight`] per emitter with L\[k\].
 //! [`rerender_view`] is eq:render: one scattering event at the camera's surface point with
 //! next-event estimation to every emitter and BRDF sampling, combined by MIS, the next hit taking
-//! L[k] or F_c.
+//! L\[k\] or F_c.
 //!
 //! Radiometry: the integrator works in linear radiance in the units of the input images
 //! (docs/results.md, "Stage 2: emitters and materials"); F_c is display-referred (trained on LDR pixels), so its
@@ -512,7 +512,7 @@ impl<'a> FrozenScene<'a> {
 }
 
 /// The frozen SDF as the integrator's geometry: surface label 0 for ordinary surfaces, k + 1 for
-/// emitter k (what [`emitter_lights`]' light set maps back to L[k]); normals outward.
+/// emitter k (what [`emitter_lights`]' light set maps back to L\[k\]); normals outward.
 /// Rays the integrator sends skip this far (× the normalization scale) before they can hit: it
 /// offsets secondary rays by [`i2sdf_render::integrator::RAY_EPS`] (0.1 mm), made for exact
 /// triangles, while the frozen SDF's surface is only known to the tracer's tolerance — without a
@@ -613,7 +613,7 @@ impl Material for NeuralMaterial<'_> {
     }
 }
 
-/// One [`ConeLight`] per emitter (its bounding sphere about the centre, world units, and L[k]),
+/// One [`ConeLight`] per emitter (its bounding sphere about the centre, world units, and L\[k\]),
 /// with surface label k + 1 mapped to emitter k (label 0, ordinary surfaces, emits nothing).
 /// Hits labelled k lie within the sphere enlarged by the index margin; those outside the cone are
 /// still found by BRDF sampling, whose MIS weight is then 1 (the light pdf there is 0), so the
@@ -644,7 +644,7 @@ pub fn emitter_cone_lights(table: &EmitterTable) -> Vec<Box<dyn Light>> {
 /// Re-renders a view of the intrinsic scene (eq:render with eq:radiance): the camera ray's
 /// surface point is shaded with the material fields, one scattering event (max_depth 1), next-
 /// event estimation to every emitter and a GGX BRDF sample combined by MIS; the next hit takes
-/// L[k] on emitter k, else F_c (the last radiance slot of the result). Unbiased estimator. The
+/// L\[k\] on emitter k, else F_c (the last radiance slot of the result). Unbiased estimator. The
 /// camera's rays are world-space (`Camera::ray_generator`), as the frozen scene expects.
 pub fn rerender_view(
     frozen: &FrozenScene,

@@ -4,7 +4,7 @@
 //! [`NeuralScene`]; saved and loaded as safetensors with the configuration in the metadata; the
 //! run directory and a trained run opened for inference ([`OpenedRun`]) with its image products
 //! ([`images`]); inference queries ([`SceneQuery`]), the ray caster of the trained SDF
-//! ([`raycast`]) and marching cubes of its zero level set ([`marching_cubes`]).
+//! ([`raycast`]) and marching cubes of its zero level set ([`marching_cubes()`]).
 
 pub mod config;
 pub mod emitters;

@@ -1,7 +1,7 @@
 //! Which surface points the training cameras saw. F_e, the emitter field, is only trained where
 //! a camera looked: on the far side of a bulb (facing the wall it lights) it says "not an
 //! emitter" by default, and the wall behind the lamp then received F_c's dim guess instead of
-//! L[k] (measured on the default room: with ground-truth materials the re-render came out ~30 %
+//! L\[k\] (measured on the default room: with ground-truth materials the re-render came out ~30 %
 //! dark around the lamp; the bulb's back had F_e ≈ 0.001 at its surface). So an emitter's label
 //! also goes to the unobserved surface inside its bounding sphere ([`crate::FrozenScene::cast`]).
 //!

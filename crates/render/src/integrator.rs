@@ -62,7 +62,7 @@ impl Estimator {
 
 /// Radiance leaving non-emitting surfaces, for estimators that end paths there instead of
 /// scattering further: stage 2's frozen radiance field F_c (paper eq:radiance: a traced ray's
-/// radiance is L[k] if it hits emitter k, else the radiance field's Ĉ(r)). Batched like the
+/// radiance is L\[k\] if it hits emitter k, else the radiance field's Ĉ(r)). Batched like the
 /// other interfaces (a field is a network).
 pub trait RadianceField: Sync {
     /// `out[i]`: radiance leaving `hits[i]` back along `rays[i]` (towards the ray's origin).

@@ -8,7 +8,7 @@
 //! one model through one estimator.
 //!
 //! Interfaces: [`geometry`], [`material`], [`light`], [`integrator`]; one implementation per file
-//! beside them; [`render_view`] renders a camera view through the integrator.
+//! beside them; [`render_view()`] renders a camera view through the integrator.
 
 pub mod area_light;
 pub mod brdf;

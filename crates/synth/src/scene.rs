@@ -86,7 +86,7 @@ pub enum Geometry {
         #[serde(default = "default_segments")]
         segments: u32,
     },
-    /// One-sided parallelogram `origin + s·u + t·v`, s,t ∈ [0,1]; it faces along u × v.
+    /// One-sided parallelogram `origin + s·u + t·v`, s,t ∈ \[0,1\]; it faces along u × v.
     Quad { origin: [f32; 3], u: [f32; 3], v: [f32; 3] },
 }
 

@@ -150,9 +150,9 @@ pub struct Stage2Config {
     pub emitter_sampling: bool,
     pub lr_grid: f32,
     pub lr_mlp: f32,
-    /// Learning rate of log L[k].
+    /// Learning rate of log L\[k\].
     pub lr_emission: f32,
-    /// The L[k] of an emitter the images saw only clipped (LDR without HDR) is estimated from
+    /// The L\[k\] of an emitter the images saw only clipped (LDR without HDR) is estimated from
     /// the light it throws on the room and held (`emission_from_shading`); off: fitted with the
     /// materials from its lower bound, which the re-render cannot tell from a brighter Kd.
     pub emission_from_shading: bool,

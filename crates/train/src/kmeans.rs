@@ -1,6 +1,6 @@
 //! K-means clustering of emitter points into the K emitters of stage 2 (paper Sec. "Emitter
 //! Semantic Field": the surface points that F_e marks are clustered by K-means, one learnable
-//! emission L[k] per cluster).
+//! emission L\[k\] per cluster).
 //!
 //! Seeding is k-means++ (Arthur & Vassilvitskii 2007: each next centre drawn with probability
 //! proportional to D², the squared distance to the nearest centre so far), then Lloyd iterations;

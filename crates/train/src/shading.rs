@@ -12,7 +12,7 @@
 //!    estimator does this once per cached pixel with a fixed mixture; the live estimator (the
 //!    paper's) every iteration, importance-sampling the current materials' GGX mixture.
 //! 2. [`shade`] / [`shade_backward`] evaluate the sum for given materials and emissions and its
-//!    gradient with respect to Kd, Ks, ρ and every L[k]. The sampled directions are held fixed in
+//!    gradient with respect to Kd, Ks, ρ and every L\[k\]. The sampled directions are held fixed in
 //!    the backward (the pdf is detached), which keeps the gradient of the expectation unbiased:
 //!    ∂/∂θ E_p[f_θ L cos / p] = E_p[∂f_θ/∂θ L cos / p] for any fixed proposal p.
 
@@ -191,8 +191,8 @@ pub fn shade_backward(
 }
 
 /// The diffuse part of a point's samples, Σ w L split into what F_c sends (`field`) and the
-/// weight that reaches each emitter (`emit[k]`, to multiply by L[k]): R̂ = Kd/π ⊙ (field +
-/// Σ emit[k] L[k]) + the specular part. Averaged over nearby points with similar normals
+/// weight that reaches each emitter (`emit[k]`, to multiply by L\[k\]): R̂ = Kd/π ⊙ (field +
+/// Σ emit\[k\] L\[k\]) + the specular part. Averaged over nearby points with similar normals
 /// (irradiance is smooth where albedo is not), it is a denoised diffuse estimate.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct DiffuseSums {

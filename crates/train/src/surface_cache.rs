@@ -9,7 +9,7 @@
 //!   between levels. With Schlick's F = Ks (1 − m) + F90 m, m = (1 − d·h)⁵, the specular part
 //!   at level j is exactly `Ks ⊙ A_j + F90(Ks) B_j` with
 //!   A_j = Σ w D_j G2_j (1 − m) L and B_j = Σ w D_j G2_j m L (each split into F_c's radiance and
-//!   a weight per emitter, to multiply by the learnable L[k]).
+//!   a weight per emitter, to multiply by the learnable L\[k\]).
 //!
 //! Baked, a pixel costs a few hundred bytes whatever its sample count, and the loop's cost does
 //! not grow with it: the cache can hold every training pixel with many samples (FIPT's baked

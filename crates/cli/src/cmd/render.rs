@@ -4,7 +4,7 @@
 //! ((n + 1)/2), `emitter/NAME.png` (probability). With stage 2 (`RUN/stage2.safetensors`), from
 //! one Monte Carlo re-render per view (`--spp` paths per pixel): `albedo/NAME.exr` (Kd, linear)
 //! with an sRGB-encoded `albedo/NAME.png`, `specular/` (Ks) likewise, `roughness/NAME.exr` and
-//! `.png` (ρ as is), `emission/NAME.exr` (L[k] where the pixel sees emitter k, else 0; linear
+//! `.png` (ρ as is), `emission/NAME.exr` (L\[k\] where the pixel sees emitter k, else 0; linear
 //! image units) with a `.png` tone-mapped as the dataset's images, `rerender/NAME.exr` (linear
 //! HDR, image units) with `rerender/NAME.png` in the dataset's tone mapping (compares with its
 //! PNGs).

@@ -1,8 +1,8 @@
 //! The emission of a light the images only saw saturated, from the light it throws on the room.
 //!
-//! An LDR capture clips every emitter pixel, so its L[k] is bounded from below by the images and
-//! by nothing else: a diffuse pixel's re-render Kd/π ⊙ (E_field + Σ_k w_k L[k]) fits its target
-//! for any L[k] above that bound, Kd taking up the difference (the scale ambiguity of intrinsic
+//! An LDR capture clips every emitter pixel, so its L\[k\] is bounded from below by the images and
+//! by nothing else: a diffuse pixel's re-render Kd/π ⊙ (E_field + Σ_k w_k L\[k\]) fits its target
+//! for any L\[k\] above that bound, Kd taking up the difference (the scale ambiguity of intrinsic
 //! decomposition). Measured on the default room's phone capture: the joint fit left both lights at
 //! their lower bound (8× and 25× too dark) and made Kd bright to make up for it (11.3 dB raw);
 //! started from the true L it drifted down to the bound within 500 iterations; held at the
@@ -12,7 +12,7 @@
 //! while the light of one emitter changes across a surface (falloff, shadow edges) in a way the
 //! light of the rest of the room (F_c's radiance, fixed in stage 2) does not. With the wrong L the
 //! albedo implied by each pixel, A = π·B / E(L), carries the emitter's pattern; with the right one
-//! it is flat across each surface. So each saturated L[k] is the minimizer of the variation of
+//! it is flat across each surface. So each saturated L\[k\] is the minimizer of the variation of
 //! ln A between neighbouring pixels of one surface (image neighbours whose points lie on one
 //! plane), under a robust penalty so that true material edges count little. One channel at a
 //! time, coordinate descent over the emitters, each a coarse scan of ln L then a golden-section
@@ -73,7 +73,7 @@ impl Default for ShadingEstimate {
 }
 
 /// Which of the `k` emitters the images saw clipped: at least a quarter of its pixels saturated
-/// in some channel (its L[k] then starts at a lower bound). Not "most pixels in every channel":
+/// in some channel (its L\[k\] then starts at a lower bound). Not "most pixels in every channel":
 /// JPEG ringing and partly covered rim pixels keep a small bulb's pixels under saturation in
 /// places (the default room's phone capture: its mean target was 0.98–0.99).
 pub fn saturated_emitters(pixels: &[CachedPixel], k: usize) -> Vec<bool> {
@@ -88,9 +88,9 @@ pub fn saturated_emitters(pixels: &[CachedPixel], k: usize) -> Vec<bool> {
     count.iter().map(|&(s, n)| n > 0 && 4 * s >= n).collect()
 }
 
-/// Stage 2's use: the L[k] of the emitters marked `clipped` estimated from the surface pixels
+/// Stage 2's use: the L\[k\] of the emitters marked `clipped` estimated from the surface pixels
 /// (in cache order, `sums[i]` their diffuse sums; `widths` of the training views), the others
-/// kept; every L[k] at least its current value.
+/// kept; every L\[k\] at least its current value.
 pub fn emission_from_the_room(
     pixels: &[CachedPixel],
     sums: &[DiffuseSums],
@@ -156,7 +156,7 @@ pub fn neighbour_pairs(pixels: &[ShadedPixel], widths: &[usize], s: &ShadingEsti
         .collect()
 }
 
-/// Estimates L[k] for the emitters marked `free` (the others keep `emission[k]`), each at least
+/// Estimates L\[k\] for the emitters marked `free` (the others keep `emission[k]`), each at least
 /// `emission[k]` (the lower bound the saturated images give), from the pixels' diffuse sums
 /// (`sums[i]` belongs to `pixels[i]`). Returns the new emissions.
 pub fn estimate_emission(

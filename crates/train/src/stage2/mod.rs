@@ -1,5 +1,5 @@
 //! Stage 2 (paper Sec. "Training", "Training of material and emission fields"): with F_d, F_c
-//! and F_e frozen, fit the material fields (Kd, Ks, ρ) and the emissions L[k] of the K-means
+//! and F_e frozen, fit the material fields (Kd, Ks, ρ) and the emissions L\[k\] of the K-means
 //! emitters so that the Monte Carlo re-render of eq:render reproduces the training pixels:
 //! L₂ = L_render + λ_mat L_mat (eq:material).
 //!
@@ -19,7 +19,7 @@
 //! input images — LDR pixels linearized by the dataset's transfer, or HDR pixels × the dataset's
 //! exposure when `stage2.use_hdr` and the dataset has them. Saturated LDR channels bound the
 //! prediction from below only. Pixels that see an emitter are not shaded: their prediction is
-//! L[k] itself.
+//! L\[k\] itself.
 
 use crate::config::{Stage2Estimator, TrainConfig};
 use crate::driver::{StepOutcome, TrainStage};
@@ -59,7 +59,7 @@ use std::sync::Arc;
 pub enum PixelKind {
     /// An ordinary surface: the `index`-th of the cache ([`ShadingCache`]).
     Surface { index: u32 },
-    /// Emitter k, seen directly: its prediction is L[k].
+    /// Emitter k, seen directly: its prediction is L\[k\].
     Emitter(u32),
 }
 
@@ -86,7 +86,7 @@ pub struct Stage2Stats {
     pub energy: f32,
     pub rho_prior: f32,
     pub loss: f32,
-    /// L[k] (linear RGB, image units).
+    /// L\[k\] (linear RGB, image units).
     pub emission: Vec<[f32; 3]>,
 }
 
@@ -598,7 +598,7 @@ impl Stage2 {
         (s, self.pixels.len() - s)
     }
 
-    /// L[k] of each emitter, in linear image units.
+    /// L\[k\] of each emitter, in linear image units.
     pub fn emissions(&self) -> Vec<Vec3> {
         (0..self.fields.emitters.len())
             .map(|k| self.fields.emitters.emission(k))
