@@ -119,6 +119,28 @@ pub fn emission_from_the_room(
         .collect()
 }
 
+/// [`emission_from_the_room`] as stage 2 uses it: the emitters with the estimates of the
+/// `clipped` ones, each said to `progress` beside the images' lower bound.
+pub fn estimate_clipped_emission(
+    pixels: &[CachedPixel],
+    sums: &[DiffuseSums],
+    widths: &[usize],
+    emitters: &EmitterTable,
+    clipped: &[bool],
+    progress: &dyn Fn(&str),
+) -> EmitterTable {
+    progress("emission of the clipped emitters from the shading of the room");
+    let estimate = emission_from_the_room(pixels, sums, widths, emitters, clipped);
+    for (k, l) in estimate.iter().enumerate().filter(|(k, _)| clipped[*k]) {
+        let b = emitters.emission(k);
+        progress(&format!(
+            "emitter {k}: L = {:.3} {:.3} {:.3} (the images' lower bound {:.3} {:.3} {:.3})",
+            l[0], l[1], l[2], b.x, b.y, b.z
+        ));
+    }
+    EmitterTable::new(emitters.emitters.clone(), &estimate)
+}
+
 /// The pairs of neighbouring pixels on one surface: indices into `pixels`.
 pub fn neighbour_pairs(pixels: &[ShadedPixel], widths: &[usize], s: &ShadingEstimate) -> Vec<(u32, u32)> {
     let index: HashMap<(u32, u32), u32> = pixels

@@ -25,17 +25,17 @@ use crate::config::{Stage2Estimator, TrainConfig};
 use crate::driver::{StepOutcome, TrainStage};
 pub mod emission_from_shading;
 mod mixture;
+mod setup;
 
-use crate::kmeans::{cluster_emitters, ClusterSettings};
 use crate::losses::{material_regularizers, rerender_channel, MaterialPriors};
-use crate::shading::{pool_diffuse, shade, shade_backward, trace_incident, DiffuseSums, IncidentSample, ShadingPoint};
-use crate::surface_cache::{ShadingCache, SpecularBake};
+use crate::shading::{pool_diffuse, shade, shade_backward, trace_incident, IncidentSample, ShadingPoint};
+use crate::surface_cache::ShadingCache;
 pub use crate::targets::{radiometry, target_views, TargetView, SATURATED};
-use emission_from_shading::{emission_from_the_room, saturated_emitters};
-use glam::{DVec3, Vec3};
+use emission_from_shading::{estimate_clipped_emission, saturated_emitters};
+use glam::Vec3;
 use i2sdf_data::DataError;
-use i2sdf_model::emitters::{Emitter, EmitterTable};
-use i2sdf_model::intrinsic::{BakedSurface, FrozenScene, LabelledHit, Radiometry};
+use i2sdf_model::emitters::EmitterTable;
+use i2sdf_model::intrinsic::{BakedSurface, FrozenScene, Radiometry};
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::material_field::{
     brdf_of_channels, MaterialBackbone, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
@@ -44,9 +44,8 @@ use i2sdf_model::observed::ObservedViews;
 use i2sdf_model::{BakeRecord, NeuralScene};
 use i2sdf_nn::params::ModuleSlot;
 use i2sdf_nn::{Adam, AdamConfig, LrSchedule, Parameters};
-use i2sdf_render::{GgxBrdf, Ray};
+use i2sdf_render::GgxBrdf;
 pub use mixture::{cache_mixture, live_mixture};
-use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_pcg::{Pcg32, Pcg64};
 use rayon::prelude::*;
@@ -196,65 +195,10 @@ impl Stage2 {
     ) -> Result<Stage2, DataError> {
         let c2 = config.stage2.clone();
         let seed = config.train.seed;
-        let scale = scene.normalization.scale as f32;
-        // 1. The pixels: a uniform subset of all training pixels.
-        let total: usize = views.iter().map(|v| v.rgb.len()).sum();
-        if total == 0 {
-            return Err(DataError::invalid("stage 2: the dataset has no training pixels"));
-        }
-        let mut order: Vec<(u32, u32)> = views
-            .iter()
-            .enumerate()
-            .flat_map(|(v, view)| (0..view.rgb.len() as u32).map(move |p| (v as u32, p)))
-            .collect();
+        // 1. The pixels, cast into the frozen SDF; the surface baked for the secondary rays.
         let mut rng = Pcg64::seed_from_u64(seed ^ 0x5747_4532);
-        if c2.cache_pixels > 0 && c2.cache_pixels < total {
-            order.shuffle(&mut rng);
-            order.truncate(c2.cache_pixels);
-            order.sort_unstable();
-        }
-        progress(&format!("casting {} training pixels into the frozen SDF", order.len()));
-        let rays: Vec<Ray> = order
-            .iter()
-            .map(|&(v, p)| {
-                let cam = &views[v as usize].camera;
-                let g = cam.ray_generator();
-                let (x, y) = (p as usize % cam.width, p as usize / cam.width);
-                Ray::new(g.origin, g.dir(x as f32 + 0.5, y as f32 + 0.5), 0.0, f32::INFINITY)
-            })
-            .collect();
-        let no_emitters = EmitterTable::new(Vec::new(), &[]);
-        let mut hits: Vec<Option<LabelledHit>> = vec![None; rays.len()];
-        {
-            let frozen = FrozenScene::new(&scene, &no_emitters, radiometry);
-            frozen.cast(&rays, &mut hits);
-        }
-        // 2. Emitters: K-means on the surface points F_e marks (normalized frame).
-        let hit_idx: Vec<usize> = (0..hits.len()).filter(|&i| hits[i].is_some()).collect();
-        let hit_points: Vec<Vec3> = hit_idx.iter().map(|&i| hits[i].unwrap().position).collect();
-        let mut prob = vec![0.0f32; hit_points.len()];
-        FrozenScene::new(&scene, &no_emitters, radiometry).emitter_prob(&hit_points, &mut prob);
-        // Bake the frozen surface for the secondary rays (a BVH over its marching-cubes mesh, hits
-        // refined onto the SDF): over the box of the surface the training pixels see and the
-        // cameras, the dataset's own bounds in effect.
-        let bake = (c2.bake_resolution > 0 && !hit_points.is_empty()).then(|| {
-            let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-            for p in hit_points
-                .iter()
-                .map(|p| p.as_dvec3())
-                .chain(views.iter().map(|v| v.camera.center()))
-            {
-                lo = lo.min(p);
-                hi = hi.max(p);
-            }
-            BakeRecord {
-                bounds: i2sdf_data::Bounds {
-                    min: lo.to_array(),
-                    max: hi.to_array(),
-                },
-                resolution: c2.bake_resolution,
-            }
-        });
+        let cast = setup::cast_training_pixels(&scene, views, radiometry, &c2, &mut rng, progress)?;
+        let bake = setup::bake_record(&cast.points, views, &c2);
         let baked = match &bake {
             Some(b) => {
                 progress(&format!("baking the frozen surface at {}³", b.resolution));
@@ -262,7 +206,7 @@ impl Stage2 {
             }
             None => None,
         };
-        let has_masks = views.iter().all(|v| v.emitter_mask.is_some());
+        // 2. Emitters: K-means on the surface points F_e marks (or a resumed run's).
         let fresh = given.is_none();
         let (material, emitters, chosen_k) = match given {
             Some((m, e)) => {
@@ -270,54 +214,9 @@ impl Stage2 {
                 (m, e, k)
             }
             None => {
-                let marked: Vec<usize> = (0..hit_idx.len()).filter(|&j| prob[j] > c2.emitter_threshold).collect();
-                // Without emitter masks F_e was never trained: no emitters (every traced ray
-                // takes F_c's radiance).
-                let points: Vec<[f64; 3]> = if has_masks {
-                    marked
-                        .iter()
-                        .map(|&j| normalized(&scene, hit_points[j]).map(|v| v as f64))
-                        .collect()
-                } else {
-                    Vec::new()
-                };
-                progress(&format!("clustering {} emitter points", points.len()));
-                let settings = ClusterSettings {
-                    k: (c2.emitters > 0).then_some(c2.emitters),
-                    max_k: c2.max_emitters,
-                    link: c2.emitter_link as f64,
-                    min_fraction: c2.emitter_min_fraction as f64,
-                    restarts: 4,
-                    iterations: 100,
-                };
-                let (clusters, k) = cluster_emitters(&points, &settings, &mut rng);
-                let norm = &scene.normalization;
-                let to_world = |c: [f64; 3]| norm.to_world(DVec3::from_array(c)).to_array();
-                let s = norm.scale;
-                let list: Vec<Emitter> = clusters
-                    .iter()
-                    .map(|c| Emitter {
-                        centre: to_world(c.centre),
-                        extent: c.extent.map(|e| e * s),
-                        radius: c.radius * s,
-                        points: c.members.len(),
-                    })
-                    .collect();
-                // L[k] starts at what the images show of it: the mean target of its pixels (a
-                // lower bound where they are saturated; the fit raises it).
-                let mut sum = vec![[0.0f64; 3]; clusters.len()];
-                for (ci, c) in clusters.iter().enumerate() {
-                    for &m in &c.members {
-                        let (v, p) = order[hit_idx[marked[m]]];
-                        let t = views[v as usize].rgb[p as usize];
-                        for a in 0..3 {
-                            sum[ci][a] += t[a] as f64 / c.members.len() as f64;
-                        }
-                    }
-                }
-                let init: Vec<[f32; 3]> = sum.iter().map(|s| s.map(|v| (v as f32).max(1e-3))).collect();
+                let (emitters, k) = setup::cluster_new_emitters(&scene, views, &cast, &c2, &mut rng, progress);
                 let material = MaterialField::new(&config.material, scene.feature_dim(), seed.wrapping_add(17));
-                (material, EmitterTable::new(list, &init), k)
+                (material, emitters, k)
             }
         };
         // 3. Pixel kinds: emitters by the mask where the dataset has one, else by F_e.
@@ -336,152 +235,40 @@ impl Stage2 {
             observers.as_deref(),
         );
         let observed = frozen.observed.clone();
-        let mut pixels = Vec::with_capacity(hit_idx.len());
-        let (mut given_normals, mut normal_angle) = (0usize, 0.0f64);
-        let mut surface = 0u32;
-        for (j, &i) in hit_idx.iter().enumerate() {
-            let h = hits[i].unwrap();
-            let (v, p) = order[i];
-            let view = &views[v as usize];
-            let is_emitter = match &view.emitter_mask {
-                Some(m) => m[p as usize],
-                None => prob[j] > c2.emitter_threshold,
-            };
-            let to_cam = -rays[i].dir;
-            // The shading normal: the dataset's normal map where it has one (an input, as in
-            // stage 1's normal loss; sharper than the SDF's gradient at edges), else the SDF's.
-            let given = view
-                .normal
-                .as_ref()
-                .map(|n| Vec3::from_array(n[p as usize]))
-                .filter(|n| c2.input_normals && (n.length() - 1.0).abs() < 0.1);
-            if let Some(n) = given {
-                given_normals += 1;
-                normal_angle += n.normalize().dot(h.normal).abs().min(1.0).acos() as f64;
-            }
-            let normal = given.map(|n| n.normalize()).unwrap_or(h.normal);
-            let normal = if normal.dot(to_cam) < 0.0 { -normal } else { normal };
-            let kind = if is_emitter {
-                match emitters.index(h.position.as_dvec3(), frozen.index_margin) {
-                    Some(k) => PixelKind::Emitter(k as u32),
-                    None => continue,
-                }
-            } else {
-                surface += 1;
-                PixelKind::Surface { index: surface - 1 }
-            };
-            pixels.push(CachedPixel {
-                point: ShadingPoint {
-                    position: h.position,
-                    normal,
-                    view: to_cam,
-                },
-                target: Vec3::from_array(view.rgb[p as usize]),
-                saturated: view.saturated[p as usize],
-                kind,
-                view: v,
-                pixel: p,
-            });
-        }
-        if given_normals > 0 {
-            progress(&format!(
-                "shading normals of {given_normals} pixels from the dataset's maps (mean {:.1}° from the SDF's)",
-                (normal_angle / given_normals as f64).to_degrees()
-            ));
-        }
-        // 4. Incident radiance of every surface pixel, traced once (in blocks: bounded memory).
-        let surf: Vec<(usize, ShadingPoint)> = pixels
-            .iter()
-            .enumerate()
-            .filter(|(_, p)| matches!(p.kind, PixelKind::Surface { .. }))
-            .map(|(i, p)| (i, p.point))
-            .collect();
-        let m = c2.cache_samples;
-        let mut cache = ShadingCache {
-            per_pixel: m,
-            bake: c2.specular_bake.then(|| SpecularBake::new(emitters.len())),
-            ..Default::default()
-        };
-        let mut own = Vec::with_capacity(surf.len());
-        let mixture = cache_mixture(&emitters, c2.emitter_sampling);
-        // Salt of each surface pixel's samples: 1 initially, it + 2 after a refresh at iteration it.
-        let mut salt = vec![1u64; surf.len()];
-        for it in 0..resume_at {
-            for j in refresh_selection(seed, it, surf.len(), c2.refresh_pixels) {
-                salt[j as usize] = it + 2;
-            }
-        }
-        const BLOCK: usize = 8192;
-        for (b, block) in surf.chunks(BLOCK).enumerate() {
-            progress(&format!(
-                "tracing incident radiance: {} / {} pixels × {m} samples",
-                b * BLOCK,
-                surf.len()
-            ));
-            let pts: Vec<ShadingPoint> = block.iter().map(|(_, p)| *p).collect();
-            let mut rngs: Vec<Pcg32> = block
-                .iter()
-                .enumerate()
-                .map(|(j, (i, _))| pixel_rng(seed, *i as u64, salt[b * BLOCK + j]))
-                .collect();
-            let samples = trace_incident(&frozen, &pts, m, scale, &|_| mixture, &mut rngs);
-            own.par_extend(samples.par_chunks(m).map(|s| DiffuseSums::of(s, emitters.len())));
-            match &mut cache.bake {
-                // Baked, the samples are dropped block by block: memory does not grow with m.
-                Some(bake) => {
-                    let nv: Vec<f32> = pts.iter().map(|p| p.normal.dot(p.view)).collect();
-                    bake.extend(&nv, &samples, m);
-                }
-                None => cache.samples.extend(samples),
-            }
-        }
+        let pixels = setup::label_pixels(&cast, views, &c2, &emitters, frozen.index_margin, progress);
+        // 4. Incident radiance of every surface pixel, traced once.
+        let (mut cache, own, surface) = setup::trace_cache(&frozen, &pixels, &c2, seed, resume_at, progress);
         drop(frozen);
-        let surface: Vec<u32> = surf.iter().map(|(i, _)| *i as u32).collect();
+        let scale = scene.normalization.scale as f32;
         let pooled = (c2.irradiance_radius > 0.0).then(|| {
             progress("pooling the diffuse irradiance of nearby pixels");
-            let pts: Vec<ShadingPoint> = surf.iter().map(|(_, p)| *p).collect();
+            let pts: Vec<ShadingPoint> = surface.iter().map(|&i| pixels[i as usize].point).collect();
             pool_diffuse(&pts, &own, c2.irradiance_radius * scale)
         });
         // 5. The emission of lights the images saw only clipped, from the light they throw.
         let held_emission = saturated_emitters(&pixels, emitters.len());
         let mut emitters = emitters;
         if fresh && c2.emission_from_shading && held_emission.contains(&true) {
-            progress("emission of the clipped emitters from the shading of the room");
             let widths: Vec<usize> = views.iter().map(|v| v.camera.width).collect();
-            let estimate = emission_from_the_room(
-                &pixels,
-                pooled.as_ref().unwrap_or(&own),
-                &widths,
-                &emitters,
-                &held_emission,
-            );
-            for (k, l) in estimate.iter().enumerate().filter(|(k, _)| held_emission[*k]) {
-                let b = emitters.emission(k);
-                progress(&format!(
-                    "emitter {k}: L = {:.3} {:.3} {:.3} (the images' lower bound {:.3} {:.3} {:.3})",
-                    l[0], l[1], l[2], b.x, b.y, b.z
-                ));
-            }
-            emitters = EmitterTable::new(emitters.emitters.clone(), &estimate);
+            let sums = pooled.as_ref().unwrap_or(&own);
+            emitters = estimate_clipped_emission(&pixels, sums, &widths, &emitters, &held_emission, progress);
         }
         cache.diffuse = match pooled {
             Some(p) => p,
             None if cache.bake.is_some() => own,
             None => Vec::new(),
         };
-        let adam = new_adam(&config, &material, &emitters);
-        let grad = material.new_grad();
         let k = emitters.len();
-        let initial_emission = emitters.log_emission.clone();
-        // L2's scale: the mean surface target.
-        let (sum, n) = pixels
-            .iter()
-            .filter(|p| matches!(p.kind, PixelKind::Surface { .. }))
-            .fold((0.0f64, 0usize), |(s, n), p| {
-                (s + p.target.element_sum() as f64 / 3.0, n + 1)
-            });
-        let target_scale = if sum > 0.0 { (sum / n as f64) as f32 } else { 1.0 };
         Ok(Stage2 {
+            adam: new_adam(&config, &material, &emitters),
+            grad: material.new_grad(),
+            initial_emission: emitters.log_emission.clone(),
+            target_scale: setup::mean_surface_target(&pixels),
+            held_emission: if c2.emission_from_shading {
+                held_emission
+            } else {
+                vec![false; k]
+            },
             config,
             scene,
             fields: IntrinsicFields {
@@ -491,23 +278,14 @@ impl Stage2 {
             },
             pixels,
             cache,
-            adam,
-            grad,
             d_emission: vec![Vec3::ZERO; k],
-            held_emission: if c2.emission_from_shading {
-                held_emission
-            } else {
-                vec![false; k]
-            },
             ws: MaterialWorkspace::default(),
             iteration: 0,
             chosen_k,
-            initial_emission,
             surface,
             bake,
             baked,
             observed,
-            target_scale,
         })
     }
 

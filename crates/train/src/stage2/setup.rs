@@ -1,0 +1,312 @@
+//! The steps of building stage 2's cache ([`super::Stage2::new`]): the training pixels cast
+//! into the frozen SDF, the box the surface is baked over, the emitters clustered from the
+//! points F_e marks, each pixel's kind and shading point, and the incident radiance traced once.
+
+use super::{normalized, pixel_rng, refresh_selection, CachedPixel, PixelKind};
+use crate::config::Stage2Config;
+use crate::kmeans::{cluster_emitters, ClusterSettings};
+use crate::shading::{trace_incident, DiffuseSums, ShadingPoint};
+use crate::surface_cache::{ShadingCache, SpecularBake};
+use crate::targets::TargetView;
+use glam::{DVec3, Vec3};
+use i2sdf_data::DataError;
+use i2sdf_model::emitters::{Emitter, EmitterTable};
+use i2sdf_model::intrinsic::{FrozenScene, LabelledHit, Radiometry};
+use i2sdf_model::{BakeRecord, NeuralScene};
+use i2sdf_render::Ray;
+use rand::seq::SliceRandom;
+use rand_pcg::{Pcg32, Pcg64};
+use rayon::prelude::*;
+
+/// The cached pixels cast into the frozen SDF.
+pub(super) struct Cast {
+    /// (view, pixel) of each cast pixel, sorted.
+    pub order: Vec<(u32, u32)>,
+    pub rays: Vec<Ray>,
+    pub hits: Vec<Option<LabelledHit>>,
+    /// Indices into `order` of the pixels that hit, their points and F_e there.
+    pub hit_idx: Vec<usize>,
+    pub points: Vec<Vec3>,
+    pub emitter_prob: Vec<f32>,
+}
+
+/// A uniform subset of all training pixels (`stage2.cache_pixels`; drawn with `rng`), cast into
+/// the frozen SDF, with F_e at their hits.
+pub(super) fn cast_training_pixels(
+    scene: &NeuralScene,
+    views: &[TargetView],
+    radiometry: Radiometry,
+    c2: &Stage2Config,
+    rng: &mut Pcg64,
+    progress: &dyn Fn(&str),
+) -> Result<Cast, DataError> {
+    let total: usize = views.iter().map(|v| v.rgb.len()).sum();
+    if total == 0 {
+        return Err(DataError::invalid("stage 2: the dataset has no training pixels"));
+    }
+    let mut order: Vec<(u32, u32)> = views
+        .iter()
+        .enumerate()
+        .flat_map(|(v, view)| (0..view.rgb.len() as u32).map(move |p| (v as u32, p)))
+        .collect();
+    if c2.cache_pixels > 0 && c2.cache_pixels < total {
+        order.shuffle(rng);
+        order.truncate(c2.cache_pixels);
+        order.sort_unstable();
+    }
+    progress(&format!("casting {} training pixels into the frozen SDF", order.len()));
+    let rays: Vec<Ray> = order
+        .iter()
+        .map(|&(v, p)| {
+            let cam = &views[v as usize].camera;
+            let g = cam.ray_generator();
+            let (x, y) = (p as usize % cam.width, p as usize / cam.width);
+            Ray::new(g.origin, g.dir(x as f32 + 0.5, y as f32 + 0.5), 0.0, f32::INFINITY)
+        })
+        .collect();
+    let no_emitters = EmitterTable::new(Vec::new(), &[]);
+    let frozen = FrozenScene::new(scene, &no_emitters, radiometry);
+    let mut hits: Vec<Option<LabelledHit>> = vec![None; rays.len()];
+    frozen.cast(&rays, &mut hits);
+    let hit_idx: Vec<usize> = (0..hits.len()).filter(|&i| hits[i].is_some()).collect();
+    let points: Vec<Vec3> = hit_idx.iter().filter_map(|&i| hits[i].map(|h| h.position)).collect();
+    let mut emitter_prob = vec![0.0f32; points.len()];
+    frozen.emitter_prob(&points, &mut emitter_prob);
+    Ok(Cast {
+        order,
+        rays,
+        hits,
+        hit_idx,
+        points,
+        emitter_prob,
+    })
+}
+
+/// Where to bake the frozen surface for the secondary rays (a BVH over its marching-cubes mesh,
+/// hits refined onto the SDF): the box of the surface the training pixels see and the cameras,
+/// the dataset's own bounds in effect. None without hits or with `stage2.bake_resolution = 0`.
+pub(super) fn bake_record(points: &[Vec3], views: &[TargetView], c2: &Stage2Config) -> Option<BakeRecord> {
+    (c2.bake_resolution > 0 && !points.is_empty()).then(|| {
+        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+        for p in points
+            .iter()
+            .map(|p| p.as_dvec3())
+            .chain(views.iter().map(|v| v.camera.center()))
+        {
+            lo = lo.min(p);
+            hi = hi.max(p);
+        }
+        BakeRecord {
+            bounds: i2sdf_data::Bounds {
+                min: lo.to_array(),
+                max: hi.to_array(),
+            },
+            resolution: c2.bake_resolution,
+        }
+    })
+}
+
+/// K-means on the surface points F_e marks (normalized frame), K chosen unless
+/// `stage2.emitters` sets it; each L\[k\] starts at what the images show of it, the mean target
+/// of its pixels (a lower bound where they are saturated). Without emitter masks F_e was never
+/// trained: no emitters (every traced ray takes F_c's radiance). Returns the table and the K
+/// chosen before small clusters were dropped.
+pub(super) fn cluster_new_emitters(
+    scene: &NeuralScene,
+    views: &[TargetView],
+    cast: &Cast,
+    c2: &Stage2Config,
+    rng: &mut Pcg64,
+    progress: &dyn Fn(&str),
+) -> (EmitterTable, usize) {
+    let has_masks = views.iter().all(|v| v.emitter_mask.is_some());
+    let marked: Vec<usize> = (0..cast.hit_idx.len())
+        .filter(|&j| cast.emitter_prob[j] > c2.emitter_threshold)
+        .collect();
+    let points: Vec<[f64; 3]> = if has_masks {
+        marked
+            .iter()
+            .map(|&j| normalized(scene, cast.points[j]).map(|v| v as f64))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    progress(&format!("clustering {} emitter points", points.len()));
+    let settings = ClusterSettings {
+        k: (c2.emitters > 0).then_some(c2.emitters),
+        max_k: c2.max_emitters,
+        link: c2.emitter_link as f64,
+        min_fraction: c2.emitter_min_fraction as f64,
+        restarts: 4,
+        iterations: 100,
+    };
+    let (clusters, k) = cluster_emitters(&points, &settings, rng);
+    let norm = &scene.normalization;
+    let to_world = |c: [f64; 3]| norm.to_world(DVec3::from_array(c)).to_array();
+    let s = norm.scale;
+    let list: Vec<Emitter> = clusters
+        .iter()
+        .map(|c| Emitter {
+            centre: to_world(c.centre),
+            extent: c.extent.map(|e| e * s),
+            radius: c.radius * s,
+            points: c.members.len(),
+        })
+        .collect();
+    let mut sum = vec![[0.0f64; 3]; clusters.len()];
+    for (ci, c) in clusters.iter().enumerate() {
+        for &m in &c.members {
+            let (v, p) = cast.order[cast.hit_idx[marked[m]]];
+            let t = views[v as usize].rgb[p as usize];
+            for a in 0..3 {
+                sum[ci][a] += t[a] as f64 / c.members.len() as f64;
+            }
+        }
+    }
+    let init: Vec<[f32; 3]> = sum.iter().map(|s| s.map(|v| (v as f32).max(1e-3))).collect();
+    (EmitterTable::new(list, &init), k)
+}
+
+/// Each hit pixel's kind (an emitter by the dataset's mask where it has one, else by F_e; a
+/// pixel marked emitter outside every emitter's box is dropped) and shading point, whose normal
+/// is the dataset's normal map where it has one (an input, as in stage 1's normal loss; sharper
+/// than the SDF's gradient at edges), else the SDF's.
+pub(super) fn label_pixels(
+    cast: &Cast,
+    views: &[TargetView],
+    c2: &Stage2Config,
+    emitters: &EmitterTable,
+    index_margin: f64,
+    progress: &dyn Fn(&str),
+) -> Vec<CachedPixel> {
+    let mut pixels = Vec::with_capacity(cast.hit_idx.len());
+    let (mut given_normals, mut normal_angle) = (0usize, 0.0f64);
+    let mut surface = 0u32;
+    for (j, &i) in cast.hit_idx.iter().enumerate() {
+        let Some(h) = cast.hits[i] else { continue };
+        let (v, p) = cast.order[i];
+        let view = &views[v as usize];
+        let is_emitter = match &view.emitter_mask {
+            Some(m) => m[p as usize],
+            None => cast.emitter_prob[j] > c2.emitter_threshold,
+        };
+        let to_cam = -cast.rays[i].dir;
+        let given = view
+            .normal
+            .as_ref()
+            .map(|n| Vec3::from_array(n[p as usize]))
+            .filter(|n| c2.input_normals && (n.length() - 1.0).abs() < 0.1);
+        if let Some(n) = given {
+            given_normals += 1;
+            normal_angle += n.normalize().dot(h.normal).abs().min(1.0).acos() as f64;
+        }
+        let normal = given.map(|n| n.normalize()).unwrap_or(h.normal);
+        let normal = if normal.dot(to_cam) < 0.0 { -normal } else { normal };
+        let kind = if is_emitter {
+            match emitters.index(h.position.as_dvec3(), index_margin) {
+                Some(k) => PixelKind::Emitter(k as u32),
+                None => continue,
+            }
+        } else {
+            surface += 1;
+            PixelKind::Surface { index: surface - 1 }
+        };
+        pixels.push(CachedPixel {
+            point: ShadingPoint {
+                position: h.position,
+                normal,
+                view: to_cam,
+            },
+            target: Vec3::from_array(view.rgb[p as usize]),
+            saturated: view.saturated[p as usize],
+            kind,
+            view: v,
+            pixel: p,
+        });
+    }
+    if given_normals > 0 {
+        progress(&format!(
+            "shading normals of {given_normals} pixels from the dataset's maps (mean {:.1}° from the SDF's)",
+            (normal_angle / given_normals as f64).to_degrees()
+        ));
+    }
+    pixels
+}
+
+/// The incident radiance of every surface pixel, traced once (in blocks: bounded memory) with
+/// the samples each had at iteration `resume_at`: the cache (samples kept, or their specular
+/// sums baked), each pixel's own diffuse sums, and the index in `pixels` of each surface pixel
+/// (cache order).
+pub(super) fn trace_cache(
+    frozen: &FrozenScene<'_>,
+    pixels: &[CachedPixel],
+    c2: &Stage2Config,
+    seed: u64,
+    resume_at: u64,
+    progress: &dyn Fn(&str),
+) -> (ShadingCache, Vec<DiffuseSums>, Vec<u32>) {
+    let surf: Vec<(usize, ShadingPoint)> = pixels
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| matches!(p.kind, PixelKind::Surface { .. }))
+        .map(|(i, p)| (i, p.point))
+        .collect();
+    let emitters = frozen.emitters;
+    let scale = frozen.scene.normalization.scale as f32;
+    let m = c2.cache_samples;
+    let mut cache = ShadingCache {
+        per_pixel: m,
+        bake: c2.specular_bake.then(|| SpecularBake::new(emitters.len())),
+        ..Default::default()
+    };
+    let mut own = Vec::with_capacity(surf.len());
+    let mixture = super::cache_mixture(emitters, c2.emitter_sampling);
+    // Salt of each surface pixel's samples: 1 initially, it + 2 after a refresh at iteration it.
+    let mut salt = vec![1u64; surf.len()];
+    for it in 0..resume_at {
+        for j in refresh_selection(seed, it, surf.len(), c2.refresh_pixels) {
+            salt[j as usize] = it + 2;
+        }
+    }
+    const BLOCK: usize = 8192;
+    for (b, block) in surf.chunks(BLOCK).enumerate() {
+        progress(&format!(
+            "tracing incident radiance: {} / {} pixels × {m} samples",
+            b * BLOCK,
+            surf.len()
+        ));
+        let pts: Vec<ShadingPoint> = block.iter().map(|(_, p)| *p).collect();
+        let mut rngs: Vec<Pcg32> = block
+            .iter()
+            .enumerate()
+            .map(|(j, (i, _))| pixel_rng(seed, *i as u64, salt[b * BLOCK + j]))
+            .collect();
+        let samples = trace_incident(frozen, &pts, m, scale, &|_| mixture, &mut rngs);
+        own.par_extend(samples.par_chunks(m).map(|s| DiffuseSums::of(s, emitters.len())));
+        match &mut cache.bake {
+            // Baked, the samples are dropped block by block: memory does not grow with m.
+            Some(bake) => {
+                let nv: Vec<f32> = pts.iter().map(|p| p.normal.dot(p.view)).collect();
+                bake.extend(&nv, &samples, m);
+            }
+            None => cache.samples.extend(samples),
+        }
+    }
+    let surface = surf.iter().map(|(i, _)| *i as u32).collect();
+    (cache, own, surface)
+}
+
+/// The mean surface target: L2's scale (1 without surface pixels).
+pub(super) fn mean_surface_target(pixels: &[CachedPixel]) -> f32 {
+    let (sum, n) = pixels
+        .iter()
+        .filter(|p| matches!(p.kind, PixelKind::Surface { .. }))
+        .fold((0.0f64, 0usize), |(s, n), p| {
+            (s + p.target.element_sum() as f64 / 3.0, n + 1)
+        });
+    if sum > 0.0 {
+        (sum / n as f64) as f32
+    } else {
+        1.0
+    }
+}
