@@ -232,14 +232,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let (mut px, mut sums) = (Vec::new(), Vec::new());
         for p in &stage.pixels {
             if let PixelKind::Surface { index } = p.kind {
-                px.push(ShadedPixel {
-                    position: p.point.position,
-                    normal: p.point.normal,
-                    view: p.view,
-                    pixel: p.pixel,
-                    target: p.target,
-                    saturated: p.saturated,
-                });
+                px.push(ShadedPixel::of(p));
                 sums.push(stage.cache.diffuse[index as usize].clone());
             }
         }

@@ -38,6 +38,20 @@ pub struct ShadedPixel {
     pub saturated: u8,
 }
 
+impl ShadedPixel {
+    /// What the estimator needs of a cached pixel.
+    pub fn of(p: &CachedPixel) -> Self {
+        ShadedPixel {
+            position: p.point.position,
+            normal: p.point.normal,
+            view: p.view,
+            pixel: p.pixel,
+            target: p.target,
+            saturated: p.saturated,
+        }
+    }
+}
+
 /// Settings of [`estimate_emission`].
 #[derive(Clone, Copy, Debug)]
 pub struct ShadingEstimate {
@@ -101,14 +115,7 @@ pub fn emission_from_the_room(
     let shaded: Vec<ShadedPixel> = pixels
         .iter()
         .filter(|p| matches!(p.kind, PixelKind::Surface { .. }))
-        .map(|p| ShadedPixel {
-            position: p.point.position,
-            normal: p.point.normal,
-            view: p.view,
-            pixel: p.pixel,
-            target: p.target,
-            saturated: p.saturated,
-        })
+        .map(ShadedPixel::of)
         .collect();
     let s = ShadingEstimate::default();
     let pairs = neighbour_pairs(&shaded, widths, &s);
