@@ -36,7 +36,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let step = 2.0 * half / (steps.max(2) - 1) as f64 / norm.scale;
     println!("beta {:.2} cm (world)", beta as f64 * norm.scale * 100.0);
     for (s, d) in s_world.iter().zip(&sdf) {
-        let alpha = 1.0 - (-(i2sdf_render::volume::laplace_density(*d, beta) as f64) * step).exp();
+        let alpha = 1.0 - (-(i2sdf_model::volume::laplace_density(*d, beta) as f64) * step).exp();
         println!(
             "{:8.2} cm  sdf {:8.2} cm  alpha/step {:.3}",
             s * 100.0,

@@ -3,8 +3,10 @@
 //! probability) and the VolSDF density's β, held together with the normalization as a
 //! [`NeuralScene`]; saved and loaded as safetensors with the configuration in the metadata; the
 //! run directory and a trained run opened for inference ([`OpenedRun`]) with its image products
-//! ([`images`]); inference queries ([`SceneQuery`]), the ray caster of the trained SDF
-//! ([`raycast`]) and marching cubes of its zero level set ([`marching_cubes()`]).
+//! ([`images`]); the volume renderer ([`renderer`]) with VolSDF's density, compositing and
+//! error-bounded sampler beside it ([`volume`]); inference queries ([`SceneQuery`]), the ray
+//! caster of the trained SDF ([`raycast`]) and marching cubes of its zero level set
+//! ([`marching_cubes()`]).
 
 pub mod config;
 pub mod emitters;
@@ -24,6 +26,7 @@ pub mod raycast;
 pub mod renderer;
 pub mod run_dir;
 pub mod scene;
+pub mod volume;
 
 pub use config::{Backbone, ModelConfig};
 pub use emitters::{Emitter, EmitterTable};

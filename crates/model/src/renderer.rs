@@ -7,13 +7,13 @@
 //! the ray samples, so one SDF forward and one SDF backward serve every loss term.
 
 use crate::scene::{NeuralScene, SceneGrads};
-use i2sdf_nn::sdf::SdfInferWorkspace;
-use i2sdf_nn::{MlpWorkspace, SdfWorkspace};
-use i2sdf_render::volume::{
+use crate::volume::{
     composite_batch, composite_batch_backward, error_bounded_samples_into, laplace_density_backward,
     laplace_density_batch, CompositeGrads, CompositeOutputs, ErrorBoundedSamplerConfig, PackedSamples, RayBatchRef,
     RaySampleSet, SamplerScratch,
 };
+use i2sdf_nn::sdf::SdfInferWorkspace;
+use i2sdf_nn::{MlpWorkspace, SdfWorkspace};
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 

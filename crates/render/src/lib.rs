@@ -1,5 +1,5 @@
 //! Shared physics of i2sdf: the GGX (Unreal) BRDF of the supplementary ("BRDF Model") with its
-//! importance sampling and exact pdf, sampling utilities, colour helpers, volume compositing, and
+//! importance sampling and exact pdf, sampling utilities, colour helpers, and
 //! the one Monte Carlo integrator of the house with its interfaces: geometry (batched ray
 //! queries; a triangle BVH here, the SDF tracer of stage 2 elsewhere), materials (batched BRDF
 //! parameters; constant and textured here, neural fields elsewhere) and lights (area and
@@ -28,7 +28,6 @@ pub mod render_view;
 pub mod sampling;
 pub mod sphere_light;
 pub mod textured_material;
-pub mod volume;
 
 pub use area_light::AreaLight;
 pub use brdf::{BrdfLobe, BrdfSample, GgxBrdf, GgxGrad};

@@ -7,8 +7,8 @@
 //! `cargo run --release -p i2sdf-train --example sampler_bench -- RUN DATA [rays] [reps] [--time-only] [upsample=N coarse=N rounds=N eps=X]`
 
 use i2sdf_model::renderer::{self, sphere_exit, RenderWorkspace};
+use i2sdf_model::volume::deltas_from_t;
 use i2sdf_model::{NeuralScene, RunDir};
-use i2sdf_render::volume::deltas_from_t;
 use i2sdf_train::config::TrainConfig;
 use i2sdf_train::driver::render_settings;
 use i2sdf_train::maps::TrainingMaps;

@@ -378,7 +378,7 @@ pub fn sample_unit_values<R: Rng + ?Sized>(rng: Option<&mut R>, u: &mut [f32]) {
 }
 
 /// Inverse-transform sampling of the piecewise-constant density that puts mass `weights[i]` on
-/// [bins[i], bins[i + 1]] (`weights.len() == bins.len() − 1`), at the unit values `u`; outputs
+/// `[bins[i], bins[i + 1]]` (`weights.len() == bins.len() − 1`), at the unit values `u`; outputs
 /// follow `u`'s order (sorted for sorted `u`). An all-zero histogram samples uniformly.
 pub fn sample_piecewise_constant(bins: &[f32], weights: &[f32], u: &[f32], out: &mut [f32]) {
     assert!(bins.len() >= 2 && weights.len() == bins.len() - 1 && u.len() == out.len());
