@@ -9,7 +9,7 @@
 
 use super::{check, edit, eval, mesh, render, report, synth, train};
 use clap::Args as ClapArgs;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(ClapArgs)]
 pub struct Args {
@@ -44,10 +44,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         scene.clone()
     };
-    let rooms: Vec<(&PathBuf, bool)> = if args.quick {
-        vec![(&scene, false), (&train_data, true)]
+    synthesize(&args, &mut plan, &scene, &train_data)?;
+    train_both(&args, &mut plan, &train_data, &run_dir)?;
+    outputs(&args, &mut plan, &scene, &run_dir)?;
+    plan.finish();
+    crate::progress::line(&format!(
+        "open {} in a browser",
+        args.out.join("report").join("index.html").display()
+    ));
+    Ok(())
+}
+
+/// Step 1: the room (and, for `--quick`, its phone capture) synthesized unless already there,
+/// and the training data checked.
+fn synthesize(args: &Args, plan: &mut StagePlan, scene: &Path, train_data: &Path) -> anyhow::Result<()> {
+    let rooms: Vec<(&Path, bool)> = if args.quick {
+        vec![(scene, false), (train_data, true)]
     } else {
-        vec![(&scene, false)]
+        vec![(scene, false)]
     };
     for (k, &(dir, capture)) in rooms.iter().enumerate() {
         if dir.join("transforms.json").is_file() {
@@ -65,7 +79,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             (160, 120, 48, 128)
         };
         synth::run(synth::Args {
-            out: dir.clone(),
+            out: dir.to_path_buf(),
             force: false,
             preset: "livingroom".into(),
             scene: None,
@@ -89,13 +103,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         })?;
     }
     check::run(check::Args {
-        data: train_data.clone(),
+        data: train_data.to_path_buf(),
         json: false,
         config: None,
         set: Vec::new(),
     })?;
+    Ok(())
+}
 
-    let info = i2sdf_model::RunDir::new(&run_dir);
+/// Steps 2 and 3: both stages trained into `run_dir`, each skipped when done and resumed when
+/// interrupted.
+fn train_both(args: &Args, plan: &mut StagePlan, train_data: &Path, run_dir: &Path) -> anyhow::Result<()> {
+    let info = i2sdf_model::RunDir::new(run_dir);
     let done = info.read_info().map(|i| i.stage1.done).unwrap_or(false);
     if !done {
         plan.stage(2, &format!("train stage 1 into {}", run_dir.display()));
@@ -109,8 +128,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Vec::new()
         };
         train::run(train::Args {
-            data: Some(train_data.clone()),
-            out: run_dir.clone(),
+            data: Some(train_data.to_path_buf()),
+            out: run_dir.to_path_buf(),
             config: None,
             set,
             stage: train::Stage::Geometry,
@@ -141,8 +160,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Vec::new()
         };
         train::run(train::Args {
-            data: Some(train_data.clone()),
-            out: run_dir.clone(),
+            data: Some(train_data.to_path_buf()),
+            out: run_dir.to_path_buf(),
             config: None,
             set,
             stage: train::Stage::Material,
@@ -152,6 +171,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             trust_exposure: false,
         })?;
     }
+    Ok(())
+}
+
+/// Steps 4–8: the mesh, the test views, the metrics, the edits and the report, scored against
+/// the exact room `scene`.
+fn outputs(args: &Args, plan: &mut StagePlan, scene: &Path, run_dir: &Path) -> anyhow::Result<()> {
     plan.stage(4, "extract the mesh");
     // The mesh that eval scores (thin objects need fine cells, see MESH_RESOLUTION); the edits'
     // recovered surface is only raytraced and stays at 256.
@@ -162,26 +187,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let edit_resolution = resolution.min(256);
     mesh::run(mesh::Args {
-        run: run_dir.clone(),
+        run: run_dir.to_path_buf(),
         out: args.out.join("mesh.ply"),
         resolution,
         force: true,
     })?;
     plan.stage(5, "render the test views");
     render::run(render::Args {
-        run: run_dir.clone(),
+        run: run_dir.to_path_buf(),
         out: args.out.join("render"),
         force: true,
         split: "test".into(),
         what: "rgb,depth,normal,emitter,albedo,specular,roughness,emission,rerender".into(),
-        data: Some(scene.clone()),
+        data: Some(scene.to_path_buf()),
         spp: if args.quick { 16 } else { 64 },
         path: Default::default(),
     })?;
     plan.stage(6, "evaluate");
     eval::run(eval::Args {
-        run: run_dir.clone(),
-        data: Some(scene.clone()),
+        run: run_dir.to_path_buf(),
+        data: Some(scene.to_path_buf()),
         out: args.out.join("metrics.json"),
         mesh_out: None,
         force: true,
@@ -200,7 +225,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let spec = dir.join(format!("{name}.toml"));
         i2sdf_data::imageio::write_bytes_atomic(&spec, text.as_bytes())?;
         edit::run(edit::Args {
-            run: run_dir.clone(),
+            run: run_dir.to_path_buf(),
             spec,
             out: dir.join(name),
             force: true,
@@ -212,28 +237,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             height: None,
             seed: 0,
             mesh_resolution: edit_resolution,
-            data: Some(scene.clone()),
+            data: Some(scene.to_path_buf()),
             composite: "path-traced".into(),
             path: Default::default(),
         })?;
     }
     plan.stage(8, "write the HTML report");
     report::run(report::Args {
-        run: run_dir.clone(),
+        run: run_dir.to_path_buf(),
         out: args.out.join("report"),
         force: true,
-        data: Some(scene.clone()),
+        data: Some(scene.to_path_buf()),
         metrics: Some(args.out.join("metrics.json")),
         view: 0,
         spp: if args.quick { 8 } else { 32 },
         bounces: if args.quick { 4 } else { 8 },
         mesh_resolution: resolution.min(128),
     })?;
-    plan.finish();
-    crate::progress::line(&format!(
-        "open {} in a browser",
-        args.out.join("report").join("index.html").display()
-    ));
     Ok(())
 }
 

@@ -8,7 +8,7 @@ use i2sdf_train::driver::{train_geometry, train_materials, Event, TrainStage};
 use i2sdf_train::stage1::StepStats;
 use i2sdf_train::stage2::Stage2Stats;
 use indicatif::{ProgressBar, ProgressStyle};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -58,29 +58,7 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let run = RunDir::new(&args.out);
-    let config = if args.resume {
-        if args.config.is_some() {
-            anyhow::bail!(i2sdf_data::DataError::invalid(
-                "--config cannot change a resumed run (use --set)"
-            ));
-        }
-        if args.set.is_empty() {
-            None
-        } else {
-            Some(TrainConfig::load(Some(&run.config_path()), &args.set)?)
-        }
-    } else if args.stage == Stage::Material && args.config.is_none() {
-        // Stage 2 continues a run: its own configuration, with --set on top.
-        if !run.config_path().is_file() {
-            anyhow::bail!(i2sdf_data::DataError::file(
-                &run.root,
-                "holds no stage-1 run: train --stage geometry (or --stage all) first"
-            ));
-        }
-        Some(TrainConfig::load(Some(&run.config_path()), &args.set)?)
-    } else {
-        Some(TrainConfig::load(args.config.as_deref(), &args.set)?)
-    };
+    let config = load_config(&args, &run)?;
     if let Some(c) = &config {
         if c.train.threads > 0 {
             let _ = rayon::ThreadPoolBuilder::new()
@@ -103,149 +81,200 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let material = matches!(args.stage, Stage::Material | Stage::All);
     check_memory(&run, &dataset, config.as_ref(), geometry, material, args.ignore_memory)?;
     if material {
-        // Stage 2 works in the images' linear units: what the images say of their exposure. A
-        // declared exposure they contradict is refused unless trusted: fitted at the wrong one,
-        // every material comes out off by the factor.
-        if let Some(e) = i2sdf_data::exposure::estimate_exposure(&dataset) {
-            if let Some(declared) = dataset.ldr_exposure.filter(|_| !args.trust_exposure) {
-                if e.disagrees_with(declared) {
-                    anyhow::bail!(i2sdf_data::DataError::field(
-                        data.join("transforms.json"),
-                        "ldr.exposure",
-                        format!(
-                            "{declared} is declared, but the LDR and HDR images measure {:.4} ({} channels, spread {:.1} %): fix the key, or pass --trust-exposure to train with the declared value",
-                            e.exposure,
-                            e.samples,
-                            100.0 * e.spread
-                        ),
-                    ));
-                }
-            }
-            for w in e.warnings(&dataset) {
-                crate::progress::line(&format!("warning: {w}"));
-            }
-        }
+        check_exposure(&dataset, &data, args.trust_exposure)?;
     }
-    let bar = |label: &str| {
-        let bar = crate::progress::bar(0);
-        bar.set_style(
-            ProgressStyle::with_template(&format!(
-                "{{spinner}} {label} [{{bar:30}}] {{pos}}/{{len}} {{msg}} ({{elapsed}} < {{eta}})"
-            ))
-            .expect("valid template")
-            .progress_chars("=> "),
-        );
-        if args.quiet {
-            bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
-        }
-        bar
-    };
     let mut config = config;
     if geometry {
-        // A finished stage 1 resumed (--stage all --resume continuing into stage 2, or a finished
-        // run resumed) is not trained again: the driver checks it and writes nothing.
-        let bar = bar("stage 1");
-        let start = Instant::now();
-        let first = std::cell::Cell::new(None);
-        {
-            let mut show = progress_events(&bar, start, args.quiet, |s: &StepStats| {
-                format!(
-                    "{:?} loss {:.4} psnr {:.2} depth {:.4} β {:.4}",
-                    s.phase.unwrap(),
-                    s.loss,
-                    s.psnr,
-                    s.depth,
-                    s.beta
-                )
-            });
-            let stage = train_geometry(
-                &run,
-                &dataset,
-                &data.display().to_string(),
-                config.clone(),
-                args.resume,
-                |e| {
-                    if let Event::Started { iteration, .. } = &e {
-                        first.set(Some(*iteration));
-                    }
-                    show(e)
-                },
-            )?;
-            bar.finish();
-            if first.get() == Some(stage.iteration) {
-                println!(
-                    "stage 1 had finished: {} iterations; run in {}",
-                    stage.iteration,
-                    args.out.display()
-                );
-            } else {
-                println!(
-                    "stage 1 done: {} iterations in {:.1} s this session; run in {}",
-                    stage.iteration,
-                    start.elapsed().as_secs_f64(),
-                    args.out.display()
-                );
-            }
-        }
+        run_geometry(&args, &run, &dataset, &data, config.clone())?;
         // Stage 2 of the same command continues from the run as written.
         config = None;
     }
     if material {
-        let start = Instant::now();
-        let stage2_resume = args.resume || args.stage == Stage::All;
-        let bar = bar("stage 2");
-        let quiet = args.quiet;
-        let progress = |what: &str| {
-            if quiet {
-                eprintln!("stage 2: {what}");
-            }
-            bar.set_message(what.to_string());
-            bar.tick();
-        };
-        let stage = train_materials(
-            &run,
-            &dataset,
-            &data.display().to_string(),
-            config,
-            stage2_resume && run.stage2_checkpoint_path().is_file(),
-            &progress,
-            progress_events(&bar, start, quiet, |s: &Stage2Stats| {
-                let em: Vec<String> = s
-                    .emission
-                    .iter()
-                    .map(|e| format!("{:.2}", (e[0] + e[1] + e[2]) / 3.0))
-                    .collect();
-                format!(
-                    "loss {:.4} render {:.4} emitter {:.4} L [{}]",
-                    s.loss,
-                    s.render,
-                    s.emitter,
-                    em.join(" ")
-                )
-            }),
-        )?;
-        bar.finish();
-        let Some(stage) = stage else {
-            println!("stage 2 had finished; run in {}", args.out.display());
-            return Ok(());
-        };
-        let (surface, emitter) = stage.counts();
-        if stage.fields.emitters.is_empty() {
-            crate::progress::line(&format!(
-                "warning: stage 2 found no emitters: no training pixel's emitter probability passed stage2.emitter_threshold = {} (F_e learns from the emitter masks said above: are there any?). The re-render has no direct light, relight ops have nothing to change, and relit renders in edit, eval and the report are black",
-                run_threshold(&run)
+        run_materials(&args, &run, &dataset, &data, config)?;
+    }
+    Ok(())
+}
+
+/// The configuration a command trains with: a resumed run's own (with `--set` on top; None
+/// when nothing is set: the driver reads it), a stage-2 continuation's own, or a new one from
+/// `--config` and `--set`.
+fn load_config(args: &Args, run: &RunDir) -> anyhow::Result<Option<TrainConfig>> {
+    Ok(if args.resume {
+        if args.config.is_some() {
+            anyhow::bail!(i2sdf_data::DataError::invalid(
+                "--config cannot change a resumed run (use --set)"
             ));
         }
+        if args.set.is_empty() {
+            None
+        } else {
+            Some(TrainConfig::load(Some(&run.config_path()), &args.set)?)
+        }
+    } else if args.stage == Stage::Material && args.config.is_none() {
+        // Stage 2 continues a run: its own configuration, with --set on top.
+        if !run.config_path().is_file() {
+            anyhow::bail!(i2sdf_data::DataError::file(
+                &run.root,
+                "holds no stage-1 run: train --stage geometry (or --stage all) first"
+            ));
+        }
+        Some(TrainConfig::load(Some(&run.config_path()), &args.set)?)
+    } else {
+        Some(TrainConfig::load(args.config.as_deref(), &args.set)?)
+    })
+}
+
+/// Stage 2 works in the images' linear units: what the images say of their exposure. A
+/// declared exposure they contradict is refused unless trusted: fitted at the wrong one, every
+/// material comes out off by the factor.
+fn check_exposure(dataset: &i2sdf_data::Dataset, data: &Path, trust: bool) -> anyhow::Result<()> {
+    let Some(e) = i2sdf_data::exposure::estimate_exposure(dataset) else {
+        return Ok(());
+    };
+    if let Some(declared) = dataset.ldr_exposure.filter(|_| !trust) {
+        if e.disagrees_with(declared) {
+            anyhow::bail!(i2sdf_data::DataError::field(
+                data.join("transforms.json"),
+                "ldr.exposure",
+                format!(
+                    "{declared} is declared, but the LDR and HDR images measure {:.4} ({} channels, spread {:.1} %): fix the key, or pass --trust-exposure to train with the declared value",
+                    e.exposure,
+                    e.samples,
+                    100.0 * e.spread
+                ),
+            ));
+        }
+    }
+    for w in e.warnings(dataset) {
+        crate::progress::line(&format!("warning: {w}"));
+    }
+    Ok(())
+}
+
+/// A stage's progress bar (hidden with `--quiet`).
+fn stage_bar(label: &str, quiet: bool) -> ProgressBar {
+    let bar = crate::progress::bar(0);
+    bar.set_style(
+        ProgressStyle::with_template(&format!(
+            "{{spinner}} {label} [{{bar:30}}] {{pos}}/{{len}} {{msg}} ({{elapsed}} < {{eta}})"
+        ))
+        .expect("valid template")
+        .progress_chars("=> "),
+    );
+    if quiet {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    bar
+}
+
+/// Stage 1. A finished stage 1 resumed (--stage all --resume continuing into stage 2, or a
+/// finished run resumed) is not trained again: the driver checks it and writes nothing.
+fn run_geometry(
+    args: &Args,
+    run: &RunDir,
+    dataset: &i2sdf_data::Dataset,
+    data: &Path,
+    config: Option<TrainConfig>,
+) -> anyhow::Result<()> {
+    let bar = stage_bar("stage 1", args.quiet);
+    let start = Instant::now();
+    let first = std::cell::Cell::new(None);
+    let mut show = progress_events(&bar, start, args.quiet, |s: &StepStats| {
+        format!(
+            "{:?} loss {:.4} psnr {:.2} depth {:.4} β {:.4}",
+            s.phase.unwrap(),
+            s.loss,
+            s.psnr,
+            s.depth,
+            s.beta
+        )
+    });
+    let stage = train_geometry(run, dataset, &data.display().to_string(), config, args.resume, |e| {
+        if let Event::Started { iteration, .. } = &e {
+            first.set(Some(*iteration));
+        }
+        show(e)
+    })?;
+    bar.finish();
+    if first.get() == Some(stage.iteration) {
         println!(
-            "stage 2 done: {} iterations in {:.1} s this session ({} emitters, {} surface and {} emitter pixels cached); run in {}",
-            stage.iteration(),
+            "stage 1 had finished: {} iterations; run in {}",
+            stage.iteration,
+            args.out.display()
+        );
+    } else {
+        println!(
+            "stage 1 done: {} iterations in {:.1} s this session; run in {}",
+            stage.iteration,
             start.elapsed().as_secs_f64(),
-            stage.fields.emitters.len(),
-            surface,
-            emitter,
             args.out.display()
         );
     }
+    Ok(())
+}
+
+/// Stage 2, continued from a checkpoint where the run has one and the command resumes.
+fn run_materials(
+    args: &Args,
+    run: &RunDir,
+    dataset: &i2sdf_data::Dataset,
+    data: &Path,
+    config: Option<TrainConfig>,
+) -> anyhow::Result<()> {
+    let start = Instant::now();
+    let stage2_resume = args.resume || args.stage == Stage::All;
+    let bar = stage_bar("stage 2", args.quiet);
+    let quiet = args.quiet;
+    let progress = |what: &str| {
+        if quiet {
+            eprintln!("stage 2: {what}");
+        }
+        bar.set_message(what.to_string());
+        bar.tick();
+    };
+    let stage = train_materials(
+        run,
+        dataset,
+        &data.display().to_string(),
+        config,
+        stage2_resume && run.stage2_checkpoint_path().is_file(),
+        &progress,
+        progress_events(&bar, start, quiet, |s: &Stage2Stats| {
+            let em: Vec<String> = s
+                .emission
+                .iter()
+                .map(|e| format!("{:.2}", (e[0] + e[1] + e[2]) / 3.0))
+                .collect();
+            format!(
+                "loss {:.4} render {:.4} emitter {:.4} L [{}]",
+                s.loss,
+                s.render,
+                s.emitter,
+                em.join(" ")
+            )
+        }),
+    )?;
+    bar.finish();
+    let Some(stage) = stage else {
+        println!("stage 2 had finished; run in {}", args.out.display());
+        return Ok(());
+    };
+    let (surface, emitter) = stage.counts();
+    if stage.fields.emitters.is_empty() {
+        crate::progress::line(&format!(
+            "warning: stage 2 found no emitters: no training pixel's emitter probability passed stage2.emitter_threshold = {} (F_e learns from the emitter masks said above: are there any?). The re-render has no direct light, relight ops have nothing to change, and relit renders in edit, eval and the report are black",
+            run_threshold(run)
+        ));
+    }
+    println!(
+        "stage 2 done: {} iterations in {:.1} s this session ({} emitters, {} surface and {} emitter pixels cached); run in {}",
+        stage.iteration(),
+        start.elapsed().as_secs_f64(),
+        stage.fields.emitters.len(),
+        surface,
+        emitter,
+        args.out.display()
+    );
     Ok(())
 }
 
