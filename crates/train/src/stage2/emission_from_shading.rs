@@ -211,14 +211,16 @@ pub fn estimate_emission(
             })
             .collect();
         let mut l: Vec<f32> = out.iter().map(|e| e[c]).collect();
+        // Each evaluation's implied ln-albedo, reused across the searches' many evaluations.
+        let mut ln_a = vec![0.0f32; pixels.len()];
         for _sweep in 0..3 {
             for k in (0..l.len()).filter(|&k| free[k]) {
                 let lo = emission[k][c].max(1e-4).ln();
                 let hi = lo + s.max_ratio.ln();
+                let mut trial = l.clone();
                 let cost = |t: f32| {
-                    let mut trial = l.clone();
                     trial[k] = t.exp();
-                    variation(&ln_b, sums, pairs, &trial, c, s.delta)
+                    variation(&ln_b, sums, pairs, &trial, c, s.delta, &mut ln_a)
                 };
                 l[k] = minimize(cost, lo, hi).exp();
             }
@@ -231,20 +233,21 @@ pub fn estimate_emission(
 }
 
 /// Σ over pairs of the Charbonnier penalty of the ln-albedo difference, divided by the pairs
-/// counted (pairs with an unusable pixel are skipped).
-fn variation(ln_b: &[f32], sums: &[DiffuseSums], pairs: &[(u32, u32)], l: &[f32], c: usize, delta: f32) -> f64 {
-    let ln_a: Vec<f32> = ln_b
-        .par_iter()
-        .zip(sums)
-        .map(|(b, d)| {
-            let e = d.field[c] + d.emit.iter().zip(l).map(|(w, l)| w * l).sum::<f32>();
-            if e > 0.0 {
-                b - e.ln()
-            } else {
-                f32::NAN
-            }
-        })
-        .collect();
+/// counted (pairs with an unusable pixel are skipped). `ln_a` (one per pixel) is scratch.
+fn variation(
+    ln_b: &[f32],
+    sums: &[DiffuseSums],
+    pairs: &[(u32, u32)],
+    l: &[f32],
+    c: usize,
+    delta: f32,
+    ln_a: &mut [f32],
+) -> f64 {
+    ln_a.par_iter_mut().zip(ln_b).zip(sums).for_each(|((a, b), d)| {
+        let e = d.field[c] + d.emit.iter().zip(l).map(|(w, l)| w * l).sum::<f32>();
+        *a = if e > 0.0 { b - e.ln() } else { f32::NAN };
+    });
+    let ln_a = &*ln_a;
     let (sum, n) = pairs
         .par_iter()
         .map(|&(i, j)| {
@@ -261,7 +264,7 @@ fn variation(ln_b: &[f32], sums: &[DiffuseSums], pairs: &[(u32, u32)], l: &[f32]
 
 /// The minimizer of `f` over [lo, hi]: the best of a scan of 49 points, refined by golden-section
 /// search in the interval around it.
-fn minimize(f: impl Fn(f32) -> f64, lo: f32, hi: f32) -> f32 {
+fn minimize(mut f: impl FnMut(f32) -> f64, lo: f32, hi: f32) -> f32 {
     const SCAN: usize = 48;
     let at = |i: usize| lo + (hi - lo) * i as f32 / SCAN as f32;
     let best = (0..=SCAN)
