@@ -287,55 +287,7 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
         return Err(DataError::field(&json_path, "frames", "the list is empty"));
     }
     let units = DepthUnits::of(&json_path, top)?;
-    let train_names = filename_set(top, "train_filenames", &json_path)?;
-    let test_names = filename_set(top, "test_filenames", &json_path)?;
-    let any_split_key = frames_json.iter().any(|f| f.get("split").is_some());
-
-    // Resolve each frame's split before loading anything, so a split error costs no I/O.
-    let mut entries = Vec::with_capacity(frames_json.len());
-    for (i, fj) in frames_json.iter().enumerate() {
-        let ctx = Ctx {
-            json: &json_path,
-            entry: format!("frames[{i}]"),
-        };
-        let obj = fj.as_object().ok_or_else(|| ctx.err("", "not a JSON object"))?;
-        let file = obj
-            .get("file_path")
-            .and_then(Value::as_str)
-            .map(normalize_name)
-            .ok_or_else(|| ctx.err("file_path", "missing or not a string"))?;
-        let split = if let Some(s) = obj.get("split") {
-            s.as_str()
-                .and_then(Split::parse)
-                .ok_or_else(|| ctx.err("split", format!("expected \"train\" or \"test\", found {s}")))?
-        } else if train_names.is_some() || test_names.is_some() {
-            let in_train = train_names.as_ref().is_some_and(|s| s.contains(&file));
-            let in_test = test_names.as_ref().is_some_and(|s| s.contains(&file));
-            match (in_train, in_test) {
-                (true, false) => Split::Train,
-                (false, true) => Split::Test,
-                (true, true) => {
-                    return Err(ctx.err(
-                        "file_path",
-                        format!("'{file}' is in both train_filenames and test_filenames"),
-                    ))
-                }
-                (false, false) => {
-                    return Err(ctx.err(
-                        "file_path",
-                        format!("'{file}' is in neither train_filenames nor test_filenames"),
-                    ))
-                }
-            }
-        } else if any_split_key {
-            return Err(ctx.err("split", "missing while other frames have one"));
-        } else if i % 8 == 0 {
-            Split::Test
-        } else {
-            Split::Train
-        };
-        entries.push((obj, split));
-    }
+    let entries = resolve_splits(&json_path, top, frames_json)?;
     let mut depth_dropped = DepthDropped::default();
     let mut frames = Vec::with_capacity(entries.len());
     for (frame, dropped) in par_load(&entries, |i, (obj, split)| {
@@ -350,60 +302,12 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
     }
     dataset::check_splits(&json_path, &frames)?;
 
-    let mesh_path = match top.get("mesh_path") {
-        None | Some(Value::Null) => None,
-        Some(Value::String(s)) => {
-            let p = root.join(s);
-            if !p.is_file() {
-                return Err(DataError::field(
-                    &json_path,
-                    "mesh_path",
-                    format!("{} not found", p.display()),
-                ));
-            }
-            Some(p)
-        }
-        Some(v) => return Err(DataError::field(&json_path, "mesh_path", format!("not a path: {v}"))),
-    };
+    let mesh_path = parse_mesh_path(root, &json_path, top)?;
     let mut relight = load_relight(root, &json_path, top, units, &mut depth_dropped)?;
     let objects = parse_objects(&json_path, top)?;
-    let ldr_transfer = top
-        .get("ldr")
-        .and_then(|l| l.get("transfer"))
-        .and_then(Value::as_str)
-        .unwrap_or("srgb")
-        .to_string();
-    if !matches!(ldr_transfer.as_str(), "srgb" | "linear") {
-        return Err(DataError::field(
-            &json_path,
-            "ldr.transfer",
-            format!("'{ldr_transfer}' is not \"srgb\" or \"linear\""),
-        ));
-    }
-    let ldr_exposure = match top.get("ldr").and_then(|l| l.get("exposure")) {
-        None | Some(Value::Null) => None,
-        Some(v) => match v.as_f64() {
-            Some(e) if e.is_finite() && e > 0.0 => Some(e),
-            _ => {
-                return Err(DataError::field(
-                    &json_path,
-                    "ldr.exposure",
-                    format!("expected a positive finite number, found {v}"),
-                ))
-            }
-        },
-    };
-    let poses_exact = match top.get("poses_exact") {
-        None | Some(Value::Null) => false,
-        Some(Value::Bool(b)) => *b,
-        Some(v) => {
-            return Err(DataError::field(
-                &json_path,
-                "poses_exact",
-                format!("expected true or false, found {v}"),
-            ))
-        }
-    };
+    let ldr_transfer = parse_ldr_transfer(&json_path, top)?;
+    let ldr_exposure = parse_ldr_exposure(&json_path, top)?;
+    let poses_exact = parse_poses_exact(&json_path, top)?;
     let emitters = parse_emitters(&json_path, top)?;
     let (bounds, bounds_source, normalization) = dataset::measure_bounds(&frames);
     let relight_frames = relight.iter_mut().flat_map(|r| r.frames.iter_mut());
@@ -429,6 +333,145 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
         depth_dropped,
         colmap_scale: None,
     })
+}
+
+/// Each frame entry with its split, resolved before anything is loaded so that a split error costs
+/// no I/O.
+fn resolve_splits<'a>(
+    json_path: &Path,
+    top: &Map<String, Value>,
+    frames_json: &'a [Value],
+) -> Result<Vec<(&'a Map<String, Value>, Split)>> {
+    let names = SplitLists {
+        train: filename_set(top, "train_filenames", json_path)?,
+        test: filename_set(top, "test_filenames", json_path)?,
+        any_split_key: frames_json.iter().any(|f| f.get("split").is_some()),
+    };
+    let mut entries = Vec::with_capacity(frames_json.len());
+    for (i, fj) in frames_json.iter().enumerate() {
+        let ctx = Ctx {
+            json: json_path,
+            entry: format!("frames[{i}]"),
+        };
+        let obj = fj.as_object().ok_or_else(|| ctx.err("", "not a JSON object"))?;
+        entries.push((obj, names.split_of(i, obj, &ctx)?));
+    }
+    Ok(entries)
+}
+
+/// What decides the frames' splits: nerfstudio's top-level `train_filenames` / `test_filenames`
+/// and whether any frame has its own `split`.
+struct SplitLists {
+    train: Option<HashSet<String>>,
+    test: Option<HashSet<String>>,
+    any_split_key: bool,
+}
+
+impl SplitLists {
+    /// The split of frame entry `i`: its own `split`, else the lists', else every 8th frame is a
+    /// test view (a dataset where some frames have a `split` must give it for all).
+    fn split_of(&self, i: usize, obj: &Map<String, Value>, ctx: &Ctx) -> Result<Split> {
+        let file = obj
+            .get("file_path")
+            .and_then(Value::as_str)
+            .map(normalize_name)
+            .ok_or_else(|| ctx.err("file_path", "missing or not a string"))?;
+        Ok(if let Some(s) = obj.get("split") {
+            s.as_str()
+                .and_then(Split::parse)
+                .ok_or_else(|| ctx.err("split", format!("expected \"train\" or \"test\", found {s}")))?
+        } else if self.train.is_some() || self.test.is_some() {
+            let in_train = self.train.as_ref().is_some_and(|s| s.contains(&file));
+            let in_test = self.test.as_ref().is_some_and(|s| s.contains(&file));
+            match (in_train, in_test) {
+                (true, false) => Split::Train,
+                (false, true) => Split::Test,
+                (true, true) => {
+                    return Err(ctx.err(
+                        "file_path",
+                        format!("'{file}' is in both train_filenames and test_filenames"),
+                    ))
+                }
+                (false, false) => {
+                    return Err(ctx.err(
+                        "file_path",
+                        format!("'{file}' is in neither train_filenames nor test_filenames"),
+                    ))
+                }
+            }
+        } else if self.any_split_key {
+            return Err(ctx.err("split", "missing while other frames have one"));
+        } else if i % 8 == 0 {
+            Split::Test
+        } else {
+            Split::Train
+        })
+    }
+}
+
+/// The optional top-level `mesh_path` (the ground-truth mesh), which must exist when given.
+fn parse_mesh_path(root: &Path, json_path: &Path, top: &Map<String, Value>) -> Result<Option<PathBuf>> {
+    match top.get("mesh_path") {
+        None | Some(Value::Null) => Ok(None),
+        Some(Value::String(s)) => {
+            let p = root.join(s);
+            if !p.is_file() {
+                return Err(DataError::field(
+                    json_path,
+                    "mesh_path",
+                    format!("{} not found", p.display()),
+                ));
+            }
+            Ok(Some(p))
+        }
+        Some(v) => Err(DataError::field(json_path, "mesh_path", format!("not a path: {v}"))),
+    }
+}
+
+/// `ldr.transfer`: how the LDR images encode radiance, "srgb" (the default) or "linear".
+fn parse_ldr_transfer(json_path: &Path, top: &Map<String, Value>) -> Result<String> {
+    let ldr_transfer = top
+        .get("ldr")
+        .and_then(|l| l.get("transfer"))
+        .and_then(Value::as_str)
+        .unwrap_or("srgb")
+        .to_string();
+    if !matches!(ldr_transfer.as_str(), "srgb" | "linear") {
+        return Err(DataError::field(
+            json_path,
+            "ldr.transfer",
+            format!("'{ldr_transfer}' is not \"srgb\" or \"linear\""),
+        ));
+    }
+    Ok(ldr_transfer)
+}
+
+/// `ldr.exposure`: the optional positive factor relating the LDR images to the HDR ones.
+fn parse_ldr_exposure(json_path: &Path, top: &Map<String, Value>) -> Result<Option<f64>> {
+    match top.get("ldr").and_then(|l| l.get("exposure")) {
+        None | Some(Value::Null) => Ok(None),
+        Some(v) => match v.as_f64() {
+            Some(e) if e.is_finite() && e > 0.0 => Ok(Some(e)),
+            _ => Err(DataError::field(
+                json_path,
+                "ldr.exposure",
+                format!("expected a positive finite number, found {v}"),
+            )),
+        },
+    }
+}
+
+/// The optional top-level `poses_exact` (default false: training corrects the poses).
+fn parse_poses_exact(json_path: &Path, top: &Map<String, Value>) -> Result<bool> {
+    match top.get("poses_exact") {
+        None | Some(Value::Null) => Ok(false),
+        Some(Value::Bool(b)) => Ok(*b),
+        Some(v) => Err(DataError::field(
+            json_path,
+            "poses_exact",
+            format!("expected true or false, found {v}"),
+        )),
+    }
 }
 
 fn load_relight(
@@ -484,8 +527,6 @@ fn load_relight(
     Ok(sets)
 }
 
-/// The optional top-level `objects: [{"id": 7, "name": "lamp_pole", "tags": ["thin"]}, …]`; ids
-/// are distinct integers, `tags` may be left out.
 /// The top-level `emitters` list (`[{name, emission, bounds_min, bounds_max}]`), as `i2sdf synth`
 /// writes it; absent means none.
 fn parse_emitters(json_path: &Path, top: &Map<String, Value>) -> Result<Vec<GtEmitter>> {
@@ -534,6 +575,8 @@ fn parse_emitters(json_path: &Path, top: &Map<String, Value>) -> Result<Vec<GtEm
         .collect()
 }
 
+/// The optional top-level `objects: [{"id": 7, "name": "lamp_pole", "tags": ["thin"]}, …]`; ids
+/// are distinct integers, `tags` may be left out.
 fn parse_objects(json_path: &Path, top: &Map<String, Value>) -> Result<Vec<ObjectInfo>> {
     let list = match top.get("objects") {
         None | Some(Value::Null) => return Ok(Vec::new()),
