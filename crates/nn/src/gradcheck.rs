@@ -1,4 +1,5 @@
-//! Finite-difference utilities for the gradient tests (compiled in tests only).
+//! Finite-difference utilities for the gradient tests (compiled in tests, and for other crates'
+//! tests behind the `test-support` feature).
 
 /// A tiny deterministic generator for test data (no dependence on `rand`'s stream stability).
 pub struct Lcg(pub u64);

@@ -87,8 +87,8 @@ pub mod sdf;
 pub mod sdf_infer;
 pub mod smallgemm;
 
-#[cfg(test)]
-pub(crate) mod gradcheck;
+#[cfg(any(test, feature = "test-support"))]
+pub mod gradcheck;
 
 pub use activation::Activation;
 pub use adam::{Adam, AdamConfig, GroupId, LrSchedule};

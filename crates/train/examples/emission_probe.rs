@@ -4,8 +4,8 @@
 //! cargo run --release -p i2sdf-train --example emission_probe -- FILE`.
 
 use glam::Vec3;
-use i2sdf_train::shading::DiffuseSums;
 use i2sdf_train::stage2::emission_from_shading::{estimate_emission, neighbour_pairs, ShadedPixel, ShadingEstimate};
+use i2sdf_train::stage2::shading::DiffuseSums;
 
 fn env<T: std::str::FromStr>(key: &str, default: T) -> T {
     std::env::var(key).ok().and_then(|v| v.parse().ok()).unwrap_or(default)

@@ -14,8 +14,9 @@ use i2sdf_model::material_field::{brdf_of_channels, MaterialBackbone, MATERIAL_C
 use i2sdf_model::{NeuralScene, RunDir};
 use i2sdf_render::Ray;
 use i2sdf_train::config::TrainConfig;
-use i2sdf_train::driver::{read_run_config, TrainStage, Trainer};
+use i2sdf_train::driver::{TrainStage, Trainer};
 use i2sdf_train::maps::TrainingMaps;
+use i2sdf_train::run::read_run_config;
 use i2sdf_train::stage2::{radiometry, target_views, Stage2};
 use std::time::Instant;
 
@@ -165,7 +166,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         // GLOSSY_LIVE=N: the GT materials of (up to 4000) glossy pixels shaded from N samples
         // of their own GGX mixture (the live proposal): is the cache's floor noise or bias?
         if let Some(nl) = std::env::var("GLOSSY_LIVE").ok().and_then(|v| v.parse::<usize>().ok()) {
-            use i2sdf_train::shading::{shade, shade_pooled as pooled, trace_incident};
+            use i2sdf_train::stage2::shading::{shade, shade_pooled as pooled, trace_incident};
             use rand::SeedableRng;
             let sel: Vec<_> = glossy_px.iter().step_by((glossy_px.len() / 4000).max(1)).collect();
             let frozen = stage.frozen();

@@ -3,7 +3,7 @@
 //! are tuned for the default synthetic room on 2 cores. Unknown keys are errors (a typo in an
 //! ablation must not silently run the default).
 
-use crate::schedule::{LossWeights, Schedule};
+use crate::stage1::schedule::{LossWeights, Schedule};
 use i2sdf_data::DataError;
 pub use i2sdf_model::material_field::{MaterialBackbone, MaterialConfig};
 pub use i2sdf_model::{Backbone, ModelConfig};

@@ -7,7 +7,7 @@
 //!   where no normal loss lost 0.08 F-score) or none; they supervise stage 1's normal loss;
 //! - depth: without it stage 1 has no depth loss and no error-guided sampling, and takes its
 //!   smoothness and bubble points from the rendered surface (`crate::stage1`);
-//! - HDR: stage 2 fits the LDR images instead (`crate::targets`).
+//! - HDR: stage 2 fits the LDR images instead (`crate::stage2::targets`).
 //!
 //! Masks found from the images are written into the run (`RUN/emitter_masks/NAME.png`, for the
 //! user to look at) and read back by every later session of it (a resume, stage 2), so the whole

@@ -4,7 +4,7 @@
 //! allocate:
 //! - both stages hold the whole dataset (every map of every frame, f32);
 //! - stage 1 ([`crate::stage1`]): per training pixel its ray, colour, depth, normal and emitter
-//!   mask ([`crate::rays::TrainImage`], 48 bytes) and the PDF maps (value, validity, ~6 bytes);
+//!   mask ([`crate::stage1::rays::TrainImage`], 48 bytes) and the PDF maps (value, validity, ~6 bytes);
 //!   the fields' parameters four times (values, gradients, Adam's two moments); per point of a
 //!   batch (ray samples + eikonal + bubble + smoothness points) the SDF's saved activations
 //!   (encoding, its Jacobian and the double-backward buffers) and per ray sample F_c's and F_e's;
@@ -300,7 +300,7 @@ fn stage2(shape: &DatasetShape, config: &TrainConfig) -> StageMemory {
     let m = c2.cache_samples as f64;
     if c2.specular_bake {
         // Each pixel's specular sums at the bake's levels (emitters as for the pooled sums).
-        let per = crate::surface_cache::SpecularBake::bytes_per_pixel(c2.max_emitters.min(8)) as f64;
+        let per = crate::stage2::surface_cache::SpecularBake::bytes_per_pixel(c2.max_emitters.min(8)) as f64;
         s.add("specular bake", pixels * per);
     } else {
         s.add("incident-radiance cache", pixels * m * 32.0);

@@ -1,7 +1,7 @@
 //! The fixed-radius neighbour search of training: a uniform grid whose cell side is the search
 //! radius, so a point's neighbours lie in the 27 cells around its own (linear in the points).
-//! Used by the emitter clustering's connected pieces ([`crate::kmeans::components`]) and by the
-//! pooling of diffuse sums over a surface ([`crate::shading::pool_diffuse`]). Each caller computes
+//! Used by the emitter clustering's connected pieces ([`crate::stage2::kmeans::components`]) and by the
+//! pooling of diffuse sums over a surface ([`crate::stage2::shading::pool_diffuse`]). Each caller computes
 //! the cells in its own precision and tests the distances itself; the grid only says which points
 //! to test, in a fixed order (so sums over the neighbours come out the same on every run).
 

@@ -6,8 +6,10 @@ mod common;
 
 use i2sdf_model::run_dir::RunDir;
 use i2sdf_train::config::TrainConfig;
-use i2sdf_train::driver::{render_settings, train_geometry, Trainer};
+use i2sdf_train::driver::Trainer;
 use i2sdf_train::maps::TrainingMaps;
+use i2sdf_train::run::train_geometry;
+use i2sdf_train::stage1::render_settings;
 use i2sdf_train::stage1::Stage1;
 
 fn tiny_config(iterations: u64) -> TrainConfig {

@@ -10,7 +10,7 @@ use i2sdf_synth::{generate, RoomPreset, SynthOptions};
 use i2sdf_train::config::TrainConfig;
 use i2sdf_train::driver::Trainer;
 use i2sdf_train::maps::TrainingMaps;
-use i2sdf_train::schedule::Phase;
+use i2sdf_train::stage1::schedule::Phase;
 use i2sdf_train::stage1::Stage1;
 
 /// Intersection over union of the found masks with the dataset's, over the training views.
@@ -140,7 +140,8 @@ fn without_depth_bubble_and_smoothness_points_lie_on_the_rendered_surface() {
 #[test]
 fn a_run_writes_its_found_masks_and_stage_2_reads_them_back() {
     use i2sdf_model::run_dir::RunDir;
-    use i2sdf_train::driver::{train_geometry, train_materials, Event};
+    use i2sdf_train::driver::Event;
+    use i2sdf_train::run::{train_geometry, train_materials};
     let (_dir, mut ds) = common::dataset();
     for f in ds.frames.iter_mut() {
         f.emitter_mask = None;

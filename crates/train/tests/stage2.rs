@@ -12,7 +12,7 @@ use i2sdf_render::{
 };
 use i2sdf_train::config::TrainConfig;
 use i2sdf_train::driver::{TrainStage, Trainer};
-use i2sdf_train::shading::{shade, trace_incident, ShadingPoint};
+use i2sdf_train::stage2::shading::{shade, trace_incident, ShadingPoint};
 use i2sdf_train::stage2::{cache_mixture, live_mixture, PixelKind, Stage2, TargetView};
 use rand::SeedableRng;
 use rand_pcg::Pcg32;

@@ -115,7 +115,7 @@ pub fn view_index(s: &str) -> Result<usize, String> {
 /// ([`i2sdf_model::OpenedRun`]: its scene, stage-2 fields, run info and the configuration
 /// inference reads); what it notes on opening is said on stderr.
 pub fn open_run(run: &std::path::Path) -> Result<i2sdf_model::OpenedRun, i2sdf_data::DataError> {
-    let opened = i2sdf_train::driver::open_trained(run)?;
+    let opened = i2sdf_train::run::open_trained(run)?;
     for note in &opened.notes {
         crate::progress::line(note);
     }

@@ -1,10 +1,12 @@
 //! `i2sdf train`: stage 1 (geometry, radiance, emitter fields), stage 2 (materials, emitters) or
-//! both, with a progress bar; the loops, checkpoints and logs live in `i2sdf_train::driver`.
+//! both, with a progress bar; the runs are opened in `i2sdf_train::run`, the loops, checkpoints and logs live in
+//! `i2sdf_train::driver`.
 
 use clap::{Args as ClapArgs, ValueEnum};
 use i2sdf_model::RunDir;
 use i2sdf_train::config::TrainConfig;
-use i2sdf_train::driver::{train_geometry, train_materials, Event, TrainStage};
+use i2sdf_train::driver::{Event, TrainStage};
+use i2sdf_train::run::{train_geometry, train_materials};
 use i2sdf_train::stage1::StepStats;
 use i2sdf_train::stage2::Stage2Stats;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -347,7 +349,7 @@ fn check_memory(
     let config = match config {
         Some(c) => c,
         None => {
-            own = i2sdf_train::driver::read_run_config(run)?;
+            own = i2sdf_train::run::read_run_config(run)?;
             &own
         }
     };
@@ -367,7 +369,7 @@ fn check_memory(
 
 /// The run's `stage2.emitter_threshold`, for the message; `?` when unreadable.
 fn run_threshold(run: &RunDir) -> String {
-    i2sdf_train::driver::read_run_config(run)
+    i2sdf_train::run::read_run_config(run)
         .map(|c| c.stage2.emitter_threshold.to_string())
         .unwrap_or_else(|_| "?".into())
 }

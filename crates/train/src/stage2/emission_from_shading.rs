@@ -18,7 +18,7 @@
 //! time, coordinate descent over the emitters, each a coarse scan of ln L then a golden-section
 //! refinement.
 
-use crate::shading::DiffuseSums;
+use crate::stage2::shading::DiffuseSums;
 use crate::stage2::{CachedPixel, PixelKind};
 use glam::Vec3;
 use i2sdf_model::emitters::EmitterTable;
@@ -374,7 +374,7 @@ mod tests {
 
     #[test]
     fn an_emitter_is_clipped_when_most_of_its_pixels_are() {
-        use crate::shading::ShadingPoint;
+        use crate::stage2::shading::ShadingPoint;
         let px = |kind, saturated| CachedPixel {
             point: ShadingPoint {
                 position: Vec3::ZERO,

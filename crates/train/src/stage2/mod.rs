@@ -21,25 +21,25 @@
 //! prediction from below only. Pixels that see an emitter are not shaded: their prediction is
 //! L\[k\] itself.
 
-use crate::config::{Stage2Estimator, TrainConfig};
+use crate::config::TrainConfig;
 use crate::driver::{StepOutcome, TrainStage};
 pub mod emission_from_shading;
+pub mod kmeans;
+pub mod losses;
 mod mixture;
 mod setup;
+pub mod shading;
+mod step;
+pub mod surface_cache;
+pub mod targets;
 
-use crate::losses::{material_regularizers, rerender_channel, MaterialPriors};
-use crate::shading::{pool_diffuse, shade, shade_backward, trace_incident, IncidentSample, ShadingPoint};
-use crate::surface_cache::ShadingCache;
-pub use crate::targets::{radiometry, target_views, TargetView, SATURATED};
 use emission_from_shading::{estimate_clipped_emission, saturated_emitters};
 use glam::Vec3;
 use i2sdf_data::DataError;
 use i2sdf_model::emitters::EmitterTable;
 use i2sdf_model::intrinsic::{BakedSurface, FrozenScene, Radiometry};
 use i2sdf_model::intrinsic_io::IntrinsicFields;
-use i2sdf_model::material_field::{
-    brdf_of_channels, MaterialBackbone, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
-};
+use i2sdf_model::material_field::{MaterialBackbone, MaterialField, MaterialGrad, MaterialWorkspace};
 use i2sdf_model::observed::ObservedViews;
 use i2sdf_model::{BakeRecord, NeuralScene};
 use i2sdf_nn::params::ModuleSlot;
@@ -48,10 +48,12 @@ use i2sdf_render::GgxBrdf;
 pub use mixture::{cache_mixture, live_mixture};
 use rand::{Rng, SeedableRng};
 use rand_pcg::{Pcg32, Pcg64};
-use rayon::prelude::*;
 use serde::Serialize;
+use shading::{pool_diffuse, trace_incident, IncidentSample, ShadingPoint};
 use std::path::Path;
 use std::sync::Arc;
+use surface_cache::ShadingCache;
+pub use targets::{radiometry, target_views, TargetView, SATURATED};
 
 /// What a cached pixel sees.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -431,212 +433,7 @@ impl TrainStage for Stage2 {
     }
 
     fn step(&mut self, rng: &mut Pcg64) -> Result<StepOutcome<Stage2Stats>, DataError> {
-        let c2 = self.config.stage2.clone();
-        let it = self.iteration;
-        self.iteration += 1;
-        let b = c2.pixels.min(self.pixels.len().max(1));
-        if self.pixels.is_empty() {
-            return Err(DataError::failed("stage 2: no training pixel hits the frozen surface"));
-        }
-        // Re-trace some pixels' samples (FIPT's "now and then", every iteration for a few): over
-        // the run each pixel sees several independent sample sets, so the fit averages the
-        // estimator's noise away instead of baking one draw into the materials.
-        let refresh = refresh_selection(self.config.train.seed, it, self.surface.len(), c2.refresh_pixels);
-        if !refresh.is_empty() {
-            let frozen = self.frozen();
-            let pts: Vec<ShadingPoint> = refresh
-                .iter()
-                .map(|&j| self.pixels[self.surface[j as usize] as usize].point)
-                .collect();
-            let seed = self.config.train.seed;
-            let mut rngs: Vec<Pcg32> = refresh
-                .iter()
-                .map(|&j| pixel_rng(seed, self.surface[j as usize] as u64, it + 2))
-                .collect();
-            let mixture = cache_mixture(&self.fields.emitters, c2.emitter_sampling);
-            let m = c2.cache_samples;
-            let fresh = trace_incident(
-                &frozen,
-                &pts,
-                m,
-                self.scene.normalization.scale as f32,
-                &|_| mixture,
-                &mut rngs,
-            );
-            for (k, &j) in refresh.iter().enumerate() {
-                let first = j as usize * m;
-                self.cache.samples[first..first + m].copy_from_slice(&fresh[k * m..(k + 1) * m]);
-            }
-        }
-        let batch: Vec<usize> = (0..b).map(|_| rng.gen_range(0..self.pixels.len())).collect();
-        // Points x and x + ε (the smoothness term of eq:material), in one forward.
-        let eps = c2.smooth_epsilon * self.scene.normalization.scale as f32;
-        let mut world: Vec<Vec3> = batch.iter().map(|&i| self.pixels[i].point.position).collect();
-        for j in 0..b {
-            let d = Vec3::new(rng.gen::<f32>() - 0.5, rng.gen::<f32>() - 0.5, rng.gen::<f32>() - 0.5);
-            world.push(world[j] + d.normalize_or_zero() * eps);
-        }
-        let mut out = vec![0.0f32; 2 * b * MATERIAL_CHANNELS];
-        self.material_forward(&world, &mut out);
-        let brdfs: Vec<GgxBrdf> = out[..b * MATERIAL_CHANNELS]
-            .chunks_exact(MATERIAL_CHANNELS)
-            .map(brdf_of_channels)
-            .collect();
-        let live = match c2.estimator {
-            Stage2Estimator::Live => Some(self.live_samples(&batch, &brdfs, rng)),
-            Stage2Estimator::Cached => None,
-        };
-        let emission = self.emissions();
-        let k = emission.len();
-        let m_live = c2.samples;
-        let n_surface = batch
-            .iter()
-            .filter(|&&i| matches!(self.pixels[i].kind, PixelKind::Surface { .. }))
-            .count()
-            .max(1) as f32;
-        let n_emitter = (b as f32 - n_surface).max(1.0);
-        let mut d_out = vec![0.0f32; 2 * b * MATERIAL_CHANNELS];
-        let scale = self.target_scale;
-        // Re-render and emitter terms, pixel-parallel; per-chunk emission gradients reduced after.
-        let pixels = &self.pixels;
-        let cache = &self.cache;
-        let held = &self.held_emission;
-        let parts: Vec<(f32, f32, Vec<Vec3>)> = d_out[..b * MATERIAL_CHANNELS]
-            .par_chunks_mut(MATERIAL_CHANNELS * 256)
-            .enumerate()
-            .map(|(chunk, d)| {
-                let (mut render, mut emit) = (0.0f32, 0.0f32);
-                let mut d_em = vec![Vec3::ZERO; k];
-                for (jj, dj) in d.chunks_exact_mut(MATERIAL_CHANNELS).enumerate() {
-                    let j = chunk * 256 + jj;
-                    let px = &pixels[batch[j]];
-                    match px.kind {
-                        PixelKind::Surface { index } => {
-                            let n_dot_v = px.point.normal.dot(px.point.view);
-                            let live = live.as_ref().map(|l| &l[j * m_live..(j + 1) * m_live]);
-                            let pred = match live {
-                                Some(l) => shade(&brdfs[j], n_dot_v, l, &emission),
-                                None => cache.shade(index as usize, &brdfs[j], n_dot_v, &emission),
-                            };
-                            let mut g = Vec3::ZERO;
-                            for c in 0..3 {
-                                let (l, s) =
-                                    rerender_channel(c2.loss, pred[c], px.target[c], px.saturated >> c & 1 == 1, scale);
-                                render += l;
-                                g[c] = s / (3.0 * n_surface);
-                            }
-                            let (_, gr) = match live {
-                                Some(l) => shade_backward(&brdfs[j], n_dot_v, l, &emission, g, &mut d_em),
-                                None => {
-                                    cache.shade_backward(index as usize, &brdfs[j], n_dot_v, &emission, g, &mut d_em)
-                                }
-                            };
-                            dj[..3].copy_from_slice(&gr.kd.to_array());
-                            dj[3..6].copy_from_slice(&gr.ks.to_array());
-                            dj[6] = gr.rho;
-                        }
-                        // A held L[k] is not the images' (they saw it clipped): its pixels say nothing.
-                        PixelKind::Emitter(e) if held[e as usize] => {}
-                        PixelKind::Emitter(e) => {
-                            let pred = emission[e as usize];
-                            for c in 0..3 {
-                                let (l, s) =
-                                    rerender_channel(c2.loss, pred[c], px.target[c], px.saturated >> c & 1 == 1, scale);
-                                emit += l;
-                                d_em[e as usize][c] += s / (3.0 * n_emitter);
-                            }
-                        }
-                    }
-                }
-                (render, emit, d_em)
-            })
-            .collect();
-        let (mut render, mut emit) = (0.0, 0.0);
-        self.d_emission.iter_mut().for_each(|d| *d = Vec3::ZERO);
-        for (r, e, d) in parts {
-            render += r;
-            emit += e;
-            for (a, b) in self.d_emission.iter_mut().zip(d) {
-                *a += b;
-            }
-        }
-        render /= 3.0 * n_surface;
-        emit /= 3.0 * n_emitter;
-        // eq:material (smoothness and energy) and the roughness prior.
-        let priors = MaterialPriors {
-            smooth: c2.smooth,
-            energy: c2.energy,
-            rho_prior: if it as f32 >= c2.rho_prior_from * c2.iterations as f32 {
-                c2.rho_prior
-            } else {
-                0.0
-            },
-            rho_target: c2.rho_prior_target,
-        };
-        let [smooth, energy, rho_prior] = material_regularizers(&out, b, &priors, &mut d_out);
-        let loss = render + emit + c2.smooth * smooth + c2.energy * energy + priors.rho_prior * rho_prior;
-        let stats = |s: &Self| Stage2Stats {
-            iteration: it,
-            render,
-            emitter: emit,
-            smooth,
-            energy,
-            rho_prior,
-            loss,
-            emission: s.emissions().iter().map(|e| e.to_array()).collect(),
-        };
-        let finite =
-            loss.is_finite() && d_out.iter().all(|v| v.is_finite()) && self.d_emission.iter().all(|v| v.is_finite());
-        if !finite {
-            return Ok(StepOutcome {
-                stats: stats(self),
-                finite: false,
-            });
-        }
-        self.fields.material.backward(&mut self.ws, &d_out, &mut self.grad);
-        // L = exp(raw): dL/draw = dL/dL · L.
-        let mut d_raw: Vec<f32> = self
-            .d_emission
-            .iter()
-            .zip(&emission)
-            .flat_map(|(d, l)| (*d * *l).to_array())
-            .collect();
-        let ok = self.grad.mlp.iter().all(|v| v.is_finite())
-            && self
-                .grad
-                .grid
-                .as_ref()
-                .is_none_or(|g| g.values.iter().all(|v| v.is_finite()));
-        if !ok {
-            // Leave every parameter and moment as it was; drop the gradients.
-            self.grad = self.fields.material.new_grad();
-            return Ok(StepOutcome {
-                stats: stats(self),
-                finite: false,
-            });
-        }
-        self.adam.begin_step();
-        let ids = |name: &str| self.adam.group_id(name);
-        let (g_grid, g_mlp, g_em) = (ids(GROUP_GRID), ids(GROUP_MLP), ids(GROUP_EMISSION));
-        if let (Some(id), Some(grid), Some(gg)) = (g_grid, self.fields.material.grid.as_mut(), self.grad.grid.as_mut())
-        {
-            let row = grid.config.features_per_level;
-            self.adam.update_sparse(id, &mut grid.params, gg, row);
-        }
-        if let Some(id) = g_mlp {
-            self.adam
-                .update(id, &mut self.fields.material.mlp.params, &mut self.grad.mlp);
-        }
-        if let Some(id) = g_em {
-            for (d, _) in d_raw.chunks_exact_mut(3).zip(&self.held_emission).filter(|(_, h)| **h) {
-                d.fill(0.0);
-            }
-            self.adam.update(id, &mut self.fields.emitters.log_emission, &mut d_raw);
-        }
-        Ok(StepOutcome {
-            stats: stats(self),
-            finite: true,
-        })
+        self.step_with(rng)
     }
 
     fn is_finite(&self) -> bool {

@@ -4,10 +4,10 @@
 
 use super::{normalized, pixel_rng, refresh_selection, CachedPixel, PixelKind};
 use crate::config::Stage2Config;
-use crate::kmeans::{cluster_emitters, ClusterSettings};
-use crate::shading::{trace_incident, DiffuseSums, ShadingPoint};
-use crate::surface_cache::{ShadingCache, SpecularBake};
-use crate::targets::TargetView;
+use crate::stage2::kmeans::{cluster_emitters, ClusterSettings};
+use crate::stage2::shading::{trace_incident, DiffuseSums, ShadingPoint};
+use crate::stage2::surface_cache::{ShadingCache, SpecularBake};
+use crate::stage2::targets::TargetView;
 use glam::{DVec3, Vec3};
 use i2sdf_data::DataError;
 use i2sdf_model::emitters::{Emitter, EmitterTable};

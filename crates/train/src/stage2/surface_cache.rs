@@ -17,7 +17,7 @@
 //! levels; at a level the baked estimate *is* the samples' estimate (test
 //! `baked_estimate_equals_the_samples_at_every_level`).
 
-use crate::shading::{shade, shade_backward, shade_pooled, shade_pooled_backward, DiffuseSums, IncidentSample};
+use crate::stage2::shading::{shade, shade_backward, shade_pooled, shade_pooled_backward, DiffuseSums, IncidentSample};
 use glam::Vec3;
 use i2sdf_render::brdf::{fresnel_f90, ggx_d, smith_g2_visibility, ALPHA_MIN};
 use i2sdf_render::{luminance, GgxBrdf, GgxGrad};
@@ -347,7 +347,9 @@ mod tests {
             let (value, grad) = cache.shade_backward(0, &brdf, nv, &emission, g, &mut d_em);
             assert!((value - cache.shade(0, &brdf, nv, &emission)).abs().max_element() < 1e-5);
             let loss = |b: &GgxBrdf, e: &[Vec3]| g.dot(cache.shade(0, b, nv, e)) as f64;
-            crate::shading::check_gradient_by_differences(trial, &brdf, &emission, &grad, &d_em, 2e-3f32, &loss);
+            crate::stage2::shading::check_gradient_by_differences(
+                trial, &brdf, &emission, &grad, &d_em, 2e-3f32, &loss,
+            );
         }
     }
 }

@@ -1,7 +1,7 @@
 //! Stage 1 (paper Sec. 5 "Training of geometry and radiance fields"; supp. B–C): F_d, F_c and F_e
 //! trained end to end by volume rendering with L_1 = L_rgb + λ_geo L_geo + λ_emi L_emi (eq:train1),
 //! L_geo = λ1 eikonal + λ2 depth + λ3 normal + λ4 smooth + λ5 bubble (eq:traing), over the three steps
-//! of [`crate::schedule`], with error-guided adaptive sampling of the bubble points.
+//! of [`schedule`], with error-guided adaptive sampling of the bubble points.
 //!
 //! An iteration: draw rays uniformly over the training pixels; draw the extra points of the point
 //! losses (uniform eikonal points, bubble points from the PDF maps, smoothness pairs near the
@@ -12,38 +12,41 @@
 //! inert. Stage 1 is a [`TrainStage`]: the shared driver seeds each iteration's RNG, skips
 //! non-finite steps and writes the checkpoints.
 
+pub mod losses;
+pub mod pdf_map;
+pub mod pose_correction;
+pub mod rays;
+pub mod schedule;
+mod step;
+
 use crate::config::TrainConfig;
-use crate::driver::{render_settings, StepOutcome, TrainStage};
-use crate::losses;
+use crate::driver::{StepOutcome, TrainStage};
 use crate::maps::TrainingMaps;
-use crate::pdf_map::{PdfMaps, PixelRef};
-use crate::pose_correction::{AlignPoint, PoseCorrection};
-use crate::rays::{train_images, RayBatch, TrainImage};
 use crate::resume::{DatasetFingerprint, DATASET_META};
-use crate::schedule::Phase;
 use i2sdf_data::{DataError, Dataset};
 use i2sdf_model::poses::{CorrectedView, PoseCorrections};
-use i2sdf_model::renderer::{self, RayGrads, RenderSettings, RenderWorkspace};
+use i2sdf_model::renderer::{self, RenderSettings, RenderWorkspace};
 use i2sdf_model::scene::{GradMut, GroupSpec, LrClass, Update, OPTIMIZER_PREFIX};
 use i2sdf_model::{NeuralScene, SceneGrads};
 use i2sdf_nn::params::ModuleSlot;
 use i2sdf_nn::{Adam, AdamConfig, LrSchedule, Parameters};
+use pdf_map::{PdfMaps, PixelRef};
+use pose_correction::{AlignPoint, PoseCorrection};
 use rand::Rng;
 use rand_pcg::Pcg64;
+use rays::{train_images, RayBatch, TrainImage};
+use schedule::Phase;
 use serde::Serialize;
 use std::path::Path;
 
-/// Half-width of the random perturbation ε of the smoothness loss (eq:smooth), normalized units.
-const SMOOTH_EPS: f32 = 0.01;
-
-/// How far behind a bubble point, along its ray, the inside point of `loss.inside` lies
-/// (normalized units: 2.9 mm at the default room's scale of 3.65 m). Anything thicker than this
-/// along the ray has the point inside; a thinner sheet is rarer indoors than a thin pole.
-const INSIDE_DEPTH: f32 = 8e-4;
-
-/// Without depth, a ray of the batch gives a surface point (for the bubble and smoothness terms)
-/// where its rendered opacity reaches this: it hits something.
-const SURFACE_OPACITY: f32 = 0.5;
+/// The volume renderer's settings of a run: its `[sampling]` section, as stage 1 trained with it
+/// (the one mapping that training, `render` and `eval` use).
+pub fn render_settings(config: &TrainConfig) -> RenderSettings {
+    let s = &config.sampling;
+    let mut r = RenderSettings::with_sampling(s.samples, s.coarse, s.epsilon);
+    r.sampler.num_samples_upsample = s.upsample.unwrap_or(s.coarse);
+    r
+}
 
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct StepStats {
@@ -387,264 +390,6 @@ impl Stage1 {
             }
         }
         self.pdf = Some(pdf);
-    }
-
-    /// One iteration with the iteration's RNG. A non-finite loss skips the update.
-    fn step_with(&mut self, rng: &mut Pcg64) -> StepOutcome<StepStats> {
-        let total = self.config.train.iterations;
-        let phase = self.config.schedule.phase(self.iteration, total);
-        let w = self.config.schedule.weights(phase, &self.config.loss);
-        if w.bubble > 0.0 && self.pdf.is_none() && !self.no_depth {
-            self.init_pdf();
-        }
-        if w.bubble == 0.0 && phase == Phase::Smooth {
-            self.pdf = None;
-        }
-        let t = &self.config.train;
-        self.batch.sample_uniform(&self.images, t.rays, rng);
-        let t0 = std::time::Instant::now();
-        // Without depth the surface each ray renders stands in for its depth's: the samples are
-        // placed first and each ray's surface read off them (where its termination density peaks;
-        // detached).
-        let rendered = (self.no_depth && (w.bubble > 0.0 || w.smooth > 0.0)).then(|| {
-            renderer::sample(
-                &self.scene,
-                &self.settings,
-                &self.batch.origin,
-                &self.batch.dir,
-                &mut self.ws,
-                Some(&mut *rng),
-            );
-            renderer::rendered_surface_distances(
-                &self.scene,
-                &self.batch.origin,
-                &self.batch.dir,
-                &self.ws,
-                SURFACE_OPACITY,
-            )
-        });
-        // The surface point of ray r of the batch: by its pixel's depth, or rendered.
-        let ray_surface = |r: usize| -> Option<[f32; 3]> {
-            match &rendered {
-                Some(distances) => distances[r].map(|t| {
-                    let (o, d) = (self.batch.origin[r], self.batch.dir[r]);
-                    [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]
-                }),
-                None => self.images[self.batch.image[r] as usize].surface_point(self.batch.pixel[r] as usize),
-            }
-        };
-
-        // Extra points: [eikonal | bubble | inside | smooth x | smooth x + ε].
-        self.extra.clear();
-        let n_eik = t.eikonal_points;
-        for _ in 0..n_eik {
-            let p: [f32; 3] = [
-                rng.gen_range(-1.0..1.0),
-                rng.gen_range(-1.0..1.0),
-                rng.gen_range(-1.0..1.0),
-            ];
-            self.extra.extend_from_slice(&p);
-        }
-        let mut n_bub = 0;
-        if w.bubble > 0.0 && rendered.is_some() {
-            // The rendered surfaces pin the SDF's zero there; no inside points: nothing says
-            // where the ray entered a surface.
-            for x in (0..self.batch.len()).filter_map(ray_surface).take(t.bubble_points) {
-                self.extra.extend_from_slice(&x);
-                n_bub += 1;
-            }
-        } else if w.bubble > 0.0 {
-            let mut picks = Vec::new();
-            if let Some(pdf) = &self.pdf {
-                pdf.sample(t.bubble_points, rng, &mut picks);
-            }
-            for p in &picks {
-                if let Some(x) = self.images[p.image as usize].surface_point(p.pixel as usize) {
-                    self.extra.extend_from_slice(&x);
-                    n_bub += 1;
-                }
-            }
-            if w.inside > 0.0 {
-                for p in &picks {
-                    let im = &self.images[p.image as usize];
-                    if im.surface_point(p.pixel as usize).is_some() {
-                        let t = im.depth[p.pixel as usize] + INSIDE_DEPTH;
-                        self.extra.extend_from_slice(&im.point_along(p.pixel as usize, t));
-                    }
-                }
-            }
-        }
-        let n_in = if w.inside > 0.0 && rendered.is_none() { n_bub } else { 0 };
-        let mut n_smooth = 0;
-        if w.smooth > 0.0 {
-            let mut pairs: Vec<[f32; 3]> = (0..self.batch.len()).filter_map(ray_surface).collect();
-            pairs.truncate(t.eikonal_points);
-            n_smooth = pairs.len();
-            for x in &pairs {
-                self.extra.extend_from_slice(x);
-            }
-            for x in &pairs {
-                let e: [f32; 3] = std::array::from_fn(|_| rng.gen_range(-SMOOTH_EPS..SMOOTH_EPS));
-                self.extra.extend_from_slice(&[x[0] + e[0], x[1] + e[1], x[2] + e[2]]);
-            }
-        }
-
-        if rendered.is_none() {
-            renderer::sample(
-                &self.scene,
-                &self.settings,
-                &self.batch.origin,
-                &self.batch.dir,
-                &mut self.ws,
-                Some(rng),
-            );
-        }
-        let t1 = std::time::Instant::now();
-        renderer::forward_with_samples(
-            &self.scene,
-            &self.batch.origin,
-            &self.batch.dir,
-            &self.extra,
-            &mut self.ws,
-        );
-        let t2 = std::time::Instant::now();
-
-        // Losses on the rays.
-        let rays = self.batch.len();
-        let out = &self.ws.out;
-        let pred_rgb: Vec<[f32; 3]> = out.rgb.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
-        let pred_n: Vec<[f32; 3]> = out.normal.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
-        let mut g_rgb = vec![[0.0f32; 3]; rays];
-        let mut g_depth = vec![0.0f32; rays];
-        let mut g_normal = vec![[0.0f32; 3]; rays];
-        let mut g_emitter = vec![0.0f32; rays];
-        let mut st = StepStats {
-            iteration: self.iteration,
-            phase: Some(phase),
-            beta: self.scene.beta.value(),
-            bubble_points: n_bub,
-            smooth_pairs: n_smooth,
-            ..Default::default()
-        };
-        st.rgb = losses::rgb_l1(&pred_rgb, &self.batch.rgb, w.rgb, &mut g_rgb);
-        st.depth = losses::depth_l1(
-            &out.depth,
-            &self.batch.depth,
-            &self.batch.has_depth,
-            w.depth,
-            &mut g_depth,
-        );
-        st.normal = losses::normal_angular(
-            &pred_n,
-            &self.batch.normal,
-            &self.batch.has_normal,
-            w.normal,
-            &mut g_normal,
-        );
-        if self.batch.has_emitter {
-            st.emitter = losses::emitter_bce(&out.emitter, &self.batch.emitter, w.emitter, &mut g_emitter);
-        }
-        let mse: f32 = pred_rgb
-            .iter()
-            .zip(&self.batch.rgb)
-            .map(|(p, q)| (0..3).map(|c| (p[c] - q[c]).powi(2)).sum::<f32>())
-            .sum::<f32>()
-            / (3 * rays.max(1)) as f32;
-        st.psnr = -10.0 * mse.max(1e-10).log10();
-
-        // Losses on points: eikonal on every ray sample and the uniform points; bubble; smooth.
-        let n_s = self.ws.n_samples;
-        let n = self.ws.sdf.len();
-        let mut d_sdf = vec![0.0f32; n];
-        let mut d_grad = vec![[0.0f32; 3]; n];
-        let grads3: &[[f32; 3]] = &self.ws.gradient;
-        let d_grad3: &mut [[f32; 3]] = &mut d_grad;
-        if w.eikonal > 0.0 {
-            st.eikonal = losses::eikonal(&grads3[..n_s + n_eik], w.eikonal, &mut d_grad3[..n_s + n_eik]);
-        }
-        let b0 = n_s + n_eik;
-        if n_bub > 0 {
-            st.bubble = losses::bubble(&self.ws.sdf[b0..b0 + n_bub], w.bubble, &mut d_sdf[b0..b0 + n_bub]);
-        }
-        if n_in > 0 {
-            let i0 = b0 + n_bub;
-            st.inside = losses::inside(&self.ws.sdf[i0..i0 + n_in], w.inside, &mut d_sdf[i0..i0 + n_in]);
-        }
-        if n_smooth > 0 {
-            let s0 = b0 + n_bub + n_in;
-            let (ga, gb) = d_grad3[s0..s0 + 2 * n_smooth].split_at_mut(n_smooth);
-            st.smooth = losses::smoothness(
-                &grads3[s0..s0 + n_smooth],
-                &grads3[s0 + n_smooth..s0 + 2 * n_smooth],
-                w.smooth,
-                ga,
-                gb,
-            );
-        }
-        st.loss = w.rgb * st.rgb
-            + w.depth * st.depth
-            + w.normal * st.normal
-            + w.emitter * st.emitter
-            + w.eikonal * st.eikonal
-            + w.smooth * st.smooth
-            + w.bubble * st.bubble
-            + w.inside * st.inside;
-        st.samples_per_ray = n_s as f32 / rays.max(1) as f32;
-
-        // PDF maps learn from this batch's depth errors (Sec. 4.1.2).
-        if let Some(pdf) = &mut self.pdf {
-            if self.config.adaptive.enabled {
-                for r in 0..rays {
-                    if self.batch.has_depth[r] {
-                        let e = (self.ws.out.depth[r] - self.batch.depth[r]).abs();
-                        pdf.update(
-                            PixelRef {
-                                image: self.batch.image[r],
-                                pixel: self.batch.pixel[r],
-                            },
-                            e,
-                        );
-                    }
-                }
-            }
-            st.pdf_active = pdf.active();
-        }
-
-        if !st.loss.is_finite() || !self.ws.out.rgb.iter().all(|v| v.is_finite()) {
-            st.skipped = true;
-            self.iteration += 1;
-            return StepOutcome {
-                stats: st,
-                finite: false,
-            };
-        }
-
-        // Backward and update.
-        let zeros = vec![0.0f32; rays];
-        renderer::backward(
-            &self.scene,
-            &mut self.ws,
-            &RayGrads {
-                rgb: g_rgb.as_flattened(),
-                depth: &g_depth,
-                normal: g_normal.as_flattened(),
-                emitter: &g_emitter,
-                opacity: &zeros,
-            },
-            &mut d_sdf,
-            d_grad.as_flattened_mut(),
-            &mut self.grads,
-        );
-        self.apply_adam();
-        self.correct_poses(rng);
-        st.ms_sampling = (t1 - t0).as_secs_f32() * 1e3;
-        st.ms_forward = (t2 - t1).as_secs_f32() * 1e3;
-        st.ms_backward = t2.elapsed().as_secs_f32() * 1e3;
-        self.iteration += 1;
-        StepOutcome {
-            stats: st,
-            finite: true,
-        }
     }
 
     /// One step of the pose corrections, then the images take the new poses. With depth, every
