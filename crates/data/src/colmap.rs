@@ -36,6 +36,7 @@ use crate::camera::{validate_rigid, Camera, Lens};
 use crate::dataset::{self, Dataset, Format, Frame, Split};
 use crate::error::{DataError, Result};
 use crate::imageio;
+use crate::radiometry::Radiometry;
 use crate::sensor_depth::DepthDropped;
 use glam::{DMat3, DMat4, DVec3};
 use std::collections::{BTreeMap, HashMap};
@@ -538,8 +539,8 @@ pub fn load(root: &Path) -> Result<Dataset> {
         root: root.to_path_buf(),
         format: Format::Colmap,
         frames,
-        ldr_transfer: "srgb".into(),
-        ldr_exposure: None,
+        // The format declares no radiometry: sRGB images, no exposure.
+        radiometry: Radiometry::default(),
         // Structure from motion's poses carry its residual error: stage 1 corrects them.
         poses_exact: false,
         emitters: Vec::new(),

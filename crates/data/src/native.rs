@@ -20,6 +20,7 @@
 use crate::camera::{validate_rigid, Camera, Lens};
 use crate::dataset::{self, Dataset, Format, Frame, GtEmitter, ObjectInfo, RelightSet, Split};
 use crate::error::{DataError, Result};
+use crate::radiometry::{Radiometry, Transfer};
 use crate::sensor_depth::{self, Confidence, DepthDropped};
 use glam::DMat4;
 use rayon::prelude::*;
@@ -305,8 +306,7 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
     let mesh_path = parse_mesh_path(root, &json_path, top)?;
     let mut relight = load_relight(root, &json_path, top, units, &mut depth_dropped)?;
     let objects = parse_objects(&json_path, top)?;
-    let ldr_transfer = parse_ldr_transfer(&json_path, top)?;
-    let ldr_exposure = parse_ldr_exposure(&json_path, top)?;
+    let radiometry = parse_ldr(&json_path, top)?;
     let poses_exact = parse_poses_exact(&json_path, top)?;
     let emitters = parse_emitters(&json_path, top)?;
     let (bounds, bounds_source, normalization) = dataset::measure_bounds(&frames);
@@ -320,8 +320,7 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
         root: root.to_path_buf(),
         format: Format::Native,
         frames,
-        ldr_transfer,
-        ldr_exposure,
+        radiometry,
         poses_exact,
         emitters,
         mesh_path,
@@ -428,37 +427,52 @@ fn parse_mesh_path(root: &Path, json_path: &Path, top: &Map<String, Value>) -> R
     }
 }
 
-/// `ldr.transfer`: how the LDR images encode radiance, "srgb" (the default) or "linear".
-fn parse_ldr_transfer(json_path: &Path, top: &Map<String, Value>) -> Result<String> {
-    let ldr_transfer = top
-        .get("ldr")
-        .and_then(|l| l.get("transfer"))
-        .and_then(Value::as_str)
-        .unwrap_or("srgb")
-        .to_string();
-    if !matches!(ldr_transfer.as_str(), "srgb" | "linear") {
-        return Err(DataError::field(
-            json_path,
-            "ldr.transfer",
-            format!("'{ldr_transfer}' is not \"srgb\" or \"linear\""),
-        ));
-    }
-    Ok(ldr_transfer)
-}
-
-/// `ldr.exposure`: the optional positive factor relating the LDR images to the HDR ones.
-fn parse_ldr_exposure(json_path: &Path, top: &Map<String, Value>) -> Result<Option<f64>> {
-    match top.get("ldr").and_then(|l| l.get("exposure")) {
-        None | Some(Value::Null) => Ok(None),
-        Some(v) => match v.as_f64() {
-            Some(e) if e.is_finite() && e > 0.0 => Ok(Some(e)),
-            _ => Err(DataError::field(
+/// The top-level `ldr: {transfer, exposure}`: how the LDR images encode radiance (`transfer`,
+/// "srgb" by default, or "linear") and the optional positive exposure relating them to the HDR
+/// images. Parsed here so that a bad value is refused at load, naming its key.
+fn parse_ldr(json_path: &Path, top: &Map<String, Value>) -> Result<Radiometry> {
+    let ldr = match top.get("ldr") {
+        None | Some(Value::Null) => return Ok(Radiometry::default()),
+        Some(Value::Object(ldr)) => ldr,
+        Some(v) => {
+            return Err(DataError::field(
                 json_path,
-                "ldr.exposure",
-                format!("expected a positive finite number, found {v}"),
-            )),
+                "ldr",
+                format!("expected an object {{\"transfer\": …, \"exposure\": …}}, found {v}"),
+            ))
+        }
+    };
+    let transfer = match ldr.get("transfer") {
+        None | Some(Value::Null) => Transfer::Srgb,
+        Some(Value::String(s)) => Transfer::from_name(s).ok_or_else(|| {
+            DataError::field(
+                json_path,
+                "ldr.transfer",
+                format!("'{s}' is not \"srgb\" or \"linear\""),
+            )
+        })?,
+        Some(v) => {
+            return Err(DataError::field(
+                json_path,
+                "ldr.transfer",
+                format!("expected \"srgb\" or \"linear\", found {v}"),
+            ))
+        }
+    };
+    let exposure = match ldr.get("exposure") {
+        None | Some(Value::Null) => None,
+        Some(v) => match v.as_f64() {
+            Some(e) if e.is_finite() && e > 0.0 => Some(e),
+            _ => {
+                return Err(DataError::field(
+                    json_path,
+                    "ldr.exposure",
+                    format!("expected a positive finite number, found {v}"),
+                ))
+            }
         },
-    }
+    };
+    Ok(Radiometry { transfer, exposure })
 }
 
 /// The optional top-level `poses_exact` (default false: training corrects the poses).

@@ -24,6 +24,7 @@ use crate::camera::{decompose_projection, Camera};
 use crate::dataset::{self, Dataset, Format, Frame, Split};
 use crate::error::{DataError, Result};
 use crate::imageio;
+use crate::radiometry::Radiometry;
 use crate::sensor_depth::{self, DepthDropped};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -364,8 +365,8 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
         root: root.to_path_buf(),
         format: Format::Paper,
         frames,
-        ldr_transfer: "srgb".into(),
-        ldr_exposure: None,
+        // The format declares no radiometry: sRGB images, no exposure.
+        radiometry: Radiometry::default(),
         // The release's poses are the renderer's own (synthetic) or calibrated (real rooms).
         poses_exact: true,
         emitters: Vec::new(),
