@@ -4,8 +4,7 @@
 //! Run from `fuzz/`: `cargo run --release --example make_seeds`.
 
 use i2sdf_data::fixture::{self, DepthFormat, FixtureOptions};
-use i2sdf_data::{imageio, ply, ImageF32, Normalization, TriangleMesh};
-use i2sdf_model::intrinsic::Radiometry;
+use i2sdf_data::{imageio, ply, ImageF32, Normalization, Radiometry, TriangleMesh};
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::material_field::{MaterialBackbone, MaterialConfig, MaterialField};
 use i2sdf_model::{Emitter, EmitterTable, ModelConfig, NeuralScene, RunInfo, StageProgress};

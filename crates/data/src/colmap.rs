@@ -36,6 +36,8 @@ use crate::camera::{validate_rigid, Camera, Lens};
 use crate::dataset::{self, Dataset, Format, Frame, Split};
 use crate::error::{DataError, Result};
 use crate::imageio;
+use crate::radiometry::Radiometry;
+use crate::sensor_depth::DepthDropped;
 use glam::{DMat3, DMat4, DVec3};
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
@@ -366,99 +368,160 @@ pub fn fix_scale(frames: &[Frame], images: &[&ColmapImage], points: &BTreeMap<u6
     })
 }
 
-pub fn load(root: &Path) -> Result<Dataset> {
-    let dir = model_dir(root)?;
-    let model = read_model(&dir)?;
-    let cameras_file = model_file(&dir, "cameras");
-    let images_file = model_file(&dir, "images");
-    let points_file = model_file(&dir, "points3D");
-    if model.images.is_empty() {
-        return Err(DataError::file(&images_file, "the model has no registered image"));
-    }
-    // Every observation names a point of points3D (or none).
+/// The model's files, for naming them in errors.
+struct ModelFiles {
+    cameras: PathBuf,
+    images: PathBuf,
+    points: PathBuf,
+}
+
+/// Every observation of every image must name a point of points3D (or none).
+fn check_observations(model: &ColmapModel, files: &ModelFiles) -> Result<()> {
     for image in model.images.values() {
         for (k, &(_, pid)) in image.points2d.iter().enumerate() {
             let known = pid == NO_POINT3D || u64::try_from(pid).is_ok_and(|id| model.points.contains_key(&id));
             if !known {
                 return Err(DataError::field(
-                    &images_file,
+                    &files.images,
                     format!("image {} ({})", image.id, image.name),
                     format!(
                         "observation {k} refers to 3D point {pid}, which {} does not have",
-                        points_file.file_name().unwrap_or_default().to_string_lossy()
+                        files.points.file_name().unwrap_or_default().to_string_lossy()
                     ),
                 ));
             }
         }
     }
+    Ok(())
+}
+
+/// The model's images in name order (the order of the frames and of the every-8th split); two
+/// images of one name are refused.
+fn images_by_name<'a>(model: &'a ColmapModel, images_file: &Path) -> Result<Vec<&'a ColmapImage>> {
     let mut images: Vec<&ColmapImage> = model.images.values().collect();
     images.sort_by(|a, b| a.name.cmp(&b.name));
     if let Some(w) = images.windows(2).find(|w| w[0].name == w[1].name) {
         return Err(DataError::field(
-            &images_file,
+            images_file,
             format!("image {}", w[1].id),
             format!("name '{}' is also image {}'s", w[1].name, w[0].id),
         ));
     }
+    Ok(images)
+}
+
+/// Where a frame's files are: `images/`, `depth/` and `masks/` under the dataset's root.
+struct FrameDirs {
+    images: PathBuf,
+    depth: PathBuf,
+    masks: PathBuf,
+}
+
+/// One model image as a frame: the image (with the camera fitted to its size), its depth map and
+/// emitter mask where there are; also what became of its depth samples. The camera is still in
+/// model units.
+fn load_frame(image: &ColmapImage, camera: &Camera, split: Split, dirs: &FrameDirs) -> Result<(Frame, DepthDropped)> {
+    let image_path = dirs.images.join(&image.name);
+    let camera = fit_camera(camera.clone(), &image_path, image_size(&image_path)?, image.camera_id)?;
+    let rgb = dataset::load_rgb(&image_path, &camera)?;
+    let stem = Path::new(&image.name).with_extension("");
+    let depth = find_with_extension(&dirs.depth.join(&stem), &["png", "exr", "npy"])?
+        .map(|p| {
+            let is_png = p.extension().is_some_and(|e| e == "png");
+            crate::sensor_depth::load_depth(&p, &camera, if is_png { PNG_DEPTH_SCALE } else { 1.0 }, None)
+        })
+        .transpose()?;
+    let (depth, dropped) = match depth {
+        Some((d, dropped)) => (Some(d), dropped),
+        None => (None, Default::default()),
+    };
+    let emitter_mask = find_with_extension(&dirs.masks.join(&stem), &["png"])?
+        .map(|p| dataset::load_mask(&p, &camera))
+        .transpose()?;
+    let frame = Frame {
+        // Images in subfolders (one per camera of a rig) keep the folder in their name.
+        name: stem.to_string_lossy().replace(['/', '\\'], "_"),
+        split,
+        camera,
+        image_path,
+        rgb,
+        hdr: None,
+        depth,
+        normal: None,
+        emitter_mask,
+        albedo: None,
+        specular: None,
+        roughness: None,
+    };
+    Ok((frame, dropped))
+}
+
+/// Ties the model's arbitrary scale to the depth maps' where any frame has one: the camera centres
+/// are scaled by [`fix_scale`]'s ratio. Depth maps on which no 3D point of the model is observed
+/// are refused: the scale would be a guess.
+fn scale_to_depth(
+    frames: &mut [Frame],
+    images: &[&ColmapImage],
+    model: &ColmapModel,
+    depth_dir: &Path,
+    points_file: &Path,
+) -> Result<Option<ScaleFix>> {
+    if !frames.iter().any(|f| f.depth.is_some()) {
+        return Ok(None);
+    }
+    let fix = fix_scale(frames, images, &model.points).ok_or_else(|| {
+        DataError::file(
+            depth_dir,
+            format!(
+                "no 3D point of the COLMAP model ({}) is observed where a depth map has depth: the model's \
+                 scale cannot be tied to the depth's",
+                points_file.display()
+            ),
+        )
+    })?;
+    for f in frames.iter_mut() {
+        let c = f.camera.center() * fix.ratio;
+        f.camera.c2w.w_axis = c.extend(1.0);
+    }
+    Ok(Some(fix))
+}
+
+pub fn load(root: &Path) -> Result<Dataset> {
+    let dir = model_dir(root)?;
+    let model = read_model(&dir)?;
+    let files = ModelFiles {
+        cameras: model_file(&dir, "cameras"),
+        images: model_file(&dir, "images"),
+        points: model_file(&dir, "points3D"),
+    };
+    if model.images.is_empty() {
+        return Err(DataError::file(&files.images, "the model has no registered image"));
+    }
+    check_observations(&model, &files)?;
+    let images = images_by_name(&model, &files.images)?;
     let names: Vec<&str> = images.iter().map(|i| i.name.as_str()).collect();
     let splits = splits(root, &names)?;
-    let image_dir = root.join("images");
-    if !image_dir.is_dir() {
+    let dirs = FrameDirs {
+        images: root.join("images"),
+        depth: root.join("depth"),
+        masks: root.join("masks"),
+    };
+    if !dirs.images.is_dir() {
         return Err(DataError::file(
-            &image_dir,
+            &dirs.images,
             "directory not found (the images of the COLMAP model)",
         ));
     }
-    let depth_dir = root.join("depth");
-    let mask_dir = root.join("masks");
     let cameras: Vec<Camera> = images
         .iter()
-        .map(|im| camera_of(&model, im, &cameras_file, &images_file))
+        .map(|im| camera_of(&model, im, &files.cameras, &files.images))
         .collect::<Result<_>>()?;
     let entries: Vec<(usize, Split)> = splits.into_iter().enumerate().collect();
-    let frames = crate::native::par_load(&entries, |_, &(k, split)| {
-        let image = images[k];
-        let image_path = image_dir.join(&image.name);
-        let camera = fit_camera(
-            cameras[k].clone(),
-            &image_path,
-            image_size(&image_path)?,
-            image.camera_id,
-        )?;
-        let rgb = dataset::load_rgb(&image_path, &camera)?;
-        let stem = Path::new(&image.name).with_extension("");
-        let depth = find_with_extension(&depth_dir.join(&stem), &["png", "exr", "npy"])?
-            .map(|p| {
-                let is_png = p.extension().is_some_and(|e| e == "png");
-                crate::sensor_depth::load_depth(&p, &camera, if is_png { PNG_DEPTH_SCALE } else { 1.0 }, None)
-            })
-            .transpose()?;
-        let (depth, dropped) = match depth {
-            Some((d, dropped)) => (Some(d), dropped),
-            None => (None, Default::default()),
-        };
-        let emitter_mask = find_with_extension(&mask_dir.join(&stem), &["png"])?
-            .map(|p| dataset::load_mask(&p, &camera))
-            .transpose()?;
-        let frame = Frame {
-            // Images in subfolders (one per camera of a rig) keep the folder in their name.
-            name: stem.to_string_lossy().replace(['/', '\\'], "_"),
-            split,
-            camera,
-            image_path,
-            rgb,
-            hdr: None,
-            depth,
-            normal: None,
-            emitter_mask,
-            albedo: None,
-            specular: None,
-            roughness: None,
-        };
-        Ok((frame, dropped))
+    let loaded = crate::native::par_load(&entries, |_, &(k, split)| {
+        load_frame(images[k], &cameras[k], split, &dirs)
     })?;
-    let mut depth_dropped = crate::sensor_depth::DepthDropped::default();
-    let mut frames: Vec<Frame> = frames
+    let mut depth_dropped = DepthDropped::default();
+    let mut frames: Vec<Frame> = loaded
         .into_iter()
         .map(|(f, d)| {
             depth_dropped.add(&d);
@@ -467,26 +530,7 @@ pub fn load(root: &Path) -> Result<Dataset> {
         .collect();
     dataset::check_splits(root, &frames)?;
 
-    let any_depth = frames.iter().any(|f| f.depth.is_some());
-    let colmap_scale = if any_depth {
-        let fix = fix_scale(&frames, &images, &model.points).ok_or_else(|| {
-            DataError::file(
-                &depth_dir,
-                format!(
-                    "no 3D point of the COLMAP model ({}) is observed where a depth map has depth: the model's \
-                     scale cannot be tied to the depth's",
-                    points_file.display()
-                ),
-            )
-        })?;
-        for f in &mut frames {
-            let c = f.camera.center() * fix.ratio;
-            f.camera.c2w.w_axis = c.extend(1.0);
-        }
-        Some(fix)
-    } else {
-        None
-    };
+    let colmap_scale = scale_to_depth(&mut frames, &images, &model, &dirs.depth, &files.points)?;
     let scale = colmap_scale.map_or(1.0, |s| s.ratio);
     let points: Vec<DVec3> = model.points.values().map(|p| p.xyz * scale).collect();
     let (bounds, bounds_source, normalization) = dataset::measure_bounds_with_points(&frames, &points);
@@ -495,8 +539,8 @@ pub fn load(root: &Path) -> Result<Dataset> {
         root: root.to_path_buf(),
         format: Format::Colmap,
         frames,
-        ldr_transfer: "srgb".into(),
-        ldr_exposure: None,
+        // The format declares no radiometry: sRGB images, no exposure.
+        radiometry: Radiometry::default(),
         // Structure from motion's poses carry its residual error: stage 1 corrects them.
         poses_exact: false,
         emitters: Vec::new(),

@@ -7,6 +7,7 @@
 use crate::camera::Camera;
 use crate::error::{DataError, Result};
 use crate::imageio::{self, ImageF32};
+use crate::radiometry::Radiometry;
 use crate::sensor_depth::DepthDropped;
 use glam::{DMat4, DVec3};
 use std::path::{Path, PathBuf};
@@ -53,7 +54,7 @@ pub struct Frame {
     pub camera: Camera,
     /// The image file (for messages).
     pub image_path: PathBuf,
-    /// LDR colour in \[0,1\], 3 channels, as stored (display-referred; see `Dataset::ldr_transfer`).
+    /// LDR colour in \[0,1\], 3 channels, as stored (display-referred; see `Dataset::radiometry`).
     pub rgb: ImageF32,
     /// Linear HDR radiance, 3 channels.
     pub hdr: Option<ImageF32>,
@@ -187,12 +188,13 @@ pub struct Dataset {
     pub root: PathBuf,
     pub format: Format,
     pub frames: Vec<Frame>,
-    /// How the LDR images encode light: "srgb" (default) or "linear".
-    pub ldr_transfer: String,
-    /// The exposure the LDR images were made with (`ldr.exposure`: LDR = transfer(exposure · HDR)),
-    /// when the dataset states it: stage 2 scales HDR images by it into the LDR images' linear
-    /// units, and reports each emitter's radiance as emission / exposure.
-    pub ldr_exposure: Option<f64>,
+    /// The radiometry the dataset declares (native `ldr`): how the LDR images encode light
+    /// (`transfer`: sRGB by default, or linear), and the exposure they were made with
+    /// (`ldr.exposure`: LDR = transfer(exposure · HDR)) when the dataset states it. Stage 2 scales
+    /// HDR images by the exposure into the LDR images' linear units, and reports each emitter's
+    /// radiance as emission / exposure; with none declared it uses the one the images measure
+    /// (`exposure::exposure_in_use`).
+    pub radiometry: Radiometry,
     /// The dataset declares its poses exact (native `poses_exact: true`, as the synthetic rooms
     /// write; the paper's release, calibrated): training then does not correct them.
     pub poses_exact: bool,

@@ -10,6 +10,7 @@
 
 use crate::dataset::{Dataset, Split};
 use crate::imageio::srgb_to_linear;
+use crate::radiometry::Transfer;
 
 /// LDR values used: above quantization and noise, below saturation (and the sRGB knee's clip).
 const LDR_RANGE: (f32, f32) = (0.05, 0.9);
@@ -50,7 +51,7 @@ pub fn estimate_exposure(dataset: &Dataset) -> Option<ExposureEstimate> {
         return None;
     }
     let stride = channels.div_ceil(MAX_SAMPLES).max(1);
-    let srgb = dataset.ldr_transfer != "linear";
+    let srgb = dataset.radiometry.transfer == Transfer::Srgb;
     let (mut own, mut other) = (Vec::new(), Vec::new());
     for f in frames {
         let hdr = f.hdr.as_ref().expect("filtered");
@@ -95,7 +96,7 @@ impl ExposureEstimate {
     /// images say it is not 1, or a transfer under which the ratio drifts while the other's holds.
     pub fn warnings(&self, dataset: &Dataset) -> Vec<String> {
         let mut out = Vec::new();
-        match dataset.ldr_exposure {
+        match dataset.radiometry.exposure {
             Some(d) if self.disagrees_with(d) => out.push(format!(
                 "ldr.exposure = {d} is declared, but the LDR and HDR images say {:.4} (median of {} channels, spread {:.1} %): check the key",
                 self.exposure,
@@ -111,14 +112,13 @@ impl ExposureEstimate {
             _ => {}
         }
         if self.other_spread < 0.5 * self.spread && self.spread > 0.05 {
-            let other = if dataset.ldr_transfer == "linear" {
-                "srgb"
-            } else {
-                "linear"
+            let other = match dataset.radiometry.transfer {
+                Transfer::Linear => "srgb",
+                Transfer::Srgb => "linear",
             };
             out.push(format!(
                 "ldr.transfer = {}: the LDR/HDR ratio varies by {:.1} % under it but only {:.1} % under {other}: is the transfer {other}?",
-                dataset.ldr_transfer,
+                dataset.radiometry.transfer.name(),
                 100.0 * self.spread,
                 100.0 * self.other_spread
             ));
@@ -130,7 +130,8 @@ impl ExposureEstimate {
 /// The exposure stage 2 uses: the declared one, else the measured one, else 1 (`None`).
 pub fn exposure_in_use(dataset: &Dataset) -> Option<f64> {
     dataset
-        .ldr_exposure
+        .radiometry
+        .exposure
         .or_else(|| estimate_exposure(dataset).map(|e| e.exposure))
 }
 
@@ -141,17 +142,17 @@ mod tests {
     use crate::imageio::ImageF32;
 
     /// The fixture with HDR images made from its LDR ones at a known exposure, under `transfer`.
-    fn with_hdr(exposure: f32, transfer: &str) -> Dataset {
+    fn with_hdr(exposure: f32, transfer: Transfer) -> Dataset {
         let dir = tempfile::tempdir().unwrap();
         write_native(dir.path(), &FixtureOptions::default());
         let mut ds = crate::load(dir.path()).unwrap();
-        ds.ldr_transfer = transfer.to_string();
+        ds.radiometry.transfer = transfer;
         for f in &mut ds.frames {
             let data = f
                 .rgb
                 .data
                 .iter()
-                .map(|&v| if transfer == "srgb" { srgb_to_linear(v) } else { v } / exposure)
+                .map(|&v| if transfer == Transfer::Srgb { srgb_to_linear(v) } else { v } / exposure)
                 .collect();
             f.hdr = Some(ImageF32::from_data(f.rgb.width, f.rgb.height, f.rgb.channels, data));
         }
@@ -160,19 +161,19 @@ mod tests {
 
     #[test]
     fn the_exposure_is_measured_and_a_wrong_declaration_is_said() {
-        for transfer in ["srgb", "linear"] {
+        for transfer in [Transfer::Srgb, Transfer::Linear] {
             let mut ds = with_hdr(4.65, transfer);
             let e = estimate_exposure(&ds).unwrap();
-            assert!((e.exposure / 4.65 - 1.0).abs() < 1e-3, "{transfer}: {e:?}");
+            assert!((e.exposure / 4.65 - 1.0).abs() < 1e-3, "{transfer:?}: {e:?}");
             assert!(e.spread < 1e-3, "{e:?}");
             // Undeclared: said, and used.
-            ds.ldr_exposure = None;
+            ds.radiometry.exposure = None;
             assert!(e.warnings(&ds)[0].contains("no exposure is declared"));
             assert!((exposure_in_use(&ds).unwrap() / 4.65 - 1.0).abs() < 1e-3);
             // Declared right: nothing to say; declared wrong: said, naming both.
-            ds.ldr_exposure = Some(4.7);
+            ds.radiometry.exposure = Some(4.7);
             assert!(e.warnings(&ds).is_empty(), "{:?}", e.warnings(&ds));
-            ds.ldr_exposure = Some(1.0);
+            ds.radiometry.exposure = Some(1.0);
             let w = e.warnings(&ds);
             assert!(w[0].contains("ldr.exposure = 1") && w[0].contains("4.65"), "{w:?}");
             assert_eq!(exposure_in_use(&ds), Some(1.0), "a declaration is kept");
@@ -182,11 +183,11 @@ mod tests {
     #[test]
     fn a_wrong_transfer_shows_in_the_spread() {
         // Made with sRGB, declared linear.
-        let mut ds = with_hdr(2.0, "srgb");
-        ds.ldr_transfer = "linear".into();
+        let mut ds = with_hdr(2.0, Transfer::Srgb);
+        ds.radiometry.transfer = Transfer::Linear;
         let e = estimate_exposure(&ds).unwrap();
         assert!(e.other_spread < 1e-3 && e.spread > 0.05, "{e:?}");
-        ds.ldr_exposure = Some(e.exposure);
+        ds.radiometry.exposure = Some(e.exposure);
         let w = e.warnings(&ds);
         assert!(w.iter().any(|w| w.contains("is the transfer srgb?")), "{w:?}");
         // Without HDR images there is nothing to measure.

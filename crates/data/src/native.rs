@@ -20,6 +20,7 @@
 use crate::camera::{validate_rigid, Camera, Lens};
 use crate::dataset::{self, Dataset, Format, Frame, GtEmitter, ObjectInfo, RelightSet, Split};
 use crate::error::{DataError, Result};
+use crate::radiometry::{Radiometry, Transfer};
 use crate::sensor_depth::{self, Confidence, DepthDropped};
 use glam::DMat4;
 use rayon::prelude::*;
@@ -287,30 +288,100 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
         return Err(DataError::field(&json_path, "frames", "the list is empty"));
     }
     let units = DepthUnits::of(&json_path, top)?;
-    let train_names = filename_set(top, "train_filenames", &json_path)?;
-    let test_names = filename_set(top, "test_filenames", &json_path)?;
-    let any_split_key = frames_json.iter().any(|f| f.get("split").is_some());
-
-    // Resolve each frame's split before loading anything, so a split error costs no I/O.
-    let mut entries = Vec::with_capacity(frames_json.len());
-    for (i, fj) in frames_json.iter().enumerate() {
+    let entries = resolve_splits(&json_path, top, frames_json)?;
+    let mut depth_dropped = DepthDropped::default();
+    let mut frames = Vec::with_capacity(entries.len());
+    for (frame, dropped) in par_load(&entries, |i, (obj, split)| {
         let ctx = Ctx {
             json: &json_path,
             entry: format!("frames[{i}]"),
         };
+        load_frame(root, obj, top, &ctx, *split, units)
+    })? {
+        depth_dropped.add(&dropped);
+        frames.push(frame);
+    }
+    dataset::check_splits(&json_path, &frames)?;
+
+    let mesh_path = parse_mesh_path(root, &json_path, top)?;
+    let mut relight = load_relight(root, &json_path, top, units, &mut depth_dropped)?;
+    let objects = parse_objects(&json_path, top)?;
+    let radiometry = parse_ldr(&json_path, top)?;
+    let poses_exact = parse_poses_exact(&json_path, top)?;
+    let emitters = parse_emitters(&json_path, top)?;
+    let (bounds, bounds_source, normalization) = dataset::measure_bounds(&frames);
+    let relight_frames = relight.iter_mut().flat_map(|r| r.frames.iter_mut());
+    sensor_depth::apply_validity_window(
+        frames.iter_mut().chain(relight_frames),
+        &normalization,
+        &mut depth_dropped,
+    );
+    Ok(Dataset {
+        root: root.to_path_buf(),
+        format: Format::Native,
+        frames,
+        radiometry,
+        poses_exact,
+        emitters,
+        mesh_path,
+        relight,
+        objects,
+        bounds,
+        bounds_source,
+        normalization,
+        depth_dropped,
+        colmap_scale: None,
+    })
+}
+
+/// Each frame entry with its split, resolved before anything is loaded so that a split error costs
+/// no I/O.
+fn resolve_splits<'a>(
+    json_path: &Path,
+    top: &Map<String, Value>,
+    frames_json: &'a [Value],
+) -> Result<Vec<(&'a Map<String, Value>, Split)>> {
+    let names = SplitLists {
+        train: filename_set(top, "train_filenames", json_path)?,
+        test: filename_set(top, "test_filenames", json_path)?,
+        any_split_key: frames_json.iter().any(|f| f.get("split").is_some()),
+    };
+    let mut entries = Vec::with_capacity(frames_json.len());
+    for (i, fj) in frames_json.iter().enumerate() {
+        let ctx = Ctx {
+            json: json_path,
+            entry: format!("frames[{i}]"),
+        };
         let obj = fj.as_object().ok_or_else(|| ctx.err("", "not a JSON object"))?;
+        entries.push((obj, names.split_of(i, obj, &ctx)?));
+    }
+    Ok(entries)
+}
+
+/// What decides the frames' splits: nerfstudio's top-level `train_filenames` / `test_filenames`
+/// and whether any frame has its own `split`.
+struct SplitLists {
+    train: Option<HashSet<String>>,
+    test: Option<HashSet<String>>,
+    any_split_key: bool,
+}
+
+impl SplitLists {
+    /// The split of frame entry `i`: its own `split`, else the lists', else every 8th frame is a
+    /// test view (a dataset where some frames have a `split` must give it for all).
+    fn split_of(&self, i: usize, obj: &Map<String, Value>, ctx: &Ctx) -> Result<Split> {
         let file = obj
             .get("file_path")
             .and_then(Value::as_str)
             .map(normalize_name)
             .ok_or_else(|| ctx.err("file_path", "missing or not a string"))?;
-        let split = if let Some(s) = obj.get("split") {
+        Ok(if let Some(s) = obj.get("split") {
             s.as_str()
                 .and_then(Split::parse)
                 .ok_or_else(|| ctx.err("split", format!("expected \"train\" or \"test\", found {s}")))?
-        } else if train_names.is_some() || test_names.is_some() {
-            let in_train = train_names.as_ref().is_some_and(|s| s.contains(&file));
-            let in_test = test_names.as_ref().is_some_and(|s| s.contains(&file));
+        } else if self.train.is_some() || self.test.is_some() {
+            let in_train = self.train.as_ref().is_some_and(|s| s.contains(&file));
+            let in_test = self.test.as_ref().is_some_and(|s| s.contains(&file));
             match (in_train, in_test) {
                 (true, false) => Split::Train,
                 (false, true) => Split::Test,
@@ -327,108 +398,94 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
                     ))
                 }
             }
-        } else if any_split_key {
+        } else if self.any_split_key {
             return Err(ctx.err("split", "missing while other frames have one"));
         } else if i % 8 == 0 {
             Split::Test
         } else {
             Split::Train
-        };
-        entries.push((obj, split));
+        })
     }
-    let mut depth_dropped = DepthDropped::default();
-    let mut frames = Vec::with_capacity(entries.len());
-    for (frame, dropped) in par_load(&entries, |i, (obj, split)| {
-        let ctx = Ctx {
-            json: &json_path,
-            entry: format!("frames[{i}]"),
-        };
-        load_frame(root, obj, top, &ctx, *split, units)
-    })? {
-        depth_dropped.add(&dropped);
-        frames.push(frame);
-    }
-    dataset::check_splits(&json_path, &frames)?;
+}
 
-    let mesh_path = match top.get("mesh_path") {
-        None | Some(Value::Null) => None,
+/// The optional top-level `mesh_path` (the ground-truth mesh), which must exist when given.
+fn parse_mesh_path(root: &Path, json_path: &Path, top: &Map<String, Value>) -> Result<Option<PathBuf>> {
+    match top.get("mesh_path") {
+        None | Some(Value::Null) => Ok(None),
         Some(Value::String(s)) => {
             let p = root.join(s);
             if !p.is_file() {
                 return Err(DataError::field(
-                    &json_path,
+                    json_path,
                     "mesh_path",
                     format!("{} not found", p.display()),
                 ));
             }
-            Some(p)
+            Ok(Some(p))
         }
-        Some(v) => return Err(DataError::field(&json_path, "mesh_path", format!("not a path: {v}"))),
-    };
-    let mut relight = load_relight(root, &json_path, top, units, &mut depth_dropped)?;
-    let objects = parse_objects(&json_path, top)?;
-    let ldr_transfer = top
-        .get("ldr")
-        .and_then(|l| l.get("transfer"))
-        .and_then(Value::as_str)
-        .unwrap_or("srgb")
-        .to_string();
-    if !matches!(ldr_transfer.as_str(), "srgb" | "linear") {
-        return Err(DataError::field(
-            &json_path,
-            "ldr.transfer",
-            format!("'{ldr_transfer}' is not \"srgb\" or \"linear\""),
-        ));
+        Some(v) => Err(DataError::field(json_path, "mesh_path", format!("not a path: {v}"))),
     }
-    let ldr_exposure = match top.get("ldr").and_then(|l| l.get("exposure")) {
+}
+
+/// The top-level `ldr: {transfer, exposure}`: how the LDR images encode radiance (`transfer`,
+/// "srgb" by default, or "linear") and the optional positive exposure relating them to the HDR
+/// images. Parsed here so that a bad value is refused at load, naming its key.
+fn parse_ldr(json_path: &Path, top: &Map<String, Value>) -> Result<Radiometry> {
+    let ldr = match top.get("ldr") {
+        None | Some(Value::Null) => return Ok(Radiometry::default()),
+        Some(Value::Object(ldr)) => ldr,
+        Some(v) => {
+            return Err(DataError::field(
+                json_path,
+                "ldr",
+                format!("expected an object {{\"transfer\": …, \"exposure\": …}}, found {v}"),
+            ))
+        }
+    };
+    let transfer = match ldr.get("transfer") {
+        None | Some(Value::Null) => Transfer::Srgb,
+        Some(Value::String(s)) => Transfer::from_name(s).ok_or_else(|| {
+            DataError::field(
+                json_path,
+                "ldr.transfer",
+                format!("'{s}' is not \"srgb\" or \"linear\""),
+            )
+        })?,
+        Some(v) => {
+            return Err(DataError::field(
+                json_path,
+                "ldr.transfer",
+                format!("expected \"srgb\" or \"linear\", found {v}"),
+            ))
+        }
+    };
+    let exposure = match ldr.get("exposure") {
         None | Some(Value::Null) => None,
         Some(v) => match v.as_f64() {
             Some(e) if e.is_finite() && e > 0.0 => Some(e),
             _ => {
                 return Err(DataError::field(
-                    &json_path,
+                    json_path,
                     "ldr.exposure",
                     format!("expected a positive finite number, found {v}"),
                 ))
             }
         },
     };
-    let poses_exact = match top.get("poses_exact") {
-        None | Some(Value::Null) => false,
-        Some(Value::Bool(b)) => *b,
-        Some(v) => {
-            return Err(DataError::field(
-                &json_path,
-                "poses_exact",
-                format!("expected true or false, found {v}"),
-            ))
-        }
-    };
-    let emitters = parse_emitters(&json_path, top)?;
-    let (bounds, bounds_source, normalization) = dataset::measure_bounds(&frames);
-    let relight_frames = relight.iter_mut().flat_map(|r| r.frames.iter_mut());
-    sensor_depth::apply_validity_window(
-        frames.iter_mut().chain(relight_frames),
-        &normalization,
-        &mut depth_dropped,
-    );
-    Ok(Dataset {
-        root: root.to_path_buf(),
-        format: Format::Native,
-        frames,
-        ldr_transfer,
-        ldr_exposure,
-        poses_exact,
-        emitters,
-        mesh_path,
-        relight,
-        objects,
-        bounds,
-        bounds_source,
-        normalization,
-        depth_dropped,
-        colmap_scale: None,
-    })
+    Ok(Radiometry { transfer, exposure })
+}
+
+/// The optional top-level `poses_exact` (default false: training corrects the poses).
+fn parse_poses_exact(json_path: &Path, top: &Map<String, Value>) -> Result<bool> {
+    match top.get("poses_exact") {
+        None | Some(Value::Null) => Ok(false),
+        Some(Value::Bool(b)) => Ok(*b),
+        Some(v) => Err(DataError::field(
+            json_path,
+            "poses_exact",
+            format!("expected true or false, found {v}"),
+        )),
+    }
 }
 
 fn load_relight(
@@ -484,8 +541,6 @@ fn load_relight(
     Ok(sets)
 }
 
-/// The optional top-level `objects: [{"id": 7, "name": "lamp_pole", "tags": ["thin"]}, …]`; ids
-/// are distinct integers, `tags` may be left out.
 /// The top-level `emitters` list (`[{name, emission, bounds_min, bounds_max}]`), as `i2sdf synth`
 /// writes it; absent means none.
 fn parse_emitters(json_path: &Path, top: &Map<String, Value>) -> Result<Vec<GtEmitter>> {
@@ -534,6 +589,8 @@ fn parse_emitters(json_path: &Path, top: &Map<String, Value>) -> Result<Vec<GtEm
         .collect()
 }
 
+/// The optional top-level `objects: [{"id": 7, "name": "lamp_pole", "tags": ["thin"]}, …]`; ids
+/// are distinct integers, `tags` may be left out.
 fn parse_objects(json_path: &Path, top: &Map<String, Value>) -> Result<Vec<ObjectInfo>> {
     let list = match top.get("objects") {
         None | Some(Value::Null) => return Ok(Vec::new()),

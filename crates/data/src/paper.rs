@@ -24,6 +24,7 @@ use crate::camera::{decompose_projection, Camera};
 use crate::dataset::{self, Dataset, Format, Frame, Split};
 use crate::error::{DataError, Result};
 use crate::imageio;
+use crate::radiometry::Radiometry;
 use crate::sensor_depth::{self, DepthDropped};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -148,6 +149,182 @@ pub fn load(root: &Path) -> Result<Dataset> {
     load_with_npz(root, &npz_path, npz)
 }
 
+/// The training and validation images: `image/` and `val/`, sorted by name, neither empty.
+fn list_views(root: &Path, frame_exts: &[&str]) -> Result<(Vec<PathBuf>, Vec<PathBuf>)> {
+    let image_dir = root.join("image");
+    let images = list_dir(&image_dir, frame_exts)?.ok_or_else(|| DataError::file(&image_dir, "directory not found"))?;
+    if images.is_empty() {
+        return Err(DataError::file(&image_dir, "no images: the 'train' split is empty"));
+    }
+    let val_dir = root.join("val");
+    let vals = list_dir(&val_dir, frame_exts)?.unwrap_or_default();
+    if vals.is_empty() {
+        return Err(DataError::file(
+            &val_dir,
+            "no validation images: the 'test' split is empty",
+        ));
+    }
+    Ok((images, vals))
+}
+
+/// The optional per-view annotation files of the training images (`None` where the release has no
+/// such directory).
+struct Annotations {
+    depths: Option<Vec<PathBuf>>,
+    normals: Option<Vec<PathBuf>>,
+    light_masks: Option<Vec<PathBuf>>,
+    hdrs: Option<Vec<PathBuf>>,
+}
+
+impl Annotations {
+    /// Lists the annotation directories; each must match the `image_count` images one to one.
+    fn list(root: &Path, image_count: usize) -> Result<Annotations> {
+        let matched = |sub: &str, exts: &[&str]| -> Result<Option<Vec<PathBuf>>> {
+            let dir = root.join(sub);
+            match list_dir(&dir, exts)? {
+                None => Ok(None),
+                Some(files) if files.len() == image_count => Ok(Some(files)),
+                Some(files) => Err(DataError::file(
+                    &dir,
+                    format!("has {} files but image/ has {} images", files.len(), image_count),
+                )),
+            }
+        };
+        Ok(Annotations {
+            depths: matched("depth", &["exr", "npy"])?,
+            normals: matched("normal", &["exr", "npy"])?,
+            light_masks: matched("light_mask", &["png", "exr"])?,
+            hdrs: matched("hdr", &["exr"])?,
+        })
+    }
+}
+
+/// The cameras of `count` views from the archive's `{prefix}_0`, `{prefix}_1`, … projection
+/// matrices, for images of size `width`×`height`.
+fn read_cameras<R: std::io::Read + std::io::Seek>(
+    npz: &mut npyz::npz::NpzArchive<R>,
+    npz_path: &Path,
+    prefix: &str,
+    count: usize,
+    (width, height): (usize, usize),
+) -> Result<Vec<Camera>> {
+    let mut cameras = Vec::with_capacity(count);
+    for i in 0..count {
+        let name = format!("{prefix}_{i}");
+        let m = read_matrix(npz, npz_path, &name)?;
+        cameras.push(camera_from_projection(m, width, height).map_err(|e| DataError::field(npz_path, &name, e))?);
+    }
+    Ok(cameras)
+}
+
+/// `scale_mat_0` must be a similarity (VolSDF normalization). Our cameras stay in world units, so it
+/// is only read to validate the file.
+fn check_scale_mat<R: std::io::Read + std::io::Seek>(
+    npz: &mut npyz::npz::NpzArchive<R>,
+    npz_path: &Path,
+) -> Result<()> {
+    let scale = read_matrix(npz, npz_path, "scale_mat_0")?;
+    if scale[0][0] <= 0.0
+        || (scale[0][0] - scale[1][1]).abs() > 1e-6 * scale[0][0]
+        || (scale[0][0] - scale[2][2]).abs() > 1e-6 * scale[0][0]
+    {
+        return Err(DataError::field(
+            npz_path,
+            "scale_mat_0",
+            "not a uniform scale + translation",
+        ));
+    }
+    Ok(())
+}
+
+/// Training view `i`: its image and every annotation the release has for it (the GT materials are
+/// found by the image's stem in `material/`); also what became of its depth samples.
+fn load_train_frame(
+    root: &Path,
+    i: usize,
+    camera: Camera,
+    image_path: PathBuf,
+    annotations: &Annotations,
+) -> Result<(Frame, DepthDropped)> {
+    let material_dir = root.join("material");
+    let material = |stem: &str, suffix: &str| -> Option<PathBuf> {
+        let p = material_dir.join(format!("{stem}_{suffix}.exr"));
+        p.is_file().then_some(p)
+    };
+    let stem = image_path
+        .file_stem()
+        .unwrap_or_default()
+        .to_string_lossy()
+        .into_owned();
+    let rgb = dataset::load_rgb(&image_path, &camera)?;
+    let rot = camera.rotation();
+    let (depth, depth_dropped) = match &annotations.depths {
+        Some(d) => {
+            let (depth, dropped) = sensor_depth::load_depth(&d[i], &camera, 1.0, None)?;
+            (Some(depth), dropped)
+        }
+        None => (None, DepthDropped::default()),
+    };
+    let normal = annotations
+        .normals
+        .as_ref()
+        .map(|n| dataset::load_normal(&n[i], &camera, Some(rot)))
+        .transpose()?;
+    let emitter_mask = annotations
+        .light_masks
+        .as_ref()
+        .map(|m| dataset::load_mask(&m[i], &camera))
+        .transpose()?;
+    let hdr = annotations
+        .hdrs
+        .as_ref()
+        .map(|m| dataset::load_rgb(&m[i], &camera))
+        .transpose()?;
+    let albedo = material(&stem, "kd")
+        .map(|p| dataset::load_float(&p, &camera, 3, "a Kd map"))
+        .transpose()?;
+    let specular = material(&stem, "ks")
+        .map(|p| dataset::load_float(&p, &camera, 3, "a Ks map"))
+        .transpose()?;
+    let roughness = material(&stem, "rough")
+        .map(|p| dataset::load_float(&p, &camera, 1, "a roughness map"))
+        .transpose()?;
+    let frame = Frame {
+        name: stem,
+        split: Split::Train,
+        camera,
+        image_path,
+        rgb,
+        hdr,
+        depth,
+        normal,
+        emitter_mask,
+        albedo,
+        specular,
+        roughness,
+    };
+    Ok((frame, depth_dropped))
+}
+
+/// A validation view: its image only (the release has no annotations for them).
+fn load_test_frame(camera: Camera, image_path: PathBuf) -> Result<Frame> {
+    let rgb = dataset::load_rgb(&image_path, &camera)?;
+    Ok(Frame {
+        name: format!("val_{}", image_path.file_stem().unwrap_or_default().to_string_lossy()),
+        split: Split::Test,
+        camera,
+        image_path,
+        rgb,
+        hdr: None,
+        depth: None,
+        normal: None,
+        emitter_mask: None,
+        albedo: None,
+        specular: None,
+        roughness: None,
+    })
+}
+
 /// [`load`] with the camera archive already open (from a file or from bytes in memory: see
 /// [`load_with_npz_bytes`]); `npz_path` names it in errors. The images are read from `root`.
 pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
@@ -155,147 +332,24 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
     npz_path: &Path,
     mut npz: npyz::npz::NpzArchive<R>,
 ) -> Result<Dataset> {
-    let image_dir = root.join("image");
     let frame_exts: Vec<&str> = imageio::RASTER_EXTENSIONS.iter().copied().chain(["exr"]).collect();
-    let images =
-        list_dir(&image_dir, &frame_exts)?.ok_or_else(|| DataError::file(&image_dir, "directory not found"))?;
-    if images.is_empty() {
-        return Err(DataError::file(&image_dir, "no images: the 'train' split is empty"));
-    }
-    let val_dir = root.join("val");
-    let vals = list_dir(&val_dir, &frame_exts)?.unwrap_or_default();
-    if vals.is_empty() {
-        return Err(DataError::file(
-            &val_dir,
-            "no validation images: the 'test' split is empty",
-        ));
-    }
+    let (images, vals) = list_views(root, &frame_exts)?;
+    let annotations = Annotations::list(root, images.len())?;
 
-    // Optional per-view annotation directories must match the images one to one.
-    let matched = |sub: &str, exts: &[&str]| -> Result<Option<Vec<PathBuf>>> {
-        let dir = root.join(sub);
-        match list_dir(&dir, exts)? {
-            None => Ok(None),
-            Some(files) if files.len() == images.len() => Ok(Some(files)),
-            Some(files) => Err(DataError::file(
-                &dir,
-                format!("has {} files but image/ has {} images", files.len(), images.len()),
-            )),
-        }
-    };
-    let depths = matched("depth", &["exr", "npy"])?;
-    let normals = matched("normal", &["exr", "npy"])?;
-    let light_masks = matched("light_mask", &["png", "exr"])?;
-    let hdrs = matched("hdr", &["exr"])?;
+    let size = image_size(&images[0])?;
+    let cameras = read_cameras(&mut npz, npz_path, "world_mat", images.len(), size)?;
+    let val_cameras = read_cameras(&mut npz, npz_path, "val_mat", vals.len(), size)?;
+    check_scale_mat(&mut npz, npz_path)?;
 
-    let npz_path = npz_path.to_path_buf();
-    let (w, h) = image_size(&images[0])?;
-    let mut cameras = Vec::new();
-    for i in 0..images.len() {
-        let name = format!("world_mat_{i}");
-        let m = read_matrix(&mut npz, &npz_path, &name)?;
-        cameras.push(camera_from_projection(m, w, h).map_err(|e| DataError::field(&npz_path, &name, e))?);
-    }
-    let mut val_cameras = Vec::new();
-    for i in 0..vals.len() {
-        let name = format!("val_mat_{i}");
-        let m = read_matrix(&mut npz, &npz_path, &name)?;
-        val_cameras.push(camera_from_projection(m, w, h).map_err(|e| DataError::field(&npz_path, &name, e))?);
-    }
-    // scale_mat_0 must be a similarity (VolSDF normalization); read it to validate the file.
-    let scale = read_matrix(&mut npz, &npz_path, "scale_mat_0")?;
-    if scale[0][0] <= 0.0
-        || (scale[0][0] - scale[1][1]).abs() > 1e-6 * scale[0][0]
-        || (scale[0][0] - scale[2][2]).abs() > 1e-6 * scale[0][0]
-    {
-        return Err(DataError::field(
-            &npz_path,
-            "scale_mat_0",
-            "not a uniform scale + translation",
-        ));
-    }
-
-    let material_dir = root.join("material");
-    let material = |stem: &str, suffix: &str| -> Option<PathBuf> {
-        let p = material_dir.join(format!("{stem}_{suffix}.exr"));
-        p.is_file().then_some(p)
-    };
-
+    // Every view is loaded before any error is reported, then the first error in view order wins
+    // (so the message does not depend on thread timing).
     let train: Vec<Result<(Frame, DepthDropped)>> = (0..images.len())
         .into_par_iter()
-        .map(|i| {
-            let camera = cameras[i].clone();
-            let image_path = images[i].clone();
-            let stem = image_path
-                .file_stem()
-                .unwrap_or_default()
-                .to_string_lossy()
-                .into_owned();
-            let rgb = dataset::load_rgb(&image_path, &camera)?;
-            let rot = camera.rotation();
-            let (depth, depth_dropped) = match &depths {
-                Some(d) => {
-                    let (depth, dropped) = sensor_depth::load_depth(&d[i], &camera, 1.0, None)?;
-                    (Some(depth), dropped)
-                }
-                None => (None, DepthDropped::default()),
-            };
-            let normal = normals
-                .as_ref()
-                .map(|n| dataset::load_normal(&n[i], &camera, Some(rot)))
-                .transpose()?;
-            let emitter_mask = light_masks
-                .as_ref()
-                .map(|m| dataset::load_mask(&m[i], &camera))
-                .transpose()?;
-            let hdr = hdrs.as_ref().map(|m| dataset::load_rgb(&m[i], &camera)).transpose()?;
-            let albedo = material(&stem, "kd")
-                .map(|p| dataset::load_float(&p, &camera, 3, "a Kd map"))
-                .transpose()?;
-            let specular = material(&stem, "ks")
-                .map(|p| dataset::load_float(&p, &camera, 3, "a Ks map"))
-                .transpose()?;
-            let roughness = material(&stem, "rough")
-                .map(|p| dataset::load_float(&p, &camera, 1, "a roughness map"))
-                .transpose()?;
-            let frame = Frame {
-                name: stem,
-                split: Split::Train,
-                camera,
-                image_path,
-                rgb,
-                hdr,
-                depth,
-                normal,
-                emitter_mask,
-                albedo,
-                specular,
-                roughness,
-            };
-            Ok((frame, depth_dropped))
-        })
+        .map(|i| load_train_frame(root, i, cameras[i].clone(), images[i].clone(), &annotations))
         .collect();
     let test: Vec<Result<Frame>> = (0..vals.len())
         .into_par_iter()
-        .map(|i| {
-            let camera = val_cameras[i].clone();
-            let image_path = vals[i].clone();
-            let rgb = dataset::load_rgb(&image_path, &camera)?;
-            Ok(Frame {
-                name: format!("val_{}", image_path.file_stem().unwrap_or_default().to_string_lossy()),
-                split: Split::Test,
-                camera,
-                image_path,
-                rgb,
-                hdr: None,
-                depth: None,
-                normal: None,
-                emitter_mask: None,
-                albedo: None,
-                specular: None,
-                roughness: None,
-            })
-        })
+        .map(|i| load_test_frame(val_cameras[i].clone(), vals[i].clone()))
         .collect();
     let mut depth_dropped = DepthDropped::default();
     let mut frames = Vec::with_capacity(train.len() + test.len());
@@ -311,8 +365,8 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
         root: root.to_path_buf(),
         format: Format::Paper,
         frames,
-        ldr_transfer: "srgb".into(),
-        ldr_exposure: None,
+        // The format declares no radiometry: sRGB images, no exposure.
+        radiometry: Radiometry::default(),
         // The release's poses are the renderer's own (synthetic) or calibrated (real rooms).
         poses_exact: true,
         emitters: Vec::new(),

@@ -212,12 +212,58 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<TriangleMesh, DataError> {
 /// [`read_ply`] of a file's bytes already in memory (`path` names the file in errors).
 pub fn parse_ply(path: &Path, bytes: &[u8]) -> Result<TriangleMesh, DataError> {
     let (encoding, elements, body_start) = parse_header(path, bytes)?;
-    // Every value takes at least one byte of the body (a digit and a separator in ASCII), so an
-    // element count the body cannot hold is refused here, before anything is reserved or looped
-    // over: a header that claims 10¹² vertices costs nothing.
-    let body_len = (bytes.len() - body_start) as u128;
-    let mut needed = 0u128;
+    check_body_can_hold(path, encoding, &elements, bytes.len() - body_start)?;
+    let mut body = BodyReader {
+        encoding,
+        bytes: &bytes[body_start..],
+        pos: 0,
+        path,
+    };
+    let mut mesh = TriangleMesh::default();
+    let mut object_ids = Vec::new();
+    let mut saw_vertex = false;
+    let mut has_object_id = false;
     for element in &elements {
+        match element.name.as_str() {
+            "vertex" => {
+                saw_vertex = true;
+                read_vertices(&mut body, element, &mut mesh)?;
+            }
+            "face" => has_object_id = read_faces(&mut body, element, &mut mesh, &mut object_ids)?,
+            // An element without properties holds no data: a huge count of it would only spin.
+            _ if element.properties.is_empty() => {}
+            _ => skip_element(&mut body, element)?,
+        }
+    }
+    if !saw_vertex {
+        return Err(DataError::file(path, "PLY has no 'vertex' element"));
+    }
+    let n = mesh.positions.len() as u32;
+    if let Some(f) = mesh.faces.iter().position(|f| f.iter().any(|&v| v >= n)) {
+        return Err(DataError::field(
+            path,
+            "face",
+            format!("triangle {f} indexes past the {n} vertices: {:?}", mesh.faces[f]),
+        ));
+    }
+    if has_object_id {
+        mesh.face_object_ids = Some(object_ids);
+    }
+    Ok(mesh)
+}
+
+/// Every value takes at least one byte of the body (a digit and a separator in ASCII), so an
+/// element count the body cannot hold is refused here, before anything is reserved or looped
+/// over: a header that claims 10¹² vertices costs nothing.
+fn check_body_can_hold(
+    path: &Path,
+    encoding: Encoding,
+    elements: &[Element],
+    body_len: usize,
+) -> Result<(), DataError> {
+    let body_len = body_len as u128;
+    let mut needed = 0u128;
+    for element in elements {
         let min_bytes: u128 = element
             .properties
             .iter()
@@ -238,144 +284,130 @@ pub fn parse_ply(path: &Path, bytes: &[u8]) -> Result<TriangleMesh, DataError> {
             ),
         ));
     }
-    let mut body = BodyReader {
-        encoding,
-        bytes: &bytes[body_start..],
-        pos: 0,
-        path,
-    };
-    let mut mesh = TriangleMesh::default();
-    let mut object_ids = Vec::new();
-    let mut saw_vertex = false;
-    let mut has_object_id = false;
-    for element in &elements {
-        match element.name.as_str() {
-            "vertex" => {
-                saw_vertex = true;
-                let coord = ["x", "y", "z"].map(|axis| element.properties.iter().position(|p| p.name == axis));
-                for (axis, c) in ["x", "y", "z"].iter().zip(coord) {
-                    match c {
-                        None => return Err(DataError::field(path, format!("vertex.{axis}"), "missing")),
-                        Some(i) if element.properties[i].list_count.is_some() => {
-                            return Err(DataError::field(path, format!("vertex.{axis}"), "is a list"))
-                        }
-                        Some(_) => {}
-                    }
-                }
-                let coord = coord.map(Option::unwrap);
-                mesh.positions.reserve(element.count);
-                for v in 0..element.count {
-                    let mut p = [0.0f32; 3];
-                    for (i, prop) in element.properties.iter().enumerate() {
-                        if let Some(count_type) = prop.list_count {
-                            let n = body.read(count_type)? as usize;
-                            for _ in 0..n {
-                                body.read(prop.value)?;
-                            }
-                            continue;
-                        }
-                        let value = body.read(prop.value)?;
-                        if let Some(axis) = coord.iter().position(|&c| c == i) {
-                            p[axis] = value as f32;
-                        }
-                    }
-                    if p.iter().any(|x| !x.is_finite()) {
-                        return Err(DataError::field(
-                            path,
-                            "vertex",
-                            format!("vertex {v} is not finite: {p:?}"),
-                        ));
-                    }
-                    mesh.positions.push(p);
-                }
-            }
-            "face" => {
-                let indices = element
-                    .properties
-                    .iter()
-                    .position(|p| p.name == "vertex_indices" || p.name == "vertex_index")
-                    .ok_or_else(|| {
-                        DataError::field(path, "face", "no 'vertex_indices' or 'vertex_index' list property")
-                    })?;
-                if element.properties[indices].list_count.is_none() {
-                    return Err(DataError::field(path, "face.vertex_indices", "is not a list"));
-                }
-                let object_id = element.properties.iter().position(|p| p.name == "object_id");
-                has_object_id = object_id.is_some();
-                let mut polygon = Vec::new();
-                for f in 0..element.count {
-                    let mut id = 0i32;
-                    let mut triangles = 0;
-                    for (i, prop) in element.properties.iter().enumerate() {
-                        let Some(count_type) = prop.list_count else {
-                            let value = body.read(prop.value)?;
-                            if Some(i) == object_id {
-                                id = value as i32;
-                            }
-                            continue;
-                        };
-                        let n = body.read(count_type)? as usize;
-                        polygon.clear();
-                        for _ in 0..n {
-                            polygon.push(body.read(prop.value)?);
-                        }
-                        if i != indices {
-                            continue;
-                        }
-                        if n < 3 {
-                            return Err(DataError::field(path, "face", format!("face {f} has {n} vertices")));
-                        }
-                        if polygon
-                            .iter()
-                            .any(|&x| x < 0.0 || x.fract() != 0.0 || x >= u32::MAX as f64)
-                        {
-                            return Err(DataError::field(path, "face", format!("face {f} has a bad index")));
-                        }
-                        // Polygons are fan-triangulated.
-                        for k in 1..n - 1 {
-                            mesh.faces
-                                .push([polygon[0], polygon[k], polygon[k + 1]].map(|x| x as u32));
-                        }
-                        triangles = n - 2;
-                    }
-                    if has_object_id {
-                        object_ids.extend(std::iter::repeat_n(id, triangles));
-                    }
-                }
-            }
-            // An element without properties holds no data: a huge count of it would only spin.
-            _ if element.properties.is_empty() => {}
-            _ => {
-                for _ in 0..element.count {
-                    for prop in &element.properties {
-                        if let Some(count_type) = prop.list_count {
-                            let n = body.read(count_type)? as usize;
-                            for _ in 0..n {
-                                body.read(prop.value)?;
-                            }
-                        } else {
-                            body.read(prop.value)?;
-                        }
-                    }
-                }
-            }
+    Ok(())
+}
+
+/// Reads and drops the values of one property of the current element (all of a list's).
+fn skip_property(body: &mut BodyReader, prop: &Property) -> Result<(), DataError> {
+    if let Some(count_type) = prop.list_count {
+        let n = body.read(count_type)? as usize;
+        for _ in 0..n {
+            body.read(prop.value)?;
+        }
+    } else {
+        body.read(prop.value)?;
+    }
+    Ok(())
+}
+
+/// Reads past an element the mesh does not use.
+fn skip_element(body: &mut BodyReader, element: &Element) -> Result<(), DataError> {
+    for _ in 0..element.count {
+        for prop in &element.properties {
+            skip_property(body, prop)?;
         }
     }
-    if !saw_vertex {
-        return Err(DataError::file(path, "PLY has no 'vertex' element"));
+    Ok(())
+}
+
+/// Appends the `vertex` element's positions (`x y z`; other properties are skipped) to the mesh.
+fn read_vertices(body: &mut BodyReader, element: &Element, mesh: &mut TriangleMesh) -> Result<(), DataError> {
+    let path = body.path;
+    let coord = ["x", "y", "z"].map(|axis| element.properties.iter().position(|p| p.name == axis));
+    for (axis, c) in ["x", "y", "z"].iter().zip(coord) {
+        match c {
+            None => return Err(DataError::field(path, format!("vertex.{axis}"), "missing")),
+            Some(i) if element.properties[i].list_count.is_some() => {
+                return Err(DataError::field(path, format!("vertex.{axis}"), "is a list"))
+            }
+            Some(_) => {}
+        }
     }
-    let n = mesh.positions.len() as u32;
-    if let Some(f) = mesh.faces.iter().position(|f| f.iter().any(|&v| v >= n)) {
-        return Err(DataError::field(
-            path,
-            "face",
-            format!("triangle {f} indexes past the {n} vertices: {:?}", mesh.faces[f]),
-        ));
+    let coord = coord.map(Option::unwrap);
+    mesh.positions.reserve(element.count);
+    for v in 0..element.count {
+        let mut p = [0.0f32; 3];
+        for (i, prop) in element.properties.iter().enumerate() {
+            if prop.list_count.is_some() {
+                skip_property(body, prop)?;
+                continue;
+            }
+            let value = body.read(prop.value)?;
+            if let Some(axis) = coord.iter().position(|&c| c == i) {
+                p[axis] = value as f32;
+            }
+        }
+        if p.iter().any(|x| !x.is_finite()) {
+            return Err(DataError::field(
+                path,
+                "vertex",
+                format!("vertex {v} is not finite: {p:?}"),
+            ));
+        }
+        mesh.positions.push(p);
     }
-    if has_object_id {
-        mesh.face_object_ids = Some(object_ids);
+    Ok(())
+}
+
+/// Appends the `face` element's polygons, fan-triangulated, to the mesh, and each triangle's
+/// `object_id` to `object_ids` when the element has that property. Returns whether it has.
+fn read_faces(
+    body: &mut BodyReader,
+    element: &Element,
+    mesh: &mut TriangleMesh,
+    object_ids: &mut Vec<i32>,
+) -> Result<bool, DataError> {
+    let path = body.path;
+    let indices = element
+        .properties
+        .iter()
+        .position(|p| p.name == "vertex_indices" || p.name == "vertex_index")
+        .ok_or_else(|| DataError::field(path, "face", "no 'vertex_indices' or 'vertex_index' list property"))?;
+    if element.properties[indices].list_count.is_none() {
+        return Err(DataError::field(path, "face.vertex_indices", "is not a list"));
     }
-    Ok(mesh)
+    let object_id = element.properties.iter().position(|p| p.name == "object_id");
+    let mut polygon = Vec::new();
+    for f in 0..element.count {
+        let mut id = 0i32;
+        let mut triangles = 0;
+        for (i, prop) in element.properties.iter().enumerate() {
+            let Some(count_type) = prop.list_count else {
+                let value = body.read(prop.value)?;
+                if Some(i) == object_id {
+                    id = value as i32;
+                }
+                continue;
+            };
+            let n = body.read(count_type)? as usize;
+            polygon.clear();
+            for _ in 0..n {
+                polygon.push(body.read(prop.value)?);
+            }
+            if i != indices {
+                continue;
+            }
+            if n < 3 {
+                return Err(DataError::field(path, "face", format!("face {f} has {n} vertices")));
+            }
+            if polygon
+                .iter()
+                .any(|&x| x < 0.0 || x.fract() != 0.0 || x >= u32::MAX as f64)
+            {
+                return Err(DataError::field(path, "face", format!("face {f} has a bad index")));
+            }
+            // Polygons are fan-triangulated.
+            for k in 1..n - 1 {
+                mesh.faces
+                    .push([polygon[0], polygon[k], polygon[k + 1]].map(|x| x as u32));
+            }
+            triangles = n - 2;
+        }
+        if object_id.is_some() {
+            object_ids.extend(std::iter::repeat_n(id, triangles));
+        }
+    }
+    Ok(object_id.is_some())
 }
 
 /// Writes a binary little-endian PLY: float `x y z` vertices, faces as `uchar` count + `int`

@@ -36,6 +36,8 @@ pub struct Summary {
     pub bounds: Bounds,
     pub bounds_source: BoundsSource,
     pub normalization: Normalization,
+    /// The dataset's transfer by name (`"srgb"` or `"linear"`), as `check --json` has always
+    /// written it.
     pub ldr_transfer: String,
     /// How a COLMAP model's scale was tied to its depth maps (None otherwise).
     pub colmap_scale: Option<ScaleFix>,
@@ -83,7 +85,7 @@ impl Summary {
             bounds: ds.bounds,
             bounds_source: ds.bounds_source,
             normalization: ds.normalization,
-            ldr_transfer: ds.ldr_transfer.clone(),
+            ldr_transfer: ds.radiometry.transfer.name().to_string(),
             colmap_scale: ds.colmap_scale,
             mesh_path: ds.mesh_path.as_ref().map(|p| p.display().to_string()),
             relight_sets: ds

@@ -83,6 +83,11 @@ fn paper_format_loads_with_its_integer_pixel_and_camera_space_conventions() {
     let truth = fixture::write_paper(dir.path(), &anchored(DepthFormat::Exr));
     let ds = load(dir.path()).unwrap();
     assert_eq!(ds.format, Format::Paper);
+    assert_eq!(
+        ds.radiometry,
+        i2sdf_data::Radiometry::default(),
+        "sRGB, no exposure declared"
+    );
     assert_eq!((ds.count(Split::Train), ds.count(Split::Test)), (4, 2));
     for (f, c) in ds.frames.iter().zip(&truth) {
         assert!(
@@ -165,5 +170,46 @@ fn native_jpeg_frames_load() {
             .sum::<f32>()
             / a.rgb.data.len() as f32;
         assert!(mae < 0.03, "{}: JPEG mean error {mae}", b.name);
+    }
+}
+
+/// `transforms.json`'s `ldr: {transfer, exposure}` is parsed into the dataset's radiometry when it
+/// is loaded; a bad value is refused there, naming the file and the key (exit code 2).
+#[test]
+fn native_ldr_radiometry_is_parsed_at_load() {
+    use i2sdf_data::{DataError, Radiometry, Transfer};
+    let dir = tempfile::tempdir().unwrap();
+    fixture::write_native(dir.path(), &FixtureOptions::default());
+    let json_path = dir.path().join("transforms.json");
+    let original: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+    let with = |ldr: Option<serde_json::Value>| {
+        let mut v = original.clone();
+        if let Some(ldr) = ldr {
+            v["ldr"] = ldr;
+        }
+        std::fs::write(&json_path, serde_json::to_string(&v).unwrap()).unwrap();
+        load(dir.path())
+    };
+    assert_eq!(with(None).unwrap().radiometry, Radiometry::default());
+    let ds = with(Some(serde_json::json!({"transfer": "linear", "exposure": 2.5}))).unwrap();
+    assert_eq!(
+        ds.radiometry,
+        Radiometry {
+            transfer: Transfer::Linear,
+            exposure: Some(2.5)
+        }
+    );
+    for (ldr, key) in [
+        (serde_json::json!({"transfer": "gamma"}), "ldr.transfer"),
+        (serde_json::json!({"transfer": 2.2}), "ldr.transfer"),
+        (serde_json::json!({"exposure": -1.0}), "ldr.exposure"),
+        (serde_json::json!("linear"), "ldr"),
+    ] {
+        let e = with(Some(ldr.clone())).unwrap_err();
+        assert!(e.is_bad_input(), "{ldr}: {e}");
+        match e {
+            DataError::Field { path, field, .. } => assert_eq!((path, field.as_str()), (json_path.clone(), key)),
+            e => panic!("{ldr}: {e}"),
+        }
     }
 }

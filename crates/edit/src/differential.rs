@@ -24,8 +24,7 @@
 //! where the model over-estimated its share) are clamped to zero.
 
 use glam::Vec3;
-use i2sdf_data::ImageF32;
-use i2sdf_model::intrinsic::Radiometry;
+use i2sdf_data::{ImageF32, Radiometry};
 use i2sdf_render::ViewRender;
 
 /// How `i2sdf edit` and the relight evaluation form the edited image.

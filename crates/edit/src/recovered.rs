@@ -14,14 +14,13 @@ use crate::differential::hdr_ldr_images;
 use crate::scene::{BaseLights, EditedScene};
 use glam::{DVec3, Vec3};
 use i2sdf_data::edit_spec::EditSpec;
-use i2sdf_data::{Bounds, Camera, DataError, Dataset, EditAssets, ImageF32, TriangleMesh};
+use i2sdf_data::{Bounds, Camera, DataError, Dataset, EditAssets, ImageF32, Radiometry, TriangleMesh};
 use i2sdf_model::images::render_volume_view;
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::observed::ObservedViews;
 use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::{
-    emitter_cone_lights, extract_mesh, EmitterTable, FrozenScene, MaterialField, NeuralMaterial, NeuralScene,
-    OpenedRun, Radiometry,
+    emitter_cone_lights, extract_mesh, EmitterTable, FrozenScene, MaterialField, NeuralMaterial, NeuralScene, OpenedRun,
 };
 use i2sdf_render::{AreaLight, Estimator, Integrator, Light, MeshGeometry, PathStart, ViewRender, ViewSettings};
 

@@ -266,16 +266,17 @@ pub fn intrinsic_metrics_with_progress(
         psnr: mean(&p),
         ssim: mean(&s),
     };
-    let emitters = emitter_metrics(&fields.emitters, &dataset.emitters, dataset.ldr_exposure);
+    let emitters = emitter_metrics(&fields.emitters, &dataset.emitters, dataset.radiometry.exposure);
     Ok((rerender, acc.finish(), emitters))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use i2sdf_data::Radiometry;
     use i2sdf_model::images::{emission_map, rerender_hdr};
     use i2sdf_model::material_field::{MaterialConfig, MaterialField};
-    use i2sdf_model::{Emitter, ModelConfig, NeuralScene, Radiometry};
+    use i2sdf_model::{Emitter, ModelConfig, NeuralScene};
 
     fn emitter(centre: [f64; 3]) -> Emitter {
         Emitter {

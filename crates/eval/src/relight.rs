@@ -214,9 +214,10 @@ pub fn relight_metrics(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use i2sdf_data::Radiometry;
     use i2sdf_model::intrinsic_io::IntrinsicFields;
     use i2sdf_model::material_field::{MaterialConfig, MaterialField};
-    use i2sdf_model::{EmitterTable, InferenceConfig, ModelConfig, NeuralScene, Radiometry};
+    use i2sdf_model::{EmitterTable, InferenceConfig, ModelConfig, NeuralScene};
 
     /// Without emitters nothing is rendered (the spec is not even read: it does not exist) and
     /// every figure is null, each set keeping its frame count.

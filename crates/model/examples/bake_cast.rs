@@ -11,8 +11,8 @@
 //! # Measured: see `FrozenScene::bake`'s doc (2 shared cores, `/tmp/s2a`: traced ~50k rays/s,
 //! bake at 256 ≈ 5.5 s, baked ~400k rays/s, 99.4 % of the hits within 1 cm).
 
-use i2sdf_data::Split;
-use i2sdf_model::{EmitterTable, FrozenScene, LabelledHit, NeuralScene, Radiometry, SceneQuery};
+use i2sdf_data::{Radiometry, Split};
+use i2sdf_model::{EmitterTable, FrozenScene, LabelledHit, NeuralScene, SceneQuery};
 use i2sdf_render::Ray;
 use rand::{Rng, SeedableRng};
 use std::path::PathBuf;

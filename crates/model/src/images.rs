@@ -7,12 +7,12 @@
 //! stage 2 and the editor lives in `i2sdf_render`.)
 
 use crate::emitters::EmitterTable;
-use crate::intrinsic::{rerender_view, FrozenScene, Radiometry};
+use crate::intrinsic::{rerender_view, FrozenScene};
 use crate::intrinsic_io::IntrinsicFields;
 use crate::renderer::{self, RenderSettings, RenderWorkspace};
 use crate::scene::NeuralScene;
 use glam::{DVec3, Vec3};
-use i2sdf_data::{imageio, Camera, ImageF32};
+use i2sdf_data::{imageio, Camera, ImageF32, Radiometry};
 use i2sdf_render::ViewRender;
 
 /// The maps of one rendered view.

@@ -33,91 +33,13 @@ use crate::raycast::{CastSettings, Hit as CastHit, SdfCaster, CAST_CHUNK};
 use crate::renderer::sphere_exit;
 use crate::scene::NeuralScene;
 use glam::{DVec3, Vec3};
-use i2sdf_data::imageio::{self, linear_to_srgb, srgb_to_linear};
-use i2sdf_data::{Bounds, Camera, DataError, ImageF32};
+use i2sdf_data::{Bounds, Camera, DataError, Radiometry};
 use i2sdf_render::{
     render_view, Bvh, ConeLight, Estimator, Geometry, GgxBrdf, Hit as RenderHit, Integrator, Light, LightSet, Material,
     RadianceField, Ray, Scene, SurfacePoint, ViewRender, ViewSettings,
 };
 use rayon::prelude::*;
 use std::sync::Arc;
-
-/// How display-referred values map to linear radiance in the units of the input images.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Transfer {
-    /// LDR = sRGB OETF(linear) (the default of LDR datasets).
-    Srgb,
-    /// The values are linear already.
-    Linear,
-}
-
-/// The dataset's radiometry: its transfer, and the exposure its LDR images were made with
-/// (LDR = transfer(exposure · HDR), so linear image units = exposure × physical radiance).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Radiometry {
-    pub transfer: Transfer,
-    pub exposure: Option<f64>,
-}
-
-impl Default for Radiometry {
-    fn default() -> Self {
-        Radiometry {
-            transfer: Transfer::Srgb,
-            exposure: None,
-        }
-    }
-}
-
-impl Radiometry {
-    /// Display-referred value (an LDR pixel, F_c's output) → linear radiance in image units.
-    #[inline]
-    pub fn linearize(&self, v: f32) -> f32 {
-        match self.transfer {
-            Transfer::Srgb => srgb_to_linear(v),
-            Transfer::Linear => v,
-        }
-    }
-
-    /// Linear radiance → display value for PNG outputs: the dataset's own tone mapping (clamp to
-    /// [0, 1], then the transfer's OETF), so a re-rendered image compares directly with the
-    /// dataset's photographs.
-    #[inline]
-    pub fn encode(&self, linear: f32) -> f32 {
-        match self.transfer {
-            Transfer::Srgb => linear_to_srgb(linear),
-            Transfer::Linear => linear.clamp(0.0, 1.0),
-        }
-    }
-
-    /// [`Radiometry::encode`] of every value of a linear image: the dataset's tone mapping of a
-    /// whole image ([`imageio::tone_map_srgb`] for the sRGB transfer), comparable with its LDR
-    /// images.
-    pub fn encode_image(&self, linear: &ImageF32) -> ImageF32 {
-        match self.transfer {
-            Transfer::Srgb => imageio::tone_map_srgb(linear, 1.0),
-            Transfer::Linear => {
-                let mut out = linear.clone();
-                out.data.iter_mut().for_each(|x| *x = x.clamp(0.0, 1.0));
-                out
-            }
-        }
-    }
-
-    /// `"srgb"` or `"linear"` (case-insensitive); exposure, when given, must be positive.
-    pub fn from_name(transfer: &str, exposure: Option<f64>) -> Result<Self, String> {
-        let transfer = match transfer.to_ascii_lowercase().as_str() {
-            "srgb" => Transfer::Srgb,
-            "linear" => Transfer::Linear,
-            other => return Err(format!("transfer = {other:?}: must be \"srgb\" or \"linear\"")),
-        };
-        if let Some(x) = exposure {
-            if !(x.is_finite() && x > 0.0) {
-                return Err(format!("exposure = {x}: must be a finite positive number"));
-            }
-        }
-        Ok(Radiometry { transfer, exposure })
-    }
-}
 
 /// A ray's first surface hit in the frozen scene, labelled.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -5,11 +5,10 @@
 //! stage 2 added.
 
 use crate::emitters::{Emitter, EmitterTable};
-use crate::intrinsic::{Radiometry, Transfer};
 use crate::material_field::{MaterialBackbone, MaterialConfig, MaterialField};
 use crate::run_dir::RunDir;
 use crate::scene::{check_table_fits, checkpoint_header, param_error, NeuralScene, OPTIMIZER_PREFIX};
-use i2sdf_data::DataError;
+use i2sdf_data::{DataError, Radiometry};
 use i2sdf_nn::params::{load_modules, ModuleSlot};
 use i2sdf_nn::{save_safetensors, Parameters};
 use std::collections::HashMap;
@@ -44,14 +43,7 @@ impl IntrinsicFields {
             "emitters".to_string(),
             serde_json::to_string(&self.emitters.emitters).expect("serializes"),
         );
-        metadata.insert(
-            "transfer".to_string(),
-            match self.radiometry.transfer {
-                Transfer::Srgb => "srgb",
-                Transfer::Linear => "linear",
-            }
-            .to_string(),
-        );
+        metadata.insert("transfer".to_string(), self.radiometry.transfer.name().to_string());
         metadata.insert(
             "exposure".to_string(),
             serde_json::to_string(&self.radiometry.exposure).expect("serializes"),
@@ -159,6 +151,7 @@ pub fn load_run(run: &RunDir) -> Result<(NeuralScene, Option<IntrinsicFields>), 
 mod tests {
     use super::*;
     use crate::material_field::MaterialBackbone;
+    use i2sdf_data::Transfer;
 
     #[test]
     fn round_trips_and_names_what_is_missing() {

@@ -1,9 +1,10 @@
 //! Tests of `intrinsic.rs`: labelled casts, field queries, the render adapters, the re-render and
-//! the baked surface.
+//! the baked surface. (`Radiometry` and its tests live in `i2sdf_data::radiometry`.)
 use super::*;
 use crate::emitters::Emitter;
 use crate::material_field::MaterialConfig;
 use glam::DMat4;
+use i2sdf_data::imageio::srgb_to_linear;
 use i2sdf_data::Normalization;
 
 /// The tiny inverted sphere, moved and scaled in the world (to exercise the transforms).
@@ -438,16 +439,4 @@ fn baked_cast_agrees_with_the_tracer() {
     let mut all = vec![None; rays.len()];
     holed.cast(&rays, &mut all);
     assert_agree(&all, &traced, 0.35 * holed.baked.as_ref().unwrap().voxel);
-}
-
-#[test]
-fn radiometry() {
-    let r = Radiometry::from_name("sRGB", Some(2.0)).unwrap();
-    assert_eq!(r.transfer, Transfer::Srgb);
-    assert!((r.linearize(r.encode(0.2)) - 0.2).abs() < 1e-5);
-    let l = Radiometry::from_name("linear", None).unwrap();
-    assert_eq!((l.linearize(0.3), l.encode(1.7)), (0.3, 1.0));
-    assert!(Radiometry::default().encode(3.0) > 0.9999);
-    assert!(Radiometry::from_name("gamma", None).unwrap_err().contains("srgb"));
-    assert!(Radiometry::from_name("srgb", Some(-1.0)).is_err());
 }

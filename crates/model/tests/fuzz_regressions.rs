@@ -2,8 +2,7 @@
 //! (the `checkpoint` fuzz target's class of input, docs/ARCHITECTURE.md, "Fuzzing"): each is refused with an
 //! error naming the file and the metadata field, before a field is allocated.
 
-use i2sdf_data::Normalization;
-use i2sdf_model::intrinsic::Radiometry;
+use i2sdf_data::{Normalization, Radiometry};
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::material_field::{MaterialBackbone, MaterialConfig, MaterialField};
 use i2sdf_model::{Emitter, EmitterTable, ModelConfig, NeuralScene};

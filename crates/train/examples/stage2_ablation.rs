@@ -259,7 +259,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let pairs = neighbour_pairs(&px, &widths, &s);
         let bound = stage.emissions();
         let est = estimate_emission(&px, &sums, &pairs, &bound, &vec![true; bound.len()], &s);
-        let exposure = gt_data.ldr_exposure.unwrap_or(1.0) as f32;
+        let exposure = gt_data.radiometry.exposure.unwrap_or(1.0) as f32;
         for (k, e) in est.iter().enumerate() {
             let c = stage.fields.emitters.emitters[k].centre;
             let gt = gt_data.emitters.iter().min_by(|a, b| {
@@ -326,7 +326,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let idx: Vec<usize> = (0..hits.len()).filter(|&i| hits[i].is_some()).collect();
     let world: Vec<Vec3> = idx.iter().map(|&i| hits[i].unwrap().position).collect();
-    let exposure = gt_data.ldr_exposure.unwrap_or(1.0) as f32;
+    let exposure = gt_data.radiometry.exposure.unwrap_or(1.0) as f32;
     for (vi, sets) in variants.iter().enumerate() {
         let config = config_of(sets)?;
         if vi > 0 {

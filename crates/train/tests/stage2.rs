@@ -3,9 +3,9 @@
 //! a fit from re-rendered targets recovers the albedo.
 
 use glam::{DMat4, DVec3, Vec3};
-use i2sdf_data::{Camera, Normalization};
+use i2sdf_data::{Camera, Normalization, Radiometry, Transfer};
 use i2sdf_model::emitters::{Emitter, EmitterTable};
-use i2sdf_model::intrinsic::{FrozenScene, Radiometry, Transfer};
+use i2sdf_model::intrinsic::FrozenScene;
 use i2sdf_model::{ModelConfig, NeuralScene};
 use i2sdf_render::{
     render_view, Estimator, GgxBrdf, Integrator, LightSet, Material, Scene, SurfacePoint, ViewSettings,

@@ -54,7 +54,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "emitter_detection": maps.detection,
         });
         v["exposure"] = serde_json::json!({
-            "declared": dataset.ldr_exposure,
+            "declared": dataset.radiometry.exposure,
             "measured": exposure,
             "warnings": radiometry_warnings,
         });
@@ -77,14 +77,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         match &exposure {
             Some(e) => println!(
                 "exposure     declared {}, measured {:.4} from the LDR/HDR pairs ({} channels, spread {:.1} %)",
-                dataset.ldr_exposure.map_or("–".to_string(), |d| d.to_string()),
+                dataset.radiometry.exposure.map_or("–".to_string(), |d| d.to_string()),
                 e.exposure,
                 e.samples,
                 100.0 * e.spread
             ),
             None => println!(
                 "exposure     declared {} (no LDR/HDR pairs to measure it)",
-                dataset.ldr_exposure.map_or("–".to_string(), |d| d.to_string())
+                dataset.radiometry.exposure.map_or("–".to_string(), |d| d.to_string())
             ),
         }
         println!("training memory (estimate): stage 1 {}", estimate.stage1.describe());

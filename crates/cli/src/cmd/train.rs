@@ -133,7 +133,7 @@ fn check_exposure(dataset: &i2sdf_data::Dataset, data: &Path, trust: bool) -> an
     let Some(e) = i2sdf_data::exposure::estimate_exposure(dataset) else {
         return Ok(());
     };
-    if let Some(declared) = dataset.ldr_exposure.filter(|_| !trust) {
+    if let Some(declared) = dataset.radiometry.exposure.filter(|_| !trust) {
         if e.disagrees_with(declared) {
             anyhow::bail!(i2sdf_data::DataError::field(
                 data.join("transforms.json"),

@@ -35,9 +35,9 @@ pub mod targets;
 
 use emission_from_shading::{estimate_clipped_emission, saturated_emitters};
 use glam::Vec3;
-use i2sdf_data::DataError;
+use i2sdf_data::{DataError, Radiometry};
 use i2sdf_model::emitters::EmitterTable;
-use i2sdf_model::intrinsic::{BakedSurface, FrozenScene, Radiometry};
+use i2sdf_model::intrinsic::{BakedSurface, FrozenScene};
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::material_field::{MaterialBackbone, MaterialField, MaterialGrad, MaterialWorkspace};
 use i2sdf_model::observed::ObservedViews;

@@ -3,8 +3,7 @@
 //! in force ([`TrainingMaps`]: the dataset's, or found from the images) and the dataset's normals.
 
 use crate::maps::TrainingMaps;
-use i2sdf_data::{Dataset, Split};
-use i2sdf_model::intrinsic::{Radiometry, Transfer};
+use i2sdf_data::{Dataset, Radiometry, Split};
 
 /// LDR values at or above this are saturated (8-bit 255 with some slack for 16-bit PNGs).
 pub const SATURATED: f32 = 254.5 / 255.0;
@@ -24,16 +23,12 @@ pub struct TargetView {
     pub normal: Option<Vec<[f32; 3]>>,
 }
 
-/// The dataset's transfer and exposure: the declared exposure, else the one its LDR and HDR
-/// images measure (`i2sdf_data::exposure`), else none.
+/// The dataset's radiometry as stage 2 uses it: its transfer, and the declared exposure, else the
+/// one its LDR and HDR images measure (`i2sdf_data::exposure`), else none.
 pub fn radiometry(dataset: &Dataset) -> Radiometry {
     Radiometry {
-        transfer: if dataset.ldr_transfer == "linear" {
-            Transfer::Linear
-        } else {
-            Transfer::Srgb
-        },
         exposure: i2sdf_data::exposure::exposure_in_use(dataset),
+        ..dataset.radiometry
     }
 }
 
