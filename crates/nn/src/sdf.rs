@@ -755,21 +755,31 @@ impl SdfNetwork {
 
     /// Hands a tile's MLP input cotangent `X̄` (`dx`) on, level-major: its position columns to
     /// `xbar` (for [`SdfNetwork::position_gradient`]), its feature columns to `abar_levels` (what
-    /// the hash-table scatter adds up).
+    /// the hash-table scatter adds up). Row by row, with fixed-size copies for the usual 2
+    /// features (as in `assemble_input`): an indexed loop over a row's features got vectorized,
+    /// and its set-up, paid per row and level, cost more than the copies.
     #[inline]
     fn store_input_cotangent(&self, g: &HashGrid, sh: &BackwardShared, r0: usize, m: usize, dx: &[f32]) {
         let (d, n, f) = (self.in_dim(), sh.batch.n, g.config.features_per_level);
-        for r in 0..m {
-            for k in 0..3 {
-                // SAFETY: row r0 + r belongs to this chunk's tiles only.
-                unsafe { *sh.xbar.ptr().add((r0 + r) * 3 + k) = dx[r * d + k] };
-            }
+        // SAFETY (both slices): rows r0..r0 + m (of each level) belong to this chunk's tiles only,
+        // and the buffers hold n rows.
+        let xbar = unsafe { std::slice::from_raw_parts_mut(sh.xbar.ptr().add(r0 * 3), m * 3) };
+        for (o, s) in xbar.chunks_exact_mut(3).zip(dx.chunks_exact(d)) {
+            o[0] = s[0];
+            o[1] = s[1];
+            o[2] = s[2];
         }
         for l in 0..g.config.levels {
-            for r in 0..m {
-                for ff in 0..f {
-                    // SAFETY: row (l, r0 + r) belongs to this chunk's tiles only.
-                    unsafe { *sh.abar_levels.ptr().add((l * n + r0 + r) * f + ff) = dx[r * d + 3 + l * f + ff] };
+            let abar = unsafe { std::slice::from_raw_parts_mut(sh.abar_levels.ptr().add((l * n + r0) * f), m * f) };
+            let col = 3 + l * f;
+            if f == 2 {
+                for (o, s) in abar.chunks_exact_mut(2).zip(dx.chunks_exact(d)) {
+                    o[0] = s[col];
+                    o[1] = s[col + 1];
+                }
+            } else {
+                for (o, s) in abar.chunks_exact_mut(f).zip(dx.chunks_exact(d)) {
+                    o.copy_from_slice(&s[col..col + f]);
                 }
             }
         }
