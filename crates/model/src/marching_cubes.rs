@@ -6,7 +6,7 @@
 
 use crate::mc_band::BandMask;
 pub use crate::mc_band::NarrowBand;
-use crate::mc_tables::case_table;
+use crate::mc_tables::{case_table, CaseLoop};
 use crate::memory::{gib, MachineMemory};
 use crate::query::SceneQuery;
 use crate::scene::NeuralScene;
@@ -166,7 +166,30 @@ struct PlaneSource<'g, F> {
     batch_values: Vec<f32>,
 }
 
-impl<F: FnMut(&[[f32; 3]], &mut [f32])> PlaneSource<'_, F> {
+impl<'g, F: FnMut(&[[f32; 3]], &mut [f32])> PlaneSource<'g, F> {
+    /// The planes of `grid` from `sampler`; with a narrow band (step > 1), its mask is built
+    /// first, from a coarse pass of the sampler.
+    fn new(grid: &'g McGrid, options: &McOptions, mut sampler: F) -> Result<Self, DataError> {
+        let band = match &options.narrow_band {
+            Some(b) if b.step > 1 => Some(BandMask::build(grid, b, options.iso, options.batch_points, |p, v| {
+                sample_checked(&mut sampler, p, v)
+            })?),
+            _ => None,
+        };
+        Ok(PlaneSource {
+            grid,
+            sampler,
+            batch_points: options.batch_points,
+            band,
+            block_first_plane: 0,
+            block_planes: 0,
+            block_values: Vec::new(),
+            points: Vec::new(),
+            targets: Vec::new(),
+            batch_values: Vec::new(),
+        })
+    }
+
     fn plane_len(&self) -> usize {
         self.grid.samples[0] * self.grid.samples[1]
     }
@@ -239,43 +262,64 @@ where
     }
     // Before anything is allocated: a resolution that cannot fit is refused, not swapped to death.
     grid.check_fits(options, MachineMemory::read().map(|m| m.available))?;
-    let iso = options.iso;
-    let mut sampler = sampler;
-    let band = match &options.narrow_band {
-        Some(b) if b.step > 1 => Some(BandMask::build(grid, b, iso, options.batch_points, |p, v| {
-            sample_checked(&mut sampler, p, v)
-        })?),
-        _ => None,
-    };
-    let mut source = PlaneSource {
-        grid,
-        sampler,
-        batch_points: options.batch_points,
-        band,
-        block_first_plane: 0,
-        block_planes: 0,
-        block_values: Vec::new(),
-        points: Vec::new(),
-        targets: Vec::new(),
-        batch_values: Vec::new(),
-    };
-    let plane_len = nx * ny;
-    let mut mesh = TriangleMesh::default();
-    let mut values = [vec![0.0f32; plane_len], vec![0.0f32; plane_len]];
-    // Vertex ids of the x- and y-edges of the two live planes, and of the z-edges between them.
-    let mut x_edges = [vec![NO_VERTEX; plane_len], vec![NO_VERTEX; plane_len]];
-    let mut y_edges = [vec![NO_VERTEX; plane_len], vec![NO_VERTEX; plane_len]];
-    let mut z_edges = vec![NO_VERTEX; plane_len];
-    let idx = |i: usize, j: usize| i + nx * j;
+    let mut source = PlaneSource::new(grid, options, sampler)?;
+    let mut slab = Slab::new(grid, options.iso);
+    source.plane(0, &mut slab.values[0])?;
+    slab.plane_vertices(0, 0);
+    for k in 0..nz - 1 {
+        let (lo, hi) = (k % 2, (k + 1) % 2);
+        source.plane(k + 1, &mut slab.values[hi])?;
+        slab.plane_vertices(k + 1, hi);
+        slab.z_edge_vertices(k, lo, hi);
+        slab.cell_faces(lo, hi);
+    }
+    let mut mesh = slab.mesh;
+    if let Some(fraction) = options.min_component_area_fraction {
+        mesh.remove_small_components(fraction);
+    }
+    Ok(mesh)
+}
 
-    let add_vertex = |mesh: &mut TriangleMesh, pa: [f64; 3], va: f32, pb: [f64; 3], vb: f32| {
-        let t = (iso as f64 - va as f64) / (vb as f64 - va as f64);
-        mesh.positions
-            .push(std::array::from_fn(|a| (pa[a] + t * (pb[a] - pa[a])) as f32));
-        (mesh.positions.len() - 1) as u32
-    };
-    // Creates the vertices on plane k's crossing x- and y-edges.
-    let plane_vertices = |mesh: &mut TriangleMesh, k: usize, vals: &[f32], xe: &mut [u32], ye: &mut [u32]| {
+/// The sweep's two live z-planes (index 0 or 1 by parity): their samples, the vertex ids of their
+/// crossing x- and y-edges and of the z-edges between them, and the mesh so far.
+struct Slab<'g> {
+    grid: &'g McGrid,
+    iso: f32,
+    nx: usize,
+    ny: usize,
+    values: [Vec<f32>; 2],
+    x_edges: [Vec<u32>; 2],
+    y_edges: [Vec<u32>; 2],
+    z_edges: Vec<u32>,
+    mesh: TriangleMesh,
+}
+
+impl<'g> Slab<'g> {
+    fn new(grid: &'g McGrid, iso: f32) -> Self {
+        let [nx, ny, _] = grid.samples;
+        let plane_len = nx * ny;
+        Slab {
+            grid,
+            iso,
+            nx,
+            ny,
+            values: [vec![0.0f32; plane_len], vec![0.0f32; plane_len]],
+            x_edges: [vec![NO_VERTEX; plane_len], vec![NO_VERTEX; plane_len]],
+            y_edges: [vec![NO_VERTEX; plane_len], vec![NO_VERTEX; plane_len]],
+            z_edges: vec![NO_VERTEX; plane_len],
+            mesh: TriangleMesh::default(),
+        }
+    }
+
+    fn idx(&self, i: usize, j: usize) -> usize {
+        i + self.nx * j
+    }
+
+    /// Creates the vertices on the crossing x- and y-edges of plane `k`, held as plane `p`.
+    fn plane_vertices(&mut self, k: usize, p: usize) {
+        let (grid, iso, nx, ny) = (self.grid, self.iso, self.nx, self.ny);
+        let idx = |i: usize, j: usize| i + nx * j;
+        let (vals, xe, ye) = (&self.values[p], &mut self.x_edges[p], &mut self.y_edges[p]);
         xe.fill(NO_VERTEX);
         ye.fill(NO_VERTEX);
         for j in 0..ny {
@@ -284,96 +328,120 @@ where
                 if i + 1 < nx {
                     let w = vals[idx(i + 1, j)];
                     if (v < iso) != (w < iso) {
-                        xe[idx(i, j)] = add_vertex(mesh, grid.point(i, j, k), v, grid.point(i + 1, j, k), w);
+                        xe[idx(i, j)] =
+                            add_vertex(&mut self.mesh, iso, grid.point(i, j, k), v, grid.point(i + 1, j, k), w);
                     }
                 }
                 if j + 1 < ny {
                     let w = vals[idx(i, j + 1)];
                     if (v < iso) != (w < iso) {
-                        ye[idx(i, j)] = add_vertex(mesh, grid.point(i, j, k), v, grid.point(i, j + 1, k), w);
+                        ye[idx(i, j)] =
+                            add_vertex(&mut self.mesh, iso, grid.point(i, j, k), v, grid.point(i, j + 1, k), w);
                     }
                 }
             }
         }
-    };
-
-    let table = case_table();
-    source.plane(0, &mut values[0])?;
-    {
-        let (xe, ye) = (&mut x_edges[0], &mut y_edges[0]);
-        plane_vertices(&mut mesh, 0, &values[0], xe, ye);
     }
-    for k in 0..nz - 1 {
-        let (lo, hi) = (k % 2, (k + 1) % 2);
-        source.plane(k + 1, &mut values[hi])?;
-        {
-            let (xe, ye) = (&mut x_edges[hi], &mut y_edges[hi]);
-            plane_vertices(&mut mesh, k + 1, &values[hi], xe, ye);
-        }
-        z_edges.fill(NO_VERTEX);
-        for j in 0..ny {
-            for i in 0..nx {
-                let (v, w) = (values[lo][idx(i, j)], values[hi][idx(i, j)]);
+
+    /// Creates the vertices on the crossing z-edges between plane `k` (held as `lo`) and `k + 1`
+    /// (held as `hi`).
+    fn z_edge_vertices(&mut self, k: usize, lo: usize, hi: usize) {
+        let (grid, iso) = (self.grid, self.iso);
+        self.z_edges.fill(NO_VERTEX);
+        for j in 0..self.ny {
+            for i in 0..self.nx {
+                let at = self.idx(i, j);
+                let (v, w) = (self.values[lo][at], self.values[hi][at]);
                 if (v < iso) != (w < iso) {
-                    z_edges[idx(i, j)] = add_vertex(&mut mesh, grid.point(i, j, k), v, grid.point(i, j, k + 1), w);
+                    self.z_edges[at] =
+                        add_vertex(&mut self.mesh, iso, grid.point(i, j, k), v, grid.point(i, j, k + 1), w);
                 }
             }
         }
-        for j in 0..ny - 1 {
-            for i in 0..nx - 1 {
-                let mut config = 0usize;
-                for c in 0..8 {
-                    let plane = if c & 4 != 0 { hi } else { lo };
-                    let v = values[plane][idx(i + (c & 1), j + ((c >> 1) & 1))];
-                    if v < iso {
-                        config |= 1 << c;
-                    }
-                }
+    }
+
+    /// Triangulates every cell between the planes held as `lo` (below) and `hi` (above).
+    fn cell_faces(&mut self, lo: usize, hi: usize) {
+        let table = case_table();
+        for j in 0..self.ny - 1 {
+            for i in 0..self.nx - 1 {
+                let config = self.cell_case(i, j, lo, hi);
                 if config == 0 || config == 255 {
                     continue;
                 }
-                // Cell edge id → the grid edge's vertex, in the order of EDGE_CORNERS.
-                let edge_vertex = [
-                    x_edges[lo][idx(i, j)],
-                    x_edges[lo][idx(i, j + 1)],
-                    x_edges[hi][idx(i, j)],
-                    x_edges[hi][idx(i, j + 1)],
-                    y_edges[lo][idx(i, j)],
-                    y_edges[lo][idx(i + 1, j)],
-                    y_edges[hi][idx(i, j)],
-                    y_edges[hi][idx(i + 1, j)],
-                    z_edges[idx(i, j)],
-                    z_edges[idx(i + 1, j)],
-                    z_edges[idx(i, j + 1)],
-                    z_edges[idx(i + 1, j + 1)],
-                ];
-                for case_loop in &table[config] {
-                    if !case_loop.needs_center {
-                        for tri in case_loop.fan() {
-                            mesh.faces.push(tri.map(|e| edge_vertex[e as usize]));
-                        }
-                        continue;
-                    }
-                    let n = case_loop.edges.len();
-                    let mut center = [0.0f32; 3];
-                    for &e in &case_loop.edges {
-                        let p = mesh.positions[edge_vertex[e as usize] as usize];
-                        (0..3).for_each(|a| center[a] += p[a] / n as f32);
-                    }
-                    mesh.positions.push(center);
-                    let c = (mesh.positions.len() - 1) as u32;
-                    for k in 0..n {
-                        let (a, b) = (case_loop.edges[k], case_loop.edges[(k + 1) % n]);
-                        mesh.faces.push([c, edge_vertex[a as usize], edge_vertex[b as usize]]);
-                    }
-                }
+                let edge_vertex = self.cell_edge_vertices(i, j, lo, hi);
+                add_case_faces(&mut self.mesh, &table[config], &edge_vertex);
             }
         }
     }
-    if let Some(fraction) = options.min_component_area_fraction {
-        mesh.remove_small_components(fraction);
+
+    /// The case of cell `(i, j)`: bit `c` set when its corner `c` (x: bit 0, y: bit 1, z: bit 2)
+    /// is below the iso value.
+    fn cell_case(&self, i: usize, j: usize, lo: usize, hi: usize) -> usize {
+        let mut config = 0usize;
+        for c in 0..8 {
+            let plane = if c & 4 != 0 { hi } else { lo };
+            let v = self.values[plane][self.idx(i + (c & 1), j + ((c >> 1) & 1))];
+            if v < self.iso {
+                config |= 1 << c;
+            }
+        }
+        config
     }
-    Ok(mesh)
+
+    /// Cell edge id → the grid edge's vertex, in the order of EDGE_CORNERS.
+    fn cell_edge_vertices(&self, i: usize, j: usize, lo: usize, hi: usize) -> [u32; 12] {
+        let idx = |i: usize, j: usize| self.idx(i, j);
+        let (xe, ye, ze) = (&self.x_edges, &self.y_edges, &self.z_edges);
+        [
+            xe[lo][idx(i, j)],
+            xe[lo][idx(i, j + 1)],
+            xe[hi][idx(i, j)],
+            xe[hi][idx(i, j + 1)],
+            ye[lo][idx(i, j)],
+            ye[lo][idx(i + 1, j)],
+            ye[hi][idx(i, j)],
+            ye[hi][idx(i + 1, j)],
+            ze[idx(i, j)],
+            ze[idx(i + 1, j)],
+            ze[idx(i, j + 1)],
+            ze[idx(i + 1, j + 1)],
+        ]
+    }
+}
+
+/// Adds the `iso` crossing on the edge from `pa` (value `va`) to `pb` (value `vb`) to the mesh;
+/// returns its id.
+fn add_vertex(mesh: &mut TriangleMesh, iso: f32, pa: [f64; 3], va: f32, pb: [f64; 3], vb: f32) -> u32 {
+    let t = (iso as f64 - va as f64) / (vb as f64 - va as f64);
+    mesh.positions
+        .push(std::array::from_fn(|a| (pa[a] + t * (pb[a] - pa[a])) as f32));
+    (mesh.positions.len() - 1) as u32
+}
+
+/// The faces of one cell's case (its vertices by cell edge in `edge_vertex`): each loop as a fan,
+/// or as a fan around a new centre vertex where it needs one.
+fn add_case_faces(mesh: &mut TriangleMesh, case: &[CaseLoop], edge_vertex: &[u32; 12]) {
+    for case_loop in case {
+        if !case_loop.needs_center {
+            for tri in case_loop.fan() {
+                mesh.faces.push(tri.map(|e| edge_vertex[e as usize]));
+            }
+            continue;
+        }
+        let n = case_loop.edges.len();
+        let mut center = [0.0f32; 3];
+        for &e in &case_loop.edges {
+            let p = mesh.positions[edge_vertex[e as usize] as usize];
+            (0..3).for_each(|a| center[a] += p[a] / n as f32);
+        }
+        mesh.positions.push(center);
+        let c = (mesh.positions.len() - 1) as u32;
+        for k in 0..n {
+            let (a, b) = (case_loop.edges[k], case_loop.edges[(k + 1) % n]);
+            mesh.faces.push([c, edge_vertex[a as usize], edge_vertex[b as usize]]);
+        }
+    }
 }
 
 /// Each side of the box a run's surface is meshed over is enlarged by this fraction of its length

@@ -109,6 +109,16 @@ struct RayState {
     phase: u8,
 }
 
+impl RayState {
+    /// The next estimate of a bracketed crossing: regula falsi, or the midpoint when the falsi
+    /// point falls within 5 % of either end (where it stalls).
+    fn falsi(&self) -> f32 {
+        let w = self.d_lo / (self.d_lo - self.d_hi);
+        let w = if (0.05..=0.95).contains(&w) { w } else { 0.5 };
+        self.t_lo + w * (self.t_hi - self.t_lo)
+    }
+}
+
 /// The ray caster of a trained scene. `Sync`: one caster serves every thread (buffers come from
 /// an internal pool).
 pub struct SdfCaster<'a> {
@@ -182,6 +192,23 @@ impl<'a> SdfCaster<'a> {
         hits: &mut [Hit],
         ws: &mut CastWorkspace,
     ) {
+        self.start_rays(origins, dirs, t_min, t_max, ws);
+        self.sphere_trace(origins, dirs, ws);
+        self.refine_brackets(origins, dirs, ws);
+        self.hit_gradients(origins, dirs, ws);
+        write_hits(origins, dirs, ws, hits);
+    }
+
+    /// Each ray's segment `[max(near, t_min), min(t_max, bound-sphere exit)]`; the rays with a
+    /// non-empty one become the active set, the others misses.
+    fn start_rays(
+        &self,
+        origins: &[[f32; 3]],
+        dirs: &[[f32; 3]],
+        t_min: Option<&[f32]>,
+        t_max: &[f32],
+        ws: &mut CastWorkspace,
+    ) {
         let s = self.settings;
         let n = origins.len();
         ws.state.clear();
@@ -199,7 +226,13 @@ impl<'a> SdfCaster<'a> {
         ws.active.clear();
         ws.active
             .extend((0..n as u32).filter(|&i| ws.state[i as usize].phase == 0));
-        // Sphere tracing.
+    }
+
+    /// Sphere tracing of the active rays, all of them in one SDF batch per step, until each has
+    /// hit (d below `hit_eps`, or d ≤ 0 at its start), bracketed a crossing (d ≤ 0 after a step),
+    /// left its segment, or run out of steps (a miss).
+    fn sphere_trace(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], ws: &mut CastWorkspace) {
+        let s = self.settings;
         for step in 0..s.max_steps {
             if ws.active.is_empty() {
                 break;
@@ -240,23 +273,23 @@ impl<'a> SdfCaster<'a> {
             // Out of steps: no surface found.
             ws.state[r as usize].phase = 3;
         }
-        // Refine the bracketed crossings: regula falsi, bisection when it stalls at one end.
+    }
+
+    /// Refines the bracketed crossings by `refine_steps` of regula falsi (bisection when it
+    /// stalls at one end); they become hits at the last estimate.
+    fn refine_brackets(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], ws: &mut CastWorkspace) {
+        let n = origins.len();
         ws.active.clear();
         ws.active
             .extend((0..n as u32).filter(|&i| ws.state[i as usize].phase == 1));
-        let falsi = |st: &RayState| {
-            let w = st.d_lo / (st.d_lo - st.d_hi);
-            let w = if (0.05..=0.95).contains(&w) { w } else { 0.5 };
-            st.t_lo + w * (st.t_hi - st.t_lo)
-        };
-        for _ in 0..s.refine_steps {
+        for _ in 0..self.settings.refine_steps {
             if ws.active.is_empty() {
                 break;
             }
-            self.eval(ws, origins, dirs, falsi);
+            self.eval(ws, origins, dirs, RayState::falsi);
             for (k, &r) in ws.active.iter().enumerate() {
                 let st = &mut ws.state[r as usize];
-                let (t, d) = (falsi(st), ws.dist[k]);
+                let (t, d) = (st.falsi(), ws.dist[k]);
                 if d > 0.0 {
                     st.t_lo = t;
                     st.d_lo = d;
@@ -268,47 +301,55 @@ impl<'a> SdfCaster<'a> {
         }
         for &r in &ws.active {
             let st = &mut ws.state[r as usize];
-            st.t = falsi(st);
+            st.t = st.falsi();
             st.phase = 2;
         }
-        // Normals at the hits: one batch with the gradient.
+    }
+
+    /// The SDF's gradient at every hit, in one batch: the hits become the active set, their
+    /// gradients `ws.gradient` (`[active × 3]`).
+    fn hit_gradients(&self, origins: &[[f32; 3]], dirs: &[[f32; 3]], ws: &mut CastWorkspace) {
+        let n = origins.len();
         ws.active.clear();
         ws.active
             .extend((0..n as u32).filter(|&i| ws.state[i as usize].phase == 2));
-        {
-            let CastWorkspace {
-                sdf_ws,
-                points,
-                dist,
-                gradient,
-                active,
-                state,
-                ..
-            } = ws;
-            points.clear();
-            for &r in active.iter() {
-                let (o, d, t) = (origins[r as usize], dirs[r as usize], state[r as usize].t);
-                points.extend_from_slice(&[o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]);
-            }
-            dist.resize(active.len(), 0.0);
-            gradient.resize(active.len() * 3, 0.0);
-            self.scene.sdf.infer(points, sdf_ws, dist, None, Some(gradient));
+        let CastWorkspace {
+            sdf_ws,
+            points,
+            dist,
+            gradient,
+            active,
+            state,
+            ..
+        } = ws;
+        points.clear();
+        for &r in active.iter() {
+            let (o, d, t) = (origins[r as usize], dirs[r as usize], state[r as usize].t);
+            points.extend_from_slice(&[o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]);
         }
-        for (i, h) in hits.iter_mut().enumerate() {
-            let st = &ws.state[i];
-            let (o, d) = (origins[i], dirs[i]);
-            *h = Hit {
-                t: st.t,
-                point: [o[0] + st.t * d[0], o[1] + st.t * d[1], o[2] + st.t * d[2]],
-                normal: [0.0; 3],
-                hit: st.phase == 2,
-            };
-        }
-        for (k, &r) in ws.active.iter().enumerate() {
-            let g = &ws.gradient[k * 3..k * 3 + 3];
-            let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-12);
-            hits[r as usize].normal = [g[0] / len, g[1] / len, g[2] / len];
-        }
+        dist.resize(active.len(), 0.0);
+        gradient.resize(active.len() * 3, 0.0);
+        self.scene.sdf.infer(points, sdf_ws, dist, None, Some(gradient));
+    }
+}
+
+/// Every ray's [`Hit`] from its final state, with the unit normal of the active rays (the hits)
+/// from their gradients.
+fn write_hits(origins: &[[f32; 3]], dirs: &[[f32; 3]], ws: &CastWorkspace, hits: &mut [Hit]) {
+    for (i, h) in hits.iter_mut().enumerate() {
+        let st = &ws.state[i];
+        let (o, d) = (origins[i], dirs[i]);
+        *h = Hit {
+            t: st.t,
+            point: [o[0] + st.t * d[0], o[1] + st.t * d[1], o[2] + st.t * d[2]],
+            normal: [0.0; 3],
+            hit: st.phase == 2,
+        };
+    }
+    for (k, &r) in ws.active.iter().enumerate() {
+        let g = &ws.gradient[k * 3..k * 3 + 3];
+        let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-12);
+        hits[r as usize].normal = [g[0] / len, g[1] / len, g[2] / len];
     }
 }
 

@@ -574,6 +574,12 @@ pub struct SamplerScratch {
     states: Vec<RayState>,
     points: Vec<[f32; 3]>,
     values: Vec<f32>,
+    ray: RayScratch,
+}
+
+/// The buffers of one ray's round or final draw, reused ray after ray.
+#[derive(Default)]
+struct RayScratch {
     d_star: Vec<f32>,
     bound: Vec<f32>,
     tau: Vec<f32>,
@@ -645,56 +651,21 @@ pub fn error_bounded_samples_into<F, R>(
     F: FnMut(&[[f32; 3]], &mut [f32]),
     R: Rng + ?Sized,
 {
-    let RayBatchRef {
-        origins,
-        directions,
-        near,
-        far,
-    } = *rays;
-    let n_rays = origins.len();
-    assert!(directions.len() == n_rays && near.len() == n_rays && far.len() == n_rays);
+    let n_rays = rays.origins.len();
+    assert!(rays.directions.len() == n_rays && rays.near.len() == n_rays && rays.far.len() == n_rays);
     assert!(config.num_samples_eval >= 2 && beta > 0.0 && config.eps > 0.0);
-    let n_eval = config.num_samples_eval;
     let SamplerScratch {
         states,
         points,
         values,
-        d_star,
-        bound,
-        tau,
-        weights,
-        u,
-        new_t,
-        ray_t,
-        merged_t,
-        merged_v,
+        ray,
     } = scratch;
-    states.resize_with(n_rays, RayState::default);
-    for (r, state) in states.iter_mut().enumerate() {
-        state.z.clear();
-        state.sdf.clear();
-        state.pending.clear();
-        state.pending.resize(n_eval, 0.0);
-        uniform_samples(near[r], far[r], rng.as_deref_mut(), &mut state.pending);
-        // Lemma 2: this β+ bounds the opacity error by ε whatever the SDF.
-        let sum_sq: f32 = state.pending.windows(2).map(|w| (w[1] - w[0]).powi(2)).sum();
-        state.beta_plus = (sum_sq / (4.0 * (1.0 + config.eps).ln())).sqrt().max(beta);
-        state.done = false;
-        state.converged = false;
-    }
+    init_ray_states(config, rays, beta, rng.as_deref_mut(), states);
+    let rounds = config.max_total_iters.max(1);
     let mut evaluations = 0;
-    for round in 0..config.max_total_iters.max(1) {
+    for round in 0..rounds {
         // Evaluate every ray's pending samples in one call.
-        points.clear();
-        for (r, state) in states.iter().enumerate() {
-            let (o, d) = (origins[r], directions[r]);
-            points.extend(
-                state
-                    .pending
-                    .iter()
-                    .map(|&t| [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]),
-            );
-        }
+        pending_points(rays, states, points);
         if points.is_empty() {
             break;
         }
@@ -702,52 +673,128 @@ pub fn error_bounded_samples_into<F, R>(
         sdf(points, values);
         evaluations += points.len();
         let mut offset = 0;
-        let last_round = round + 1 == config.max_total_iters.max(1);
+        let last_round = round + 1 == rounds;
         for state in states.iter_mut().filter(|s| !s.pending.is_empty()) {
             let new_values = &values[offset..offset + state.pending.len()];
             offset += state.pending.len();
-            merge_sorted(state, new_values, merged_t, merged_v);
-            let m = state.z.len();
-            d_star.clear();
-            d_star.extend(
-                (0..m - 1)
-                    .map(|i| interval_distance_bound(state.z[i + 1] - state.z[i], state.sdf[i], state.sdf[i + 1])),
-            );
-            bound.resize(m - 1, 0.0);
-            tau.resize(m - 1, 0.0);
-            // Bisection on β ∈ [β_model, β+] for the smallest β whose bound is ≤ ε.
-            if opacity_error_bound(&state.z, &state.sdf, d_star, beta, tau, bound) <= config.eps {
-                state.beta_plus = beta;
-            } else {
-                let (mut lo, mut hi) = (beta, state.beta_plus);
-                for _ in 0..config.beta_iters {
-                    let mid = 0.5 * (lo + hi);
-                    if opacity_error_bound(&state.z, &state.sdf, d_star, mid, tau, bound) <= config.eps {
-                        hi = mid;
-                    } else {
-                        lo = mid;
-                    }
-                }
-                state.beta_plus = hi;
-            }
-            state.converged = state.beta_plus <= beta;
-            if state.converged || last_round {
-                state.done = true;
-                continue;
-            }
-            // Upsample proportionally to the error bound at the current β+.
-            opacity_error_bound(&state.z, &state.sdf, d_star, state.beta_plus, tau, bound);
-            u.resize(config.num_samples_upsample.max(1), 0.0);
-            sample_unit_values::<R>(None, u);
-            new_t.resize(u.len(), 0.0);
-            sample_piecewise_constant(&state.z, bound, u, new_t);
-            state.pending.extend_from_slice(new_t);
+            refine_ray::<R>(config, beta, last_round, state, new_values, ray);
         }
         if states.iter().all(|s| s.done) {
             break;
         }
     }
-    // Final samples from the rendering weights at each ray's reached β.
+    write_final_samples(config, rays, rng, states, evaluations, ray, set);
+}
+
+/// Starts every ray of the batch: `num_samples_eval` uniform samples (stratified with an RNG)
+/// pending, and the β+ of Lemma 2.
+fn init_ray_states<R: Rng + ?Sized>(
+    config: &ErrorBoundedSamplerConfig,
+    rays: &RayBatchRef,
+    beta: f32,
+    mut rng: Option<&mut R>,
+    states: &mut Vec<RayState>,
+) {
+    let n_eval = config.num_samples_eval;
+    states.resize_with(rays.origins.len(), RayState::default);
+    for (r, state) in states.iter_mut().enumerate() {
+        state.z.clear();
+        state.sdf.clear();
+        state.pending.clear();
+        state.pending.resize(n_eval, 0.0);
+        uniform_samples(rays.near[r], rays.far[r], rng.as_deref_mut(), &mut state.pending);
+        // Lemma 2: this β+ bounds the opacity error by ε whatever the SDF.
+        let sum_sq: f32 = state.pending.windows(2).map(|w| (w[1] - w[0]).powi(2)).sum();
+        state.beta_plus = (sum_sq / (4.0 * (1.0 + config.eps).ln())).sqrt().max(beta);
+        state.done = false;
+        state.converged = false;
+    }
+}
+
+/// The world points of every ray's pending samples, ray after ray, into `points`.
+fn pending_points(rays: &RayBatchRef, states: &[RayState], points: &mut Vec<[f32; 3]>) {
+    points.clear();
+    for (r, state) in states.iter().enumerate() {
+        let (o, d) = (rays.origins[r], rays.directions[r]);
+        points.extend(
+            state
+                .pending
+                .iter()
+                .map(|&t| [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]),
+        );
+    }
+}
+
+/// One round of one ray, given the SDF at its pending samples: merges them in, bisects β+ and,
+/// unless β+ reached the model's β or this is the last round, queues `num_samples_upsample`
+/// samples drawn in proportion to the error bound at β+.
+fn refine_ray<R: Rng + ?Sized>(
+    config: &ErrorBoundedSamplerConfig,
+    beta: f32,
+    last_round: bool,
+    state: &mut RayState,
+    new_values: &[f32],
+    s: &mut RayScratch,
+) {
+    merge_sorted(state, new_values, &mut s.merged_t, &mut s.merged_v);
+    let m = state.z.len();
+    s.d_star.clear();
+    s.d_star.extend(
+        (0..m - 1).map(|i| interval_distance_bound(state.z[i + 1] - state.z[i], state.sdf[i], state.sdf[i + 1])),
+    );
+    s.bound.resize(m - 1, 0.0);
+    s.tau.resize(m - 1, 0.0);
+    state.beta_plus = bisect_beta_plus(config, beta, state, s);
+    state.converged = state.beta_plus <= beta;
+    if state.converged || last_round {
+        state.done = true;
+        return;
+    }
+    // Upsample proportionally to the error bound at the current β+.
+    opacity_error_bound(
+        &state.z,
+        &state.sdf,
+        &s.d_star,
+        state.beta_plus,
+        &mut s.tau,
+        &mut s.bound,
+    );
+    s.u.resize(config.num_samples_upsample.max(1), 0.0);
+    sample_unit_values::<R>(None, &mut s.u);
+    s.new_t.resize(s.u.len(), 0.0);
+    sample_piecewise_constant(&state.z, &s.bound, &s.u, &mut s.new_t);
+    state.pending.extend_from_slice(&s.new_t);
+}
+
+/// Bisection on β ∈ [β_model, β+] for the smallest β whose opacity error bound (with the ray's
+/// d* in `s.d_star`) is ≤ ε: the model's β when its own bound already is.
+fn bisect_beta_plus(config: &ErrorBoundedSamplerConfig, beta: f32, state: &RayState, s: &mut RayScratch) -> f32 {
+    let (z, sdf) = (&state.z, &state.sdf);
+    if opacity_error_bound(z, sdf, &s.d_star, beta, &mut s.tau, &mut s.bound) <= config.eps {
+        return beta;
+    }
+    let (mut lo, mut hi) = (beta, state.beta_plus);
+    for _ in 0..config.beta_iters {
+        let mid = 0.5 * (lo + hi);
+        if opacity_error_bound(z, sdf, &s.d_star, mid, &mut s.tau, &mut s.bound) <= config.eps {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    hi
+}
+
+/// Packs every ray's final samples ([`final_ray_samples`]) into `set`, with their deltas.
+fn write_final_samples<R: Rng + ?Sized>(
+    config: &ErrorBoundedSamplerConfig,
+    rays: &RayBatchRef,
+    mut rng: Option<&mut R>,
+    states: &[RayState],
+    evaluations: usize,
+    s: &mut RayScratch,
+    set: &mut RaySampleSet,
+) {
     set.ray_offsets.clear();
     set.ray_offsets.push(0);
     set.t.clear();
@@ -755,37 +802,51 @@ pub fn error_bounded_samples_into<F, R>(
     set.converged.clear();
     set.sdf_evaluations = evaluations;
     for (r, state) in states.iter().enumerate() {
-        let m = state.z.len();
-        let b = state.beta_plus;
-        interval_weights(&state.z, &state.sdf, b, tau, weights);
-        u.resize(config.num_samples, 0.0);
-        sample_unit_values(rng.as_deref_mut(), u);
-        ray_t.resize(config.num_samples, 0.0);
-        sample_piecewise_constant(&state.z, weights, u, ray_t);
-        ray_t.push(near[r]);
-        ray_t.push(far[r]);
-        let extra = config.num_samples_extra.min(m);
-        match rng.as_deref_mut() {
-            Some(rng) => {
-                let picks = rand::seq::index::sample(rng, m, extra);
-                ray_t.extend(picks.iter().map(|i| state.z[i]));
-            }
-            None => {
-                for j in 0..extra {
-                    let i = if extra > 1 { j * (m - 1) / (extra - 1) } else { 0 };
-                    ray_t.push(state.z[i]);
-                }
-            }
-        }
-        ray_t.sort_unstable_by(f32::total_cmp);
-        set.t.extend_from_slice(ray_t);
+        final_ray_samples(config, rays.near[r], rays.far[r], rng.as_deref_mut(), state, s);
+        set.t.extend_from_slice(&s.ray_t);
         set.ray_offsets.push(set.t.len() as u32);
-        set.beta_used.push(b);
+        set.beta_used.push(state.beta_plus);
         set.converged.push(state.converged);
     }
     set.delta.clear();
     set.delta.resize(set.t.len(), 0.0);
     deltas_from_t(&set.ray_offsets, &set.t, config.last_delta, &mut set.delta);
+}
+
+/// One ray's final samples into `s.ray_t`, sorted: `num_samples` drawn by inverse CDF from the
+/// rendering weights at its reached β, its near and far, and `num_samples_extra` of its evaluated
+/// samples (evenly spaced without an RNG, a random subset with one).
+fn final_ray_samples<R: Rng + ?Sized>(
+    config: &ErrorBoundedSamplerConfig,
+    near: f32,
+    far: f32,
+    mut rng: Option<&mut R>,
+    state: &RayState,
+    s: &mut RayScratch,
+) {
+    let m = state.z.len();
+    interval_weights(&state.z, &state.sdf, state.beta_plus, &mut s.tau, &mut s.weights);
+    s.u.resize(config.num_samples, 0.0);
+    sample_unit_values(rng.as_deref_mut(), &mut s.u);
+    let ray_t = &mut s.ray_t;
+    ray_t.resize(config.num_samples, 0.0);
+    sample_piecewise_constant(&state.z, &s.weights, &s.u, ray_t);
+    ray_t.push(near);
+    ray_t.push(far);
+    let extra = config.num_samples_extra.min(m);
+    match rng {
+        Some(rng) => {
+            let picks = rand::seq::index::sample(rng, m, extra);
+            ray_t.extend(picks.iter().map(|i| state.z[i]));
+        }
+        None => {
+            for j in 0..extra {
+                let i = if extra > 1 { j * (m - 1) / (extra - 1) } else { 0 };
+                ray_t.push(state.z[i]);
+            }
+        }
+    }
+    ray_t.sort_unstable_by(f32::total_cmp);
 }
 
 /// Merges the ray's sorted `pending` samples (with `new_values`) into its sorted `z`/`sdf`, in

@@ -19,6 +19,7 @@ use crate::mlp::{GeometricInit, Mlp, MlpConfig, TileScratch, TILE};
 use crate::Activation;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::ops::Range;
 
 // The inference path lives in its own file; its workspace is named here too, beside the training one.
 pub use crate::sdf_infer::{SdfInferWorkspace, INFER_BLOCK};
@@ -198,6 +199,51 @@ fn resize(v: &mut Vec<f32>, len: usize) {
     }
 }
 
+/// What every chunk task of a forward or backward reads: the batch's positions `[n×3]` and, for
+/// the hash grid, its level-major encoding and Jacobian.
+#[derive(Clone, Copy)]
+struct BatchInputs<'a> {
+    n: usize,
+    x: &'a [f32],
+    enc_levels: &'a [f32],
+    jac_levels: &'a [f32],
+}
+
+/// The buffers a forward writes: its outputs (`∇d` when asked) and the activations kept for the
+/// backward (`gacts`, of the reverse pass seeded with `d`, when `∇d` is asked).
+struct ForwardOutputs<'a> {
+    sdf: &'a mut [f32],
+    feature: &'a mut [f32],
+    gradient: Option<&'a mut [f32]>,
+    acts: &'a mut [f32],
+    gacts: Option<&'a mut [f32]>,
+}
+
+/// One chunk task of the forward: its range of tiles, its scratch, and its own rows of the
+/// [`ForwardOutputs`] (the chunk's first row is the first row of each slice).
+struct ForwardChunk<'a> {
+    tiles: Range<usize>,
+    st: &'a mut ChunkState,
+    sdf: &'a mut [f32],
+    feature: &'a mut [f32],
+    gradient: Option<&'a mut [f32]>,
+    acts: &'a mut [f32],
+    gacts: Option<&'a mut [f32]>,
+}
+
+/// What the chunk tasks of a backward share: the last forward's batch and activations, the
+/// cotangents, and the level-major cotangent buffers each task writes its own rows of.
+struct BackwardShared<'a> {
+    batch: BatchInputs<'a>,
+    acts: &'a [f32],
+    gacts: &'a [f32],
+    d_sdf: &'a [f32],
+    d_feature: Option<&'a [f32]>,
+    d_gradient: Option<&'a [f32]>,
+    xbar: SharedMut,
+    abar_levels: SharedMut,
+}
+
 impl SdfNetwork {
     pub fn new(config: SdfNetworkConfig, seed: u64) -> Self {
         let (encoding, input_dim) = match &config.encoding {
@@ -350,9 +396,7 @@ impl SdfNetwork {
         let with_gradient = gradient.is_some();
         self.prepare(ws, x, with_gradient);
         let n = ws.n;
-        let (d, aw, fd) = (self.in_dim(), self.mlp.activation_width(), self.feature_dim());
-        let od = fd + 1;
-        assert!(sdf.len() >= n && feature.len() >= n * fd);
+        assert!(sdf.len() >= n && feature.len() >= n * self.feature_dim());
         let t0 = std::time::Instant::now();
         if let SdfEncoding::HashGrid(g) = &self.encoding {
             g.encode(
@@ -363,111 +407,118 @@ impl SdfNetwork {
         }
         let t1 = std::time::Instant::now();
         ws.timings.encode = t1 - t0;
-        let ranges = even_ranges(n.div_ceil(TILE), ws.chunks.len());
+        let gx_levels = SharedMut(ws.gx_levels.as_mut_ptr());
+        let batch = BatchInputs {
+            n,
+            x: &ws.x,
+            enc_levels: &ws.enc_levels,
+            jac_levels: &ws.jac_levels,
+        };
+        let outputs = ForwardOutputs {
+            sdf,
+            feature,
+            gradient,
+            acts: &mut ws.acts,
+            gacts: with_gradient.then_some(&mut ws.gacts[..]),
+        };
+        let work = self.split_forward_work(n, &mut ws.chunks, outputs);
+        work.into_par_iter()
+            .for_each(|chunk| self.forward_chunk(batch, gx_levels, chunk));
+        ws.timings.mlp_forward = t1.elapsed();
+    }
+
+    /// The forward's chunk tasks: even ranges of tiles, each with its own rows of the outputs and
+    /// its own block of the kept activations.
+    fn split_forward_work<'a>(
+        &self,
+        n: usize,
+        chunks: &'a mut [ChunkState],
+        outputs: ForwardOutputs<'a>,
+    ) -> Vec<ForwardChunk<'a>> {
+        let (aw, fd) = (self.mlp.activation_width(), self.feature_dim());
+        let ranges = even_ranges(n.div_ceil(TILE), chunks.len());
         let rows: Vec<usize> = ranges.iter().map(|r| (r.end * TILE).min(n) - r.start * TILE).collect();
         let blocks: Vec<usize> = ranges.iter().map(|r| r.len() * TILE * aw).collect();
-        let sdf_parts = split_lengths_mut(&mut sdf[..n], &rows);
+        let sdf_parts = split_lengths_mut(&mut outputs.sdf[..n], &rows);
         let feat_rows: Vec<usize> = rows.iter().map(|r| r * fd).collect();
-        let feat_parts = split_lengths_mut(&mut feature[..n * fd], &feat_rows);
+        let feat_parts = split_lengths_mut(&mut outputs.feature[..n * fd], &feat_rows);
         let grad_rows: Vec<usize> = rows.iter().map(|r| r * 3).collect();
-        let mut grad_parts: Vec<Option<&mut [f32]>> = match gradient {
+        let grad_parts: Vec<Option<&mut [f32]>> = match outputs.gradient {
             Some(gr) => split_lengths_mut(&mut gr[..n * 3], &grad_rows)
                 .into_iter()
                 .map(Some)
                 .collect(),
             None => rows.iter().map(|_| None).collect(),
         };
-        let act_parts = split_lengths_mut(&mut ws.acts, &blocks);
-        let mut gact_parts: Vec<Option<&mut [f32]>> = if with_gradient {
-            split_lengths_mut(&mut ws.gacts, &blocks)
-                .into_iter()
-                .map(Some)
-                .collect()
-        } else {
-            rows.iter().map(|_| None).collect()
+        let act_parts = split_lengths_mut(outputs.acts, &blocks);
+        let gact_parts: Vec<Option<&mut [f32]>> = match outputs.gacts {
+            Some(gacts) => split_lengths_mut(gacts, &blocks).into_iter().map(Some).collect(),
+            None => rows.iter().map(|_| None).collect(),
         };
-        let gx_levels = SharedMut(ws.gx_levels.as_mut_ptr());
-        let (xs, enc_levels, jac_levels) = (&ws.x[..], &ws.enc_levels[..], &ws.jac_levels[..]);
-        let work: Vec<_> = ranges
+        ranges
             .into_iter()
-            .zip(ws.chunks.iter_mut())
+            .zip(chunks.iter_mut())
             .zip(sdf_parts.into_iter().zip(feat_parts))
-            .zip(
-                grad_parts
-                    .drain(..)
-                    .zip(act_parts.into_iter().zip(gact_parts.drain(..))),
+            .zip(grad_parts.into_iter().zip(act_parts.into_iter().zip(gact_parts)))
+            .map(
+                |(((tiles, st), (sdf, feature)), (gradient, (acts, gacts)))| ForwardChunk {
+                    tiles,
+                    st,
+                    sdf,
+                    feature,
+                    gradient,
+                    acts,
+                    gacts,
+                },
             )
-            .collect();
-        work.into_par_iter().for_each(
-            |(((range, st), (sdf_c, feat_c)), (mut grad_c, (acts_c, mut gacts_c)))| {
-                self.mlp.prepare_transposed(&mut st.scratch);
-                for t in range.clone() {
-                    let r0 = t * TILE;
-                    let m = TILE.min(n - r0);
-                    let local = r0 - range.start * TILE;
-                    let need_jac = with_gradient && matches!(self.encoding, SdfEncoding::Frequency(_));
-                    self.assemble_input(
-                        xs,
-                        enc_levels,
-                        n,
-                        r0,
-                        m,
-                        &mut st.input,
-                        need_jac.then_some(&mut st.jac[..]),
-                    );
-                    let acts = &mut acts_c[(t - range.start) * TILE * aw..][..m * aw];
-                    self.mlp.forward_tile(&st.input, m, acts, &mut st.scratch);
-                    let out = self.mlp.tile_output(acts, m);
-                    for r in 0..m {
-                        sdf_c[local + r] = out[r * od];
-                        feat_c[(local + r) * fd..(local + r + 1) * fd].copy_from_slice(&out[r * od + 1..(r + 1) * od]);
-                    }
-                    let (Some(grad_c), Some(gacts_c)) = (grad_c.as_deref_mut(), gacts_c.as_deref_mut()) else {
-                        continue;
-                    };
-                    let gacts = &mut gacts_c[(t - range.start) * TILE * aw..][..m * aw];
-                    self.mlp
-                        .input_gradient_tile(m, acts, 0, gacts, &mut st.gx, &mut st.scratch);
-                    let gx = &st.gx;
-                    match &self.encoding {
-                        SdfEncoding::HashGrid(g) => {
-                            let f = g.config.features_per_level;
-                            for r in 0..m {
-                                grad_c[(local + r) * 3..(local + r) * 3 + 3].copy_from_slice(&gx[r * d..r * d + 3]);
-                            }
-                            for l in 0..g.config.levels {
-                                let jac = &jac_levels[(l * n + r0) * f * 3..(l * n + r0 + m) * f * 3];
-                                for r in 0..m {
-                                    let gv = &mut grad_c[(local + r) * 3..(local + r) * 3 + 3];
-                                    for ff in 0..f {
-                                        let gxv = gx[r * d + 3 + l * f + ff];
-                                        let j = &jac[(r * f + ff) * 3..(r * f + ff) * 3 + 3];
-                                        gv[0] += gxv * j[0];
-                                        gv[1] += gxv * j[1];
-                                        gv[2] += gxv * j[2];
-                                        // SAFETY: row (l, r0 + r) belongs to this chunk's tiles only.
-                                        unsafe { *gx_levels.ptr().add((l * n + r0 + r) * f + ff) = gxv };
-                                    }
-                                }
-                            }
-                        }
-                        SdfEncoding::Frequency(_) => {
-                            for r in 0..m {
-                                let mut gv = [0f32; 3];
-                                for o in 0..d {
-                                    let j = &st.jac[(r * d + o) * 3..(r * d + o) * 3 + 3];
-                                    for k in 0..3 {
-                                        gv[k] += gx[r * d + o] * j[k];
-                                    }
-                                }
-                                grad_c[(local + r) * 3..(local + r) * 3 + 3].copy_from_slice(&gv);
-                            }
-                        }
-                    }
-                }
-            },
-        );
-        ws.timings.mlp_forward = t1.elapsed();
+            .collect()
+    }
+
+    /// One chunk task of the forward: per tile, the MLP input, the MLP forward into the kept
+    /// activations, `d` and `z`, and (when asked) the reverse pass seeded with `d` and `∇d`.
+    #[inline]
+    fn forward_chunk(&self, batch: BatchInputs, gx_levels: SharedMut, chunk: ForwardChunk) {
+        let ForwardChunk {
+            tiles,
+            st,
+            sdf,
+            feature,
+            mut gradient,
+            acts: acts_c,
+            mut gacts,
+        } = chunk;
+        let (n, aw) = (batch.n, self.mlp.activation_width());
+        let with_gradient = gradient.is_some();
+        self.mlp.prepare_transposed(&mut st.scratch);
+        for t in tiles.clone() {
+            let r0 = t * TILE;
+            let m = TILE.min(n - r0);
+            let local = r0 - tiles.start * TILE;
+            let need_jac = with_gradient && matches!(self.encoding, SdfEncoding::Frequency(_));
+            self.assemble_input(
+                batch.x,
+                batch.enc_levels,
+                n,
+                r0,
+                m,
+                &mut st.input,
+                need_jac.then_some(&mut st.jac[..]),
+            );
+            let acts = &mut acts_c[(t - tiles.start) * TILE * aw..][..m * aw];
+            self.mlp.forward_tile(&st.input, m, acts, &mut st.scratch);
+            self.write_tile_outputs(self.mlp.tile_output(acts, m), m, local, sdf, feature);
+            let (Some(grad_c), Some(gacts_c)) = (gradient.as_deref_mut(), gacts.as_deref_mut()) else {
+                continue;
+            };
+            let gacts = &mut gacts_c[(t - tiles.start) * TILE * aw..][..m * aw];
+            self.mlp
+                .input_gradient_tile(m, acts, 0, gacts, &mut st.gx, &mut st.scratch);
+            let grad_tile = &mut grad_c[local * 3..(local + m) * 3];
+            match &self.encoding {
+                SdfEncoding::HashGrid(g) => self.hash_spatial_gradient(g, batch, r0, m, &st.gx, grad_tile, gx_levels),
+                SdfEncoding::Frequency(_) => self.frequency_spatial_gradient(m, &st.gx, &st.jac, grad_tile),
+            }
+        }
     }
 
     /// Accumulate into `grad` the parameter gradient of `Σ d̄·d + Σ z̄·z + Σ ∇̄d·∇d` for the batch
@@ -489,128 +540,30 @@ impl SdfNetwork {
         );
         assert!(d_sdf.len() >= n && d_feature.is_none_or(|f| f.len() >= n * self.feature_dim()));
         assert!(d_gradient.is_none_or(|g| g.len() >= n * 3));
-        let (d, aw, fd) = (self.in_dim(), self.mlp.activation_width(), self.feature_dim());
-        let od = fd + 1;
         let ranges = even_ranges(n.div_ceil(TILE), ws.chunks.len());
         let abar_levels = SharedMut(ws.abar_levels.as_mut_ptr());
         resize(&mut ws.xbar, n * 3);
         let xbar = SharedMut(ws.xbar.as_mut_ptr());
-        let (xs, enc_levels, jac_levels, acts_all, gacts_all) = (
-            &ws.x[..],
-            &ws.enc_levels[..],
-            &ws.jac_levels[..],
-            &ws.acts[..],
-            &ws.gacts[..],
-        );
+        let shared = BackwardShared {
+            batch: BatchInputs {
+                n,
+                x: &ws.x,
+                enc_levels: &ws.enc_levels,
+                jac_levels: &ws.jac_levels,
+            },
+            acts: &ws.acts,
+            gacts: &ws.gacts,
+            d_sdf,
+            d_feature,
+            d_gradient,
+            xbar,
+            abar_levels,
+        };
         let n_ranges = ranges.len();
         let work: Vec<_> = ranges.into_iter().zip(ws.chunks.iter_mut()).collect();
-        work.into_par_iter().for_each(|(range, st)| {
-            st.mlp_grad.fill(0.0);
-            if d_gradient.is_some() {
-                self.mlp.prepare_transposed(&mut st.scratch);
-            }
-            for t in range {
-                let r0 = t * TILE;
-                let m = TILE.min(n - r0);
-                let need_jac = d_gradient.is_some() && matches!(self.encoding, SdfEncoding::Frequency(_));
-                self.assemble_input(
-                    xs,
-                    enc_levels,
-                    n,
-                    r0,
-                    m,
-                    &mut st.input,
-                    need_jac.then_some(&mut st.jac[..]),
-                );
-                for r in 0..m {
-                    st.dout[r * od] = d_sdf[r0 + r];
-                    let dst = &mut st.dout[r * od + 1..(r + 1) * od];
-                    match d_feature {
-                        Some(df) => dst.copy_from_slice(&df[(r0 + r) * fd..(r0 + r + 1) * fd]),
-                        None => dst.fill(0.0),
-                    }
-                }
-                let acts = &acts_all[t * TILE * aw..][..m * aw];
-                let hash = matches!(self.encoding, SdfEncoding::HashGrid(_));
-                let dx = hash.then_some(&mut st.dx[..]);
-                match d_gradient {
-                    Some(v) => {
-                        // Ḡ_X = J ∇̄d
-                        match &self.encoding {
-                            SdfEncoding::HashGrid(g) => {
-                                let f = g.config.features_per_level;
-                                for r in 0..m {
-                                    st.gbar_x[r * d..r * d + 3].copy_from_slice(&v[(r0 + r) * 3..(r0 + r) * 3 + 3]);
-                                }
-                                for l in 0..g.config.levels {
-                                    let jac = &jac_levels[(l * n + r0) * f * 3..(l * n + r0 + m) * f * 3];
-                                    for r in 0..m {
-                                        let vi = &v[(r0 + r) * 3..(r0 + r) * 3 + 3];
-                                        for ff in 0..f {
-                                            let j = &jac[(r * f + ff) * 3..(r * f + ff) * 3 + 3];
-                                            st.gbar_x[r * d + 3 + l * f + ff] =
-                                                j[0] * vi[0] + j[1] * vi[1] + j[2] * vi[2];
-                                        }
-                                    }
-                                }
-                            }
-                            SdfEncoding::Frequency(_) => {
-                                for r in 0..m {
-                                    let vi = &v[(r0 + r) * 3..(r0 + r) * 3 + 3];
-                                    for o in 0..d {
-                                        let j = &st.jac[(r * d + o) * 3..(r * d + o) * 3 + 3];
-                                        st.gbar_x[r * d + o] = j[0] * vi[0] + j[1] * vi[1] + j[2] * vi[2];
-                                    }
-                                }
-                            }
-                        }
-                        let gacts = &gacts_all[t * TILE * aw..][..m * aw];
-                        self.mlp.double_backward_tile(
-                            &st.input,
-                            m,
-                            acts,
-                            gacts,
-                            0,
-                            &st.dout,
-                            &st.gbar_x,
-                            &mut st.mlp_grad,
-                            dx,
-                            &mut st.scratch,
-                        );
-                    }
-                    None => self
-                        .mlp
-                        .backward_tile(&st.input, m, acts, &st.dout, &mut st.mlp_grad, dx, &mut st.scratch),
-                }
-                if let SdfEncoding::HashGrid(g) = &self.encoding {
-                    for r in 0..m {
-                        for k in 0..3 {
-                            // SAFETY: row r0 + r belongs to this chunk's tiles only.
-                            unsafe { *xbar.ptr().add((r0 + r) * 3 + k) = st.dx[r * d + k] };
-                        }
-                    }
-                    let f = g.config.features_per_level;
-                    for l in 0..g.config.levels {
-                        for r in 0..m {
-                            for ff in 0..f {
-                                // SAFETY: row (l, r0 + r) belongs to this chunk's tiles only.
-                                unsafe {
-                                    *abar_levels.ptr().add((l * n + r0 + r) * f + ff) = st.dx[r * d + 3 + l * f + ff]
-                                };
-                            }
-                        }
-                    }
-                }
-            }
-        });
-        let accs: Vec<Vec<f32>> = ws.chunks[..n_ranges]
-            .iter_mut()
-            .map(|c| std::mem::take(&mut c.mlp_grad))
-            .collect();
-        reduce_into(&mut grad.mlp, &accs);
-        for (c, acc) in ws.chunks.iter_mut().zip(accs) {
-            c.mlp_grad = acc;
-        }
+        work.into_par_iter()
+            .for_each(|(tiles, st)| self.backward_chunk(&shared, tiles, st));
+        reduce_chunk_gradients(&mut ws.chunks, n_ranges, &mut grad.mlp);
         let t1 = std::time::Instant::now();
         ws.timings.mlp_backward = t1 - t0;
         if let SdfEncoding::HashGrid(g) = &self.encoding {
@@ -620,6 +573,229 @@ impl SdfNetwork {
             g.backward(&ws.x, &ws.abar_levels[..m], gx, d_gradient, hg);
         }
         ws.timings.scatter = t1.elapsed();
+    }
+
+    /// One chunk task of the backward: per tile, the MLP input again, the output cotangent, the
+    /// MLP backward (double backward with a `∇̄d`) into the chunk's parameter-gradient accumulator,
+    /// and the input cotangent handed to the hash-grid scatter.
+    #[inline]
+    fn backward_chunk(&self, sh: &BackwardShared, tiles: Range<usize>, st: &mut ChunkState) {
+        let (n, aw) = (sh.batch.n, self.mlp.activation_width());
+        st.mlp_grad.fill(0.0);
+        if sh.d_gradient.is_some() {
+            self.mlp.prepare_transposed(&mut st.scratch);
+        }
+        for t in tiles {
+            let r0 = t * TILE;
+            let m = TILE.min(n - r0);
+            let need_jac = sh.d_gradient.is_some() && matches!(self.encoding, SdfEncoding::Frequency(_));
+            self.assemble_input(
+                sh.batch.x,
+                sh.batch.enc_levels,
+                n,
+                r0,
+                m,
+                &mut st.input,
+                need_jac.then_some(&mut st.jac[..]),
+            );
+            self.seed_output_cotangent(sh, r0, m, &mut st.dout);
+            let acts = &sh.acts[t * TILE * aw..][..m * aw];
+            let hash = matches!(self.encoding, SdfEncoding::HashGrid(_));
+            let dx = hash.then_some(&mut st.dx[..]);
+            match sh.d_gradient {
+                Some(v) => {
+                    let v = &v[r0 * 3..(r0 + m) * 3];
+                    match &self.encoding {
+                        SdfEncoding::HashGrid(g) => self.hash_gbar_x(g, sh.batch, r0, m, v, &mut st.gbar_x),
+                        SdfEncoding::Frequency(_) => self.frequency_gbar_x(m, v, &st.jac, &mut st.gbar_x),
+                    }
+                    let gacts = &sh.gacts[t * TILE * aw..][..m * aw];
+                    self.mlp.double_backward_tile(
+                        &st.input,
+                        m,
+                        acts,
+                        gacts,
+                        0,
+                        &st.dout,
+                        &st.gbar_x,
+                        &mut st.mlp_grad,
+                        dx,
+                        &mut st.scratch,
+                    );
+                }
+                None => self
+                    .mlp
+                    .backward_tile(&st.input, m, acts, &st.dout, &mut st.mlp_grad, dx, &mut st.scratch),
+            }
+            if let SdfEncoding::HashGrid(g) = &self.encoding {
+                self.store_input_cotangent(g, sh, r0, m, &st.dx);
+            }
+        }
+    }
+}
+
+/// The stages of a tile in the forward and backward chunk tasks.
+impl SdfNetwork {
+    /// Splits a tile's MLP output rows `[m × (1 + feature_dim)]` into `d` and `z`, at the chunk's
+    /// rows `local..local + m`.
+    #[inline]
+    fn write_tile_outputs(&self, out: &[f32], m: usize, local: usize, sdf: &mut [f32], feature: &mut [f32]) {
+        let fd = self.feature_dim();
+        let od = fd + 1;
+        for r in 0..m {
+            sdf[local + r] = out[r * od];
+            feature[(local + r) * fd..(local + r + 1) * fd].copy_from_slice(&out[r * od + 1..(r + 1) * od]);
+        }
+    }
+
+    /// `∇d = Jᵀ G_X` of a tile (`grad`: its `[m×3]` rows) for the hash grid: the position columns
+    /// of `G_X`, plus every level's feature columns through the encoding's Jacobian. The feature
+    /// columns are also kept level-major in `gx_levels`, for the curvature term of the scatter.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    fn hash_spatial_gradient(
+        &self,
+        g: &HashGrid,
+        batch: BatchInputs,
+        r0: usize,
+        m: usize,
+        gx: &[f32],
+        grad: &mut [f32],
+        gx_levels: SharedMut,
+    ) {
+        let (d, n, f) = (self.in_dim(), batch.n, g.config.features_per_level);
+        for r in 0..m {
+            grad[r * 3..r * 3 + 3].copy_from_slice(&gx[r * d..r * d + 3]);
+        }
+        for l in 0..g.config.levels {
+            let jac = &batch.jac_levels[(l * n + r0) * f * 3..(l * n + r0 + m) * f * 3];
+            for r in 0..m {
+                let gv = &mut grad[r * 3..r * 3 + 3];
+                for ff in 0..f {
+                    let gxv = gx[r * d + 3 + l * f + ff];
+                    let j = &jac[(r * f + ff) * 3..(r * f + ff) * 3 + 3];
+                    gv[0] += gxv * j[0];
+                    gv[1] += gxv * j[1];
+                    gv[2] += gxv * j[2];
+                    // SAFETY: row (l, r0 + r) belongs to this chunk's tiles only.
+                    unsafe { *gx_levels.ptr().add((l * n + r0 + r) * f + ff) = gxv };
+                }
+            }
+        }
+    }
+
+    /// `∇d = Jᵀ G_X` of a tile for the positional encoding, whose Jacobian `jac` (`[m × d × 3]`)
+    /// the tile's input assembly wrote.
+    #[inline]
+    fn frequency_spatial_gradient(&self, m: usize, gx: &[f32], jac: &[f32], grad: &mut [f32]) {
+        let d = self.in_dim();
+        for r in 0..m {
+            let mut gv = [0f32; 3];
+            for o in 0..d {
+                let j = &jac[(r * d + o) * 3..(r * d + o) * 3 + 3];
+                for k in 0..3 {
+                    gv[k] += gx[r * d + o] * j[k];
+                }
+            }
+            grad[r * 3..r * 3 + 3].copy_from_slice(&gv);
+        }
+    }
+
+    /// The cotangent of a tile's MLP outputs, `[d̄, z̄]` per row (`z̄` zero when there is none).
+    #[inline]
+    fn seed_output_cotangent(&self, sh: &BackwardShared, r0: usize, m: usize, dout: &mut [f32]) {
+        let fd = self.feature_dim();
+        let od = fd + 1;
+        for r in 0..m {
+            dout[r * od] = sh.d_sdf[r0 + r];
+            let dst = &mut dout[r * od + 1..(r + 1) * od];
+            match sh.d_feature {
+                Some(df) => dst.copy_from_slice(&df[(r0 + r) * fd..(r0 + r + 1) * fd]),
+                None => dst.fill(0.0),
+            }
+        }
+    }
+
+    /// `Ḡ_X = J ∇̄d` of the tile of rows `r0..r0 + m` for the hash grid (`v`: the tile's `[m×3]`
+    /// rows of `∇̄d`): the position columns are `∇̄d` itself, each feature column its Jacobian row
+    /// dotted with `∇̄d`. (The features of a row are zipped with their Jacobian rows: indexed, the
+    /// loop over them got vectorized for long rows, and its set-up, paid per row and level,
+    /// measured about twice the time of the whole stage for the usual 2 features.)
+    #[inline]
+    fn hash_gbar_x(&self, g: &HashGrid, batch: BatchInputs, r0: usize, m: usize, v: &[f32], gbar_x: &mut [f32]) {
+        let (d, n, f) = (self.in_dim(), batch.n, g.config.features_per_level);
+        for r in 0..m {
+            gbar_x[r * d..r * d + 3].copy_from_slice(&v[r * 3..r * 3 + 3]);
+        }
+        for l in 0..g.config.levels {
+            let jac = &batch.jac_levels[(l * n + r0) * f * 3..(l * n + r0 + m) * f * 3];
+            let col = 3 + l * f;
+            for r in 0..m {
+                let vi = &v[r * 3..r * 3 + 3];
+                let out = &mut gbar_x[r * d + col..r * d + col + f];
+                for (o, j) in out.iter_mut().zip(jac[r * f * 3..(r + 1) * f * 3].chunks_exact(3)) {
+                    *o = j[0] * vi[0] + j[1] * vi[1] + j[2] * vi[2];
+                }
+            }
+        }
+    }
+
+    /// `Ḡ_X = J ∇̄d` of a tile for the positional encoding (its Jacobian `jac`: `[m × d × 3]`).
+    #[inline]
+    fn frequency_gbar_x(&self, m: usize, v: &[f32], jac: &[f32], gbar_x: &mut [f32]) {
+        let d = self.in_dim();
+        for r in 0..m {
+            let vi = &v[r * 3..r * 3 + 3];
+            for o in 0..d {
+                let j = &jac[(r * d + o) * 3..(r * d + o) * 3 + 3];
+                gbar_x[r * d + o] = j[0] * vi[0] + j[1] * vi[1] + j[2] * vi[2];
+            }
+        }
+    }
+
+    /// Hands a tile's MLP input cotangent `X̄` (`dx`) on, level-major: its position columns to
+    /// `xbar` (for [`SdfNetwork::position_gradient`]), its feature columns to `abar_levels` (what
+    /// the hash-table scatter adds up). Row by row, with fixed-size copies for the usual 2
+    /// features (as in `assemble_input`): an indexed loop over a row's features got vectorized,
+    /// and its set-up, paid per row and level, cost more than the copies.
+    #[inline]
+    fn store_input_cotangent(&self, g: &HashGrid, sh: &BackwardShared, r0: usize, m: usize, dx: &[f32]) {
+        let (d, n, f) = (self.in_dim(), sh.batch.n, g.config.features_per_level);
+        // SAFETY (both slices): rows r0..r0 + m (of each level) belong to this chunk's tiles only,
+        // and the buffers hold n rows.
+        let xbar = unsafe { std::slice::from_raw_parts_mut(sh.xbar.ptr().add(r0 * 3), m * 3) };
+        for (o, s) in xbar.chunks_exact_mut(3).zip(dx.chunks_exact(d)) {
+            o[0] = s[0];
+            o[1] = s[1];
+            o[2] = s[2];
+        }
+        for l in 0..g.config.levels {
+            let abar = unsafe { std::slice::from_raw_parts_mut(sh.abar_levels.ptr().add((l * n + r0) * f), m * f) };
+            let col = 3 + l * f;
+            if f == 2 {
+                for (o, s) in abar.chunks_exact_mut(2).zip(dx.chunks_exact(d)) {
+                    o[0] = s[col];
+                    o[1] = s[col + 1];
+                }
+            } else {
+                for (o, s) in abar.chunks_exact_mut(f).zip(dx.chunks_exact(d)) {
+                    o.copy_from_slice(&s[col..col + f]);
+                }
+            }
+        }
+    }
+}
+
+/// Adds the parameter-gradient accumulators of the first `n_chunks` chunks into `out`, lending
+/// them to [`reduce_into`] and putting them back (no copy, no allocation but the list).
+fn reduce_chunk_gradients(chunks: &mut [ChunkState], n_chunks: usize, out: &mut [f32]) {
+    let accs: Vec<Vec<f32>> = chunks[..n_chunks]
+        .iter_mut()
+        .map(|c| std::mem::take(&mut c.mlp_grad))
+        .collect();
+    reduce_into(out, &accs);
+    for (c, acc) in chunks.iter_mut().zip(accs) {
+        c.mlp_grad = acc;
     }
 }
 

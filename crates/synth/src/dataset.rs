@@ -215,117 +215,25 @@ pub fn generate(
     std::fs::create_dir_all(out).map_err(|e| DataError::io(out, format!("cannot create: {e}")))?;
     let mut scene = RenderScene::new(desc);
     scene.estimator = opts.estimator;
-    let mut views = plan_views(&scene, opts)?;
-    // The whole capture is taken through the lens; the cameras are placed as in the exact room,
-    // so one seed gives the same room, poses and test views whatever the capture options.
-    for v in &mut views {
-        v.camera.lens = opts.capture.lens;
-        v.camera
-            .validate_intrinsics()
-            .map_err(|(_, m)| DataError::invalid(format!("--lens {}: {m}", opts.capture.lens.model_name())))?;
-    }
+    let views = views_through_lens(&scene, opts)?;
     let start = std::time::Instant::now();
-    let renders: Vec<ViewRender> = views
-        .iter()
-        .enumerate()
-        .map(|(i, v)| {
-            let settings = scene.view_settings(opts.spp, opts.seed, i as u32, opts.max_depth);
-            render_view(&scene.scene(), &v.camera, &settings, on_row)
-        })
-        .collect();
+    let renders = render_views(&scene, &views, opts, on_row);
     let render_seconds = start.elapsed().as_secs_f64();
-    for (v, r) in views.iter().zip(&renders) {
-        if let Some(i) = r.depth.iter().position(|d| !d.is_finite()) {
-            return Err(DataError::invalid(format!(
-                "view {}: pixel {i} sees no surface: the room is not closed",
-                v.stem
-            )));
-        }
-    }
+    check_closed(&views, &renders)?;
     let pairs: Vec<(&ViewSpec, &ViewRender)> = views.iter().zip(&renders).collect();
     let exposure = auto_exposure(&pairs);
     let noisy = opts.depth_noise != DepthNoise::None;
-    let ones = vec![Vec3::ONE; scene.emitters.len()];
-    let cap = &opts.capture;
-
-    let frame_paths: Vec<FramePaths> = views.iter().map(|v| FramePaths::new(&v.stem, noisy, cap)).collect();
-    pairs
-        .par_iter()
-        .zip(&frame_paths)
-        .enumerate()
-        .try_for_each(|(i, ((v, r), paths))| {
-            let mut rng = Pcg64::seed_from_u64(opts.seed ^ (0xD3_9751 + i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
-            let depth = if cap.depth_grid.is_some() || cap.confidence {
-                let size = cap.depth_size(r.width, r.height);
-                capture::sensor_depth(&scene, &v.camera, size, opts.depth_noise, cap.confidence, &mut rng)
-            } else {
-                let mut depth = r.depth.clone();
-                opts.depth_noise.apply(&mut depth, &mut rng);
-                SensorDepth {
-                    width: r.width,
-                    height: r.height,
-                    depth,
-                    confidence: None,
-                }
-            };
-            output::write_view(out, paths, r, &r.hdr(&ones), &depth, exposure, cap.jpeg_quality)
-        })?;
-
-    // Relit ground truth of the test views (exact by linearity in the emitters; see `i2sdf_render::integrator`).
-    let mut relight_json = Vec::new();
-    for (name, spec) in default_relight_specs(&scene) {
-        let spec_rel = format!("relight/{name}.toml");
-        i2sdf_data::imageio::write_bytes_atomic(&out.join(&spec_rel), spec.to_toml_string().as_bytes())?;
-        let gains = edit::emitter_gains(&spec, &scene.emitters);
-        let mut frames = Vec::new();
-        for (v, r) in pairs.iter().filter(|(v, _)| v.test) {
-            let hdr = r.hdr(&gains);
-            let (png, exr) = (
-                format!("relight/{name}/{}.png", v.stem),
-                format!("relight/{name}/{}.exr", v.stem),
-            );
-            i2sdf_data::imageio::write_png(&out.join(&png), &output::ldr_image(r.width, r.height, &hdr, exposure))?;
-            i2sdf_data::imageio::write_exr(&out.join(&exr), &output::rgb_image(r.width, r.height, &hdr))?;
-            frames.push(json!({"file_path": png, "hdr_file_path": exr, "transform_matrix": matrix_json(&v.camera)}));
-        }
-        relight_json.push(json!({"spec": spec_rel, "frames": frames}));
-    }
+    let frame_paths: Vec<FramePaths> = views
+        .iter()
+        .map(|v| FramePaths::new(&v.stem, noisy, &opts.capture))
+        .collect();
+    write_views(&scene, opts, out, &pairs, &frame_paths, exposure)?;
+    let relight_json = write_relit_test_views(&scene, out, &pairs, exposure)?;
 
     let (objects, object_of_shape) = scene.desc.objects();
     scene.mesh.write_ply(&out.join("mesh.ply"), &object_of_shape)?;
     i2sdf_data::imageio::write_bytes_atomic(&out.join("scene.toml"), scene.desc.to_toml_string().as_bytes())?;
-    // The training poses as written: perturbed when the options say so (the images were rendered
-    // at the true ones, which go to poses_true.json); the test poses stay exact.
-    let written: Vec<Camera> = match cap.pose_perturbation() {
-        None => views.iter().map(|v| v.camera.clone()).collect(),
-        Some(noise) => {
-            let mut rng = Pcg64::seed_from_u64(opts.seed ^ 0x9053_E5A1_7ED0_0001);
-            let written = views
-                .iter()
-                .map(|v| {
-                    if v.test {
-                        v.camera.clone()
-                    } else {
-                        noise.perturb(&v.camera, &mut rng)
-                    }
-                })
-                .collect();
-            let truth: serde_json::Map<String, serde_json::Value> = views
-                .iter()
-                .zip(&frame_paths)
-                .map(|(v, p)| (p.image.clone(), matrix_json(&v.camera)))
-                .collect();
-            let poses_true = json!({
-                "note": "the true camera-to-world matrices (OpenGL axes, as transforms.json) of every frame, keyed by file_path; transforms.json's training poses are these perturbed",
-                "transform_matrix": truth,
-            });
-            i2sdf_data::imageio::write_bytes_atomic(
-                &out.join(POSES_TRUE_FILE),
-                serde_json::to_string_pretty(&poses_true).expect("JSON").as_bytes(),
-            )?;
-            written
-        }
-    };
+    let written = written_poses(opts, out, &views, &frame_paths)?;
     let transforms = transforms_json(
         &scene,
         opts,
@@ -349,6 +257,154 @@ pub fn generate(
         exposure,
         render_seconds,
     })
+}
+
+/// The planned views, each camera given the capture's lens. The whole capture is taken through
+/// the lens; the cameras are placed as in the exact room, so one seed gives the same room, poses
+/// and test views whatever the capture options.
+fn views_through_lens(scene: &RenderScene, opts: &SynthOptions) -> Result<Vec<ViewSpec>, DataError> {
+    let mut views = plan_views(scene, opts)?;
+    for v in &mut views {
+        v.camera.lens = opts.capture.lens;
+        v.camera
+            .validate_intrinsics()
+            .map_err(|(_, m)| DataError::invalid(format!("--lens {}: {m}", opts.capture.lens.model_name())))?;
+    }
+    Ok(views)
+}
+
+/// Renders every view, one after the other, each with its own seed.
+fn render_views(
+    scene: &RenderScene,
+    views: &[ViewSpec],
+    opts: &SynthOptions,
+    on_row: &(dyn Fn() + Sync),
+) -> Vec<ViewRender> {
+    views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let settings = scene.view_settings(opts.spp, opts.seed, i as u32, opts.max_depth);
+            render_view(&scene.scene(), &v.camera, &settings, on_row)
+        })
+        .collect()
+}
+
+/// Refuses renders with a pixel that sees no surface: the room is not closed.
+fn check_closed(views: &[ViewSpec], renders: &[ViewRender]) -> Result<(), DataError> {
+    for (v, r) in views.iter().zip(renders) {
+        if let Some(i) = r.depth.iter().position(|d| !d.is_finite()) {
+            return Err(DataError::invalid(format!(
+                "view {}: pixel {i} sees no surface: the room is not closed",
+                v.stem
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Writes every view's frame and ground truth, views in parallel. The depth is the capture's
+/// sensor depth where it has its own grid or a confidence map, else the rendered depth with the
+/// depth noise; each view draws its noise from its own RNG stream.
+fn write_views(
+    scene: &RenderScene,
+    opts: &SynthOptions,
+    out: &Path,
+    pairs: &[(&ViewSpec, &ViewRender)],
+    frame_paths: &[FramePaths],
+    exposure: f32,
+) -> Result<(), DataError> {
+    let ones = vec![Vec3::ONE; scene.emitters.len()];
+    let cap = &opts.capture;
+    pairs
+        .par_iter()
+        .zip(frame_paths)
+        .enumerate()
+        .try_for_each(|(i, ((v, r), paths))| {
+            let mut rng = Pcg64::seed_from_u64(opts.seed ^ (0xD3_9751 + i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            let depth = if cap.depth_grid.is_some() || cap.confidence {
+                let size = cap.depth_size(r.width, r.height);
+                capture::sensor_depth(scene, &v.camera, size, opts.depth_noise, cap.confidence, &mut rng)
+            } else {
+                let mut depth = r.depth.clone();
+                opts.depth_noise.apply(&mut depth, &mut rng);
+                SensorDepth {
+                    width: r.width,
+                    height: r.height,
+                    depth,
+                    confidence: None,
+                }
+            };
+            output::write_view(out, paths, r, &r.hdr(&ones), &depth, exposure, cap.jpeg_quality)
+        })
+}
+
+/// Relit ground truth of the test views (exact by linearity in the emitters; see
+/// `i2sdf_render::integrator`): per default relight spec, the spec and each test view's PNG and
+/// EXR. Returns their entries of transforms.json.
+fn write_relit_test_views(
+    scene: &RenderScene,
+    out: &Path,
+    pairs: &[(&ViewSpec, &ViewRender)],
+    exposure: f32,
+) -> Result<Vec<serde_json::Value>, DataError> {
+    let mut relight_json = Vec::new();
+    for (name, spec) in default_relight_specs(scene) {
+        let spec_rel = format!("relight/{name}.toml");
+        i2sdf_data::imageio::write_bytes_atomic(&out.join(&spec_rel), spec.to_toml_string().as_bytes())?;
+        let gains = edit::emitter_gains(&spec, &scene.emitters);
+        let mut frames = Vec::new();
+        for (v, r) in pairs.iter().filter(|(v, _)| v.test) {
+            let hdr = r.hdr(&gains);
+            let (png, exr) = (
+                format!("relight/{name}/{}.png", v.stem),
+                format!("relight/{name}/{}.exr", v.stem),
+            );
+            i2sdf_data::imageio::write_png(&out.join(&png), &output::ldr_image(r.width, r.height, &hdr, exposure))?;
+            i2sdf_data::imageio::write_exr(&out.join(&exr), &output::rgb_image(r.width, r.height, &hdr))?;
+            frames.push(json!({"file_path": png, "hdr_file_path": exr, "transform_matrix": matrix_json(&v.camera)}));
+        }
+        relight_json.push(json!({"spec": spec_rel, "frames": frames}));
+    }
+    Ok(relight_json)
+}
+
+/// The training poses as written: perturbed when the options say so (the images were rendered at
+/// the true ones, which then go to poses_true.json); the test poses stay exact.
+fn written_poses(
+    opts: &SynthOptions,
+    out: &Path,
+    views: &[ViewSpec],
+    frame_paths: &[FramePaths],
+) -> Result<Vec<Camera>, DataError> {
+    let Some(noise) = opts.capture.pose_perturbation() else {
+        return Ok(views.iter().map(|v| v.camera.clone()).collect());
+    };
+    let mut rng = Pcg64::seed_from_u64(opts.seed ^ 0x9053_E5A1_7ED0_0001);
+    let written = views
+        .iter()
+        .map(|v| {
+            if v.test {
+                v.camera.clone()
+            } else {
+                noise.perturb(&v.camera, &mut rng)
+            }
+        })
+        .collect();
+    let truth: serde_json::Map<String, serde_json::Value> = views
+        .iter()
+        .zip(frame_paths)
+        .map(|(v, p)| (p.image.clone(), matrix_json(&v.camera)))
+        .collect();
+    let poses_true = json!({
+        "note": "the true camera-to-world matrices (OpenGL axes, as transforms.json) of every frame, keyed by file_path; transforms.json's training poses are these perturbed",
+        "transform_matrix": truth,
+    });
+    i2sdf_data::imageio::write_bytes_atomic(
+        &out.join(POSES_TRUE_FILE),
+        serde_json::to_string_pretty(&poses_true).expect("JSON").as_bytes(),
+    )?;
+    Ok(written)
 }
 
 /// The renderer's estimator as transforms.json records it: whether the images are unbiased, and

@@ -604,11 +604,21 @@ impl RoomBuilder {
         self.desk_with_legs("desk");
     }
 
+    /// The living room: the floor lamp and the chandelier, then a sofa, a TV stand and a
+    /// bookshelf against the walls, a coffee-table group in the middle and a side table.
     fn livingroom(&mut self) {
         self.floor_lamp("floor_lamp");
         self.chandelier();
+        self.sofa();
+        self.tv_stand();
+        self.bookshelf();
+        self.coffee_table_group();
+        self.desk_with_legs("side_table");
+    }
+
+    /// A sofa against a wall, in a saturated fabric: seat, back, two armrests.
+    fn sofa(&mut self) {
         let fabric = self.saturated();
-        // Sofa: seat, back, two armrests.
         let sw = self.rng.gen_range(1.8..2.3f32);
         if let Some(p) = self.against_wall(sw, 0.9, 0.05) {
             self.object("sofa", &[FURNITURE]);
@@ -637,7 +647,10 @@ impl RoomBuilder {
                 );
             }
         }
-        // TV stand with a glossy black screen.
+    }
+
+    /// A TV stand against a wall with a glossy black screen.
+    fn tv_stand(&mut self) {
         let tw = self.rng.gen_range(1.2..1.6f32);
         if let Some(p) = self.against_wall(tw, 0.45, 0.0) {
             self.object("tv_stand", &[FURNITURE]);
@@ -657,7 +670,11 @@ impl RoomBuilder {
                 mat([0.02; 3], 0.5, 0.3),
             );
         }
-        // Bookshelf: a frame of boards with coloured "books" (boxes) on its shelves.
+    }
+
+    /// A bookshelf against a wall: a frame of boards with coloured "books" (boxes) on its
+    /// shelves.
+    fn bookshelf(&mut self) {
         let shelf_w = self.rng.gen_range(0.8..1.1f32);
         if let Some(p) = self.against_wall(shelf_w, 0.35, 0.0) {
             let wood = mat([0.55, 0.4, 0.25], 0.04, 0.5);
@@ -694,28 +711,37 @@ impl RoomBuilder {
                     wood.clone(),
                 );
                 if k < 4 {
-                    let mut x = -shelf_w / 2.0 + 0.05;
-                    let mut j = 0;
-                    while x < shelf_w / 2.0 - 0.15 {
-                        let bw = self.rng.gen_range(0.03..0.07f32);
-                        let bh = self.rng.gen_range(0.2..0.36f32);
-                        let c = self.saturated();
-                        self.object("books", &[FURNITURE]);
-                        self.local_box(
-                            p,
-                            &format!("book_{k}_{j}"),
-                            [x, y + 0.03, -0.14],
-                            [x + bw, y + 0.03 + bh, 0.12],
-                            mat(c, 0.02, 0.6),
-                        );
-                        x += bw + self.rng.gen_range(0.0..0.02);
-                        j += 1;
-                    }
+                    self.shelf_books(p, shelf_w, k, y);
                 }
             }
         }
-        // Coffee table: glass-like glossy top on four thin legs, free-standing, slightly turned;
-        // a glossy sphere on it, and a striped rug under it.
+    }
+
+    /// A row of books of random widths, heights and colours on board `k` (at height `y`) of the
+    /// bookshelf at `p`, until the shelf is full.
+    fn shelf_books(&mut self, p: Placement, shelf_w: f32, k: usize, y: f32) {
+        let mut x = -shelf_w / 2.0 + 0.05;
+        let mut j = 0;
+        while x < shelf_w / 2.0 - 0.15 {
+            let bw = self.rng.gen_range(0.03..0.07f32);
+            let bh = self.rng.gen_range(0.2..0.36f32);
+            let c = self.saturated();
+            self.object("books", &[FURNITURE]);
+            self.local_box(
+                p,
+                &format!("book_{k}_{j}"),
+                [x, y + 0.03, -0.14],
+                [x + bw, y + 0.03 + bh, 0.12],
+                mat(c, 0.02, 0.6),
+            );
+            x += bw + self.rng.gen_range(0.0..0.02);
+            j += 1;
+        }
+    }
+
+    /// A coffee table, free-standing and slightly turned: a glass-like glossy top on four thin
+    /// legs, a glossy sphere on it, and a striped rug under it.
+    fn coffee_table_group(&mut self) {
         let yaw = self.rng.gen_range(-0.3..0.3f32);
         let origin = Vec3::new(self.rng.gen_range(-0.4..0.4), 0.0, self.rng.gen_range(-0.3..0.3));
         let p = Placement { origin, yaw };
@@ -768,7 +794,6 @@ impl RoomBuilder {
                 mat([0.6, 0.08, 0.05], 0.4, 0.3),
             );
         }
-        self.desk_with_legs("side_table");
     }
 
     /// A small table against a wall on four thin legs, with a cylinder vase on it.
