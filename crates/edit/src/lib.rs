@@ -16,3 +16,5 @@ pub mod apply;
 pub use apply::{edited_scene, light_gains};
 pub mod differential;
 pub use differential::{differential_hdr, hdr_ldr_images, Composite};
+pub mod renderer;
+pub use renderer::EditRenderer;

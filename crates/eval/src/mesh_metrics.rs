@@ -274,6 +274,59 @@ pub fn mesh_metrics_with_progress(
     options: &MeshMetricsOptions,
     progress: &dyn EvalProgress,
 ) -> Result<MeshMetrics, DataError> {
+    check_thresholds(options)?;
+    let samples = visible_samples(pred, gt, views, options, progress)?;
+    let (pred_points, gt_points) = (&samples.pred, &samples.gt);
+    progress.step(
+        progress::NEAREST_NEIGHBOURS,
+        (pred_points.len() + gt_points.len()) as u64,
+    );
+    let on_answered = |n: usize| progress.inc(n as u64);
+    let (pred_tree, gt_tree) = rayon::join(|| KdTree::new(pred_points), || KdTree::new(gt_points));
+    let pred_to_gt = gt_tree.nearest_distances(pred_points, &on_answered);
+    let gt_to_pred = pred_tree.nearest_distances(gt_points, &on_answered);
+    let t = options.threshold;
+    let mut metrics = MeshMetrics {
+        accuracy: None,
+        completeness: None,
+        precision: None,
+        recall: None,
+        fscore: None,
+        threshold: t,
+        pred_points: pred_points.len(),
+        gt_points: gt_points.len(),
+        per_object_recall: Vec::new(),
+        group_recall: Vec::new(),
+    };
+    let gt_ids = gt.face_object_ids.as_deref();
+    metrics.group_recall = options
+        .object_groups
+        .iter()
+        .map(|g| group_recall(g, gt_ids, &samples.gt_faces, &gt_to_pred))
+        .collect();
+    if gt_points.is_empty() {
+        return Ok(metrics);
+    }
+    if pred_points.is_empty() {
+        // Nothing predicted where the GT is seen: nothing is recalled; distances are undefined.
+        metrics.recall = Some(0.0);
+        metrics.fscore = Some(0.0);
+    } else {
+        metrics.accuracy = mean(&pred_to_gt);
+        metrics.completeness = mean(&gt_to_pred);
+        metrics.precision = fraction_under(&pred_to_gt, t);
+        metrics.recall = fraction_under(&gt_to_pred, t);
+        let (p, r) = (metrics.precision.unwrap(), metrics.recall.unwrap());
+        metrics.fscore = Some(if p + r > 0.0 { 2.0 * p * r / (p + r) } else { 0.0 });
+    }
+    if let Some(ids) = &gt.face_object_ids {
+        metrics.per_object_recall = per_object_recall(ids, &samples.gt_faces, &gt_to_pred, t);
+    }
+    Ok(metrics)
+}
+
+/// Refuses a main threshold or an object group's threshold that is not positive and finite.
+fn check_thresholds(options: &MeshMetricsOptions) -> Result<(), DataError> {
     if options.threshold <= 0.0 || !options.threshold.is_finite() {
         return Err(DataError::invalid(format!(
             "mesh metrics threshold must be positive, got {}",
@@ -288,6 +341,26 @@ pub fn mesh_metrics_with_progress(
             )));
         }
     }
+    Ok(())
+}
+
+/// The points sampled on both meshes that survive visibility culling, with the GT face of each
+/// GT point.
+struct VisibleSamples {
+    pred: Vec<[f32; 3]>,
+    gt: Vec<[f32; 3]>,
+    gt_faces: Vec<u32>,
+}
+
+/// Samples `options.num_points` on each mesh and keeps those the views see (all of them without
+/// views), reporting the sampling and culling steps.
+fn visible_samples(
+    pred: &TriangleMesh,
+    gt: &TriangleMesh,
+    views: &[CullingView],
+    options: &MeshMetricsOptions,
+    progress: &dyn EvalProgress,
+) -> Result<VisibleSamples, DataError> {
     let tolerance = options.depth_tolerance.unwrap_or(options.threshold);
     let on_done = |n: u64| progress.inc(n);
     // The same seed on both meshes: identical meshes give identical samples (distance 0).
@@ -316,79 +389,45 @@ pub fn mesh_metrics_with_progress(
         .filter(|(_, &k)| k)
         .map(|((p, f), _)| (*p, *f))
         .unzip();
-    progress.step(
-        progress::NEAREST_NEIGHBOURS,
-        (pred_points.len() + gt_points.len()) as u64,
-    );
-    let on_answered = |n: usize| progress.inc(n as u64);
-    let (pred_tree, gt_tree) = rayon::join(|| KdTree::new(&pred_points), || KdTree::new(&gt_points));
-    let pred_to_gt = gt_tree.nearest_distances(&pred_points, &on_answered);
-    let gt_to_pred = pred_tree.nearest_distances(&gt_points, &on_answered);
-    let t = options.threshold;
-    let mut metrics = MeshMetrics {
-        accuracy: None,
-        completeness: None,
-        precision: None,
-        recall: None,
-        fscore: None,
-        threshold: t,
-        pred_points: pred_points.len(),
-        gt_points: gt_points.len(),
-        per_object_recall: Vec::new(),
-        group_recall: Vec::new(),
-    };
-    let gt_ids = gt.face_object_ids.as_deref();
-    metrics.group_recall = options
-        .object_groups
-        .iter()
-        .map(|g| group_recall(g, gt_ids, &gt_faces, &gt_to_pred))
-        .collect();
-    if gt_points.is_empty() {
-        return Ok(metrics);
+    Ok(VisibleSamples {
+        pred: pred_points,
+        gt: gt_points,
+        gt_faces,
+    })
+}
+
+/// Per GT object (`ids`: the GT mesh's per-face object ids; every id listed, with or without
+/// points): its visible points, and the share of them within `t` and within each of
+/// [`THIN_OBJECT_THRESHOLDS`] of the prediction.
+fn per_object_recall(ids: &[i32], gt_faces: &[u32], gt_to_pred: &[f32], t: f64) -> Vec<ObjectRecall> {
+    // Per object: points, and those matched within t and within each thin threshold.
+    let mut per_object: BTreeMap<i32, (usize, [usize; 3])> = BTreeMap::new();
+    for id in ids {
+        per_object.entry(*id).or_default();
     }
-    if pred_points.is_empty() {
-        // Nothing predicted where the GT is seen: nothing is recalled; distances are undefined.
-        metrics.recall = Some(0.0);
-        metrics.fscore = Some(0.0);
-    } else {
-        metrics.accuracy = mean(&pred_to_gt);
-        metrics.completeness = mean(&gt_to_pred);
-        metrics.precision = fraction_under(&pred_to_gt, t);
-        metrics.recall = fraction_under(&gt_to_pred, t);
-        let (p, r) = (metrics.precision.unwrap(), metrics.recall.unwrap());
-        metrics.fscore = Some(if p + r > 0.0 { 2.0 * p * r / (p + r) } else { 0.0 });
-    }
-    if let Some(ids) = &gt.face_object_ids {
-        // Per object: points, and those matched within t and within each thin threshold.
-        let mut per_object: BTreeMap<i32, (usize, [usize; 3])> = BTreeMap::new();
-        for id in ids {
-            per_object.entry(*id).or_default();
-        }
-        let [t2, t5] = THIN_OBJECT_THRESHOLDS;
-        for (k, &f) in gt_faces.iter().enumerate() {
-            let entry = per_object.get_mut(&ids[f as usize]).unwrap();
-            entry.0 += 1;
-            let d = gt_to_pred[k] as f64;
-            for (n, limit) in entry.1.iter_mut().zip([t, t2, t5]) {
-                if d < limit {
-                    *n += 1;
-                }
+    let [t2, t5] = THIN_OBJECT_THRESHOLDS;
+    for (k, &f) in gt_faces.iter().enumerate() {
+        let entry = per_object.get_mut(&ids[f as usize]).unwrap();
+        entry.0 += 1;
+        let d = gt_to_pred[k] as f64;
+        for (n, limit) in entry.1.iter_mut().zip([t, t2, t5]) {
+            if d < limit {
+                *n += 1;
             }
         }
-        metrics.per_object_recall = per_object
-            .into_iter()
-            .map(|(object_id, (points, [matched, m2, m5]))| {
-                let share = |m: usize| (points > 0).then(|| m as f64 / points as f64);
-                ObjectRecall {
-                    object_id,
-                    recall: share(matched),
-                    recall_thin: [share(m2), share(m5)],
-                    points,
-                }
-            })
-            .collect();
     }
-    Ok(metrics)
+    per_object
+        .into_iter()
+        .map(|(object_id, (points, [matched, m2, m5]))| {
+            let share = |m: usize| (points > 0).then(|| m as f64 / points as f64);
+            ObjectRecall {
+                object_id,
+                recall: share(matched),
+                recall_thin: [share(m2), share(m5)],
+                points,
+            }
+        })
+        .collect()
 }
 
 /// Recall of the GT points (`gt_faces[k]` is the face of point `k`, at distance `gt_to_pred[k]`

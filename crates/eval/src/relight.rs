@@ -14,11 +14,14 @@ use crate::image_metrics::{psnr, ssim, ImageRef};
 use crate::report::{ImagePair, RelightMetrics, RelightSetMetrics};
 use glam::Vec3;
 use i2sdf_data::edit_spec::{EditOp, EditSpec};
-use i2sdf_data::{DataError, Dataset, Frame, ImageF32, RelightSet, Split};
-use i2sdf_edit::{differential_hdr, edit_images, hdr_ldr_images, light_gains, EditSettings, RecoveredScene};
+use i2sdf_data::{Camera, DataError, Dataset, EditAssets, Frame, ImageF32, RelightSet, Split};
+use i2sdf_edit::{
+    differential_hdr, edit_images, hdr_ldr_images, light_gains, EditSettings, EditedScene, RecoveredScene,
+};
+use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::OpenedRun;
 use i2sdf_render::ViewRender;
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
 
 #[derive(Clone, Debug)]
 pub struct RelightOptions {
@@ -50,7 +53,7 @@ fn camera_key(f: &Frame) -> Vec<u64> {
     f.camera.key()
 }
 
-fn scores(pred: &ImageF32, gt: &ImageF32) -> Result<(Option<f64>, Option<f64>), DataError> {
+fn scores_of(pred: &ImageF32, gt: &ImageF32) -> Result<(Option<f64>, Option<f64>), DataError> {
     let (w, h) = (pred.width, pred.height);
     let p = ImageRef::new(&pred.data, w, h, 3)?;
     let g = ImageRef::new(&gt.data, w, h, 3)?;
@@ -87,20 +90,7 @@ pub fn relight_metrics(
         return Ok(RelightMetrics::default());
     }
     if run.stage2()?.emitters.is_empty() {
-        let sets = dataset.relight.iter().enumerate().map(|(i, set)| {
-            let frames = set.frames.len();
-            (
-                set_name(set, i),
-                RelightSetMetrics {
-                    frames,
-                    ..Default::default()
-                },
-            )
-        });
-        return Ok(RelightMetrics {
-            sets: Some(sets.collect()),
-            ..Default::default()
-        });
+        return Ok(frame_counts_only(dataset));
     }
     // Every spec and asset is read before the (long) rendering starts.
     let mut specs = Vec::new();
@@ -110,105 +100,197 @@ pub fn relight_metrics(
         specs.push((spec, assets));
     }
     let recovered = RecoveredScene::of_run(run, dataset, options.mesh_resolution)?;
-    let volume = options.differential.then_some(&run.config.render);
-    let unedited_scene = recovered.edited(&EditSpec::default(), &Default::default());
-    let tests: HashMap<Vec<u64>, &Frame> = dataset.split(Split::Test).map(|f| (camera_key(f), f)).collect();
-    // Per camera: the unedited render (shared by the relight-only sets, the differential base of
-    // the others), the view index its paths were drawn with, and the radiance field's image.
-    let mut shared: HashMap<Vec<u64>, (ViewRender, u32)> = HashMap::new();
-    let mut captured: HashMap<Vec<u64>, ImageF32> = HashMap::new();
-    let (mut all_dp, mut all_ds) = (Vec::new(), Vec::new());
-    let (mut all_p, mut all_s) = (Vec::new(), Vec::new());
-    let (mut base_p, mut base_s) = (Vec::new(), Vec::new());
-    let mut seen_tests = std::collections::HashSet::new();
+    let mut eval = RelightEval {
+        unedited_scene: recovered.edited(&EditSpec::default(), &Default::default()),
+        recovered: &recovered,
+        volume: options.differential.then_some(&run.config.render),
+        settings: &options.render,
+        on_row,
+        tests: dataset.split(Split::Test).map(|f| (camera_key(f), f)).collect(),
+        shared: HashMap::new(),
+        captured: HashMap::new(),
+        view: 0,
+    };
+    let mut baseline = Baseline::default();
+    let mut all = SetScores::default();
     let mut sets = BTreeMap::new();
-    let mut view = 0u32;
     for (i, (set, (spec, assets))) in dataset.relight.iter().zip(&specs).enumerate() {
+        let scores = eval.score_set(set, spec, assets, &mut baseline)?;
+        all.relit.extend(&scores.relit);
+        all.differential.extend(&scores.differential);
+        sets.insert(set_name(set, i), scores.metrics(set.frames.len()));
+    }
+    Ok(RelightMetrics {
+        psnr: mean(&all.relit.psnr),
+        ssim: mean(&all.relit.ssim),
+        sets: Some(sets),
+        unedited: (!baseline.scores.psnr.is_empty()).then(|| ImagePair {
+            psnr: mean(&baseline.scores.psnr),
+            ssim: mean(&baseline.scores.ssim),
+            frames: baseline.scores.psnr.len(),
+        }),
+        psnr_differential: mean(&all.differential.psnr),
+        ssim_differential: mean(&all.differential.ssim),
+    })
+}
+
+/// The metrics without emitters: every set with its frame count and null figures.
+fn frame_counts_only(dataset: &Dataset) -> RelightMetrics {
+    let sets = dataset.relight.iter().enumerate().map(|(i, set)| {
+        let frames = set.frames.len();
+        (
+            set_name(set, i),
+            RelightSetMetrics {
+                frames,
+                ..Default::default()
+            },
+        )
+    });
+    RelightMetrics {
+        sets: Some(sets.collect()),
+        ..Default::default()
+    }
+}
+
+/// PSNR and SSIM of the frames scored so far (a frame without a figure adds none).
+#[derive(Default)]
+struct Scores {
+    psnr: Vec<f64>,
+    ssim: Vec<f64>,
+}
+
+impl Scores {
+    fn push(&mut self, (psnr, ssim): (Option<f64>, Option<f64>)) {
+        self.psnr.extend(psnr);
+        self.ssim.extend(ssim);
+    }
+
+    fn extend(&mut self, other: &Scores) {
+        self.psnr.extend(&other.psnr);
+        self.ssim.extend(&other.ssim);
+    }
+}
+
+/// A set's scores: its relit images, the unedited render against the same truth (what doing
+/// nothing scores, relight-only sets), and the differential composites (with `volume`).
+#[derive(Default)]
+struct SetScores {
+    relit: Scores,
+    unedited: Scores,
+    differential: Scores,
+}
+
+impl SetScores {
+    fn metrics(&self, frames: usize) -> RelightSetMetrics {
+        RelightSetMetrics {
+            psnr: mean(&self.relit.psnr),
+            ssim: mean(&self.relit.ssim),
+            psnr_unedited: mean(&self.unedited.psnr),
+            ssim_unedited: mean(&self.unedited.ssim),
+            psnr_differential: mean(&self.differential.psnr),
+            ssim_differential: mean(&self.differential.ssim),
+            frames,
+        }
+    }
+}
+
+/// The unedited render against the test images of the same cameras, each test camera once.
+#[derive(Default)]
+struct Baseline {
+    scores: Scores,
+    seen: HashSet<Vec<u64>>,
+}
+
+/// What the sets of one evaluation share: the recovered scene and its unedited edit, the test
+/// frames by camera, and per camera the unedited render (shared by the relight-only sets, the
+/// differential base of the others) with the view index its paths were drawn with, and the
+/// radiance field's image.
+struct RelightEval<'r, 'a> {
+    recovered: &'r RecoveredScene<'a>,
+    unedited_scene: EditedScene,
+    /// The radiance field's render settings when sets are also scored by differential rendering.
+    volume: Option<&'r RenderSettings>,
+    settings: &'r EditSettings,
+    on_row: &'r (dyn Fn() + Sync),
+    tests: HashMap<Vec<u64>, &'r Frame>,
+    shared: HashMap<Vec<u64>, (ViewRender, u32)>,
+    captured: HashMap<Vec<u64>, ImageF32>,
+    /// The next unused view index (each render's own paths).
+    view: u32,
+}
+
+impl RelightEval<'_, '_> {
+    /// Renders and scores every frame of `set` with its edit. A spec that only relights reuses
+    /// the camera's unedited render with its gains (and scores the unedited image too, feeding
+    /// `baseline`); any other spec renders its edited scene.
+    fn score_set(
+        &mut self,
+        set: &RelightSet,
+        spec: &EditSpec,
+        assets: &EditAssets,
+        baseline: &mut Baseline,
+    ) -> Result<SetScores, DataError> {
         let relight_only = spec.ops.iter().all(|op| matches!(op, EditOp::Relight(_)));
-        let own = (!relight_only).then(|| recovered.edited(spec, assets));
-        let edited = own.as_ref().unwrap_or(&unedited_scene);
+        let own = (!relight_only).then(|| self.recovered.edited(spec, assets));
+        let edited = own.as_ref().unwrap_or(&self.unedited_scene);
         let gains = light_gains(spec, edited);
         let ones = vec![Vec3::ONE; edited.lights()];
-        let (mut p, mut s, mut pu, mut su) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-        let (mut dp, mut ds) = (Vec::new(), Vec::new());
+        let rm = &self.recovered.radiometry;
+        let mut scores = SetScores::default();
         for f in &set.frames {
             let key = camera_key(f);
-            if !shared.contains_key(&key) && (relight_only || volume.is_some()) {
-                let r = recovered.render(&unedited_scene, &f.camera, &options.render, view, on_row);
-                shared.insert(key.clone(), (r, view));
-                view += 1;
+            if !self.shared.contains_key(&key) && (relight_only || self.volume.is_some()) {
+                self.render_unedited(&key, &f.camera);
             }
-            let own_render = own.as_ref().map(|ed| {
-                // The unedited render's paths when there is one (the differential's edited and
-                // unedited images then share their noise), else a fresh view index.
-                let v = shared.get(&key).map_or_else(
-                    || {
-                        view += 1;
-                        view - 1
-                    },
-                    |(_, v)| *v,
-                );
-                recovered.render(ed, &f.camera, &options.render, v, on_row)
-            });
-            let base = shared.get(&key).map(|(r, _)| r);
+            let own_render = own.as_ref().map(|ed| self.render_edited(ed, &key, &f.camera));
+            let base = self.shared.get(&key).map(|(r, _)| r);
             let render = own_render.as_ref().or(base).expect("a render of the edited scene");
-            let (_, relit) = edit_images(render, &gains, &recovered.radiometry);
-            let (x, y) = scores(&relit, &f.rgb)?;
-            p.extend(x);
-            s.extend(y);
-            if let (Some(volume), Some(base)) = (volume, base) {
-                let cap = captured
+            let (_, relit) = edit_images(render, &gains, rm);
+            scores.relit.push(scores_of(&relit, &f.rgb)?);
+            if let (Some(volume), Some(base)) = (self.volume, base) {
+                let cap = self
+                    .captured
                     .entry(key.clone())
-                    .or_insert_with(|| recovered.captured(&f.camera, volume));
-                let d = differential_hdr(cap, render, &gains, base, &recovered.radiometry);
-                let (_, ldr) = hdr_ldr_images(&d, render.width, render.height, &recovered.radiometry);
-                let (x, y) = scores(&ldr, &f.rgb)?;
-                dp.extend(x);
-                ds.extend(y);
+                    .or_insert_with(|| self.recovered.captured(&f.camera, volume));
+                let d = differential_hdr(cap, render, &gains, base, rm);
+                let (_, ldr) = hdr_ldr_images(&d, render.width, render.height, rm);
+                scores.differential.push(scores_of(&ldr, &f.rgb)?);
             }
             if relight_only {
-                let (_, plain) = edit_images(render, &ones, &recovered.radiometry);
-                let (x, y) = scores(&plain, &f.rgb)?;
-                pu.extend(x);
-                su.extend(y);
-                if let Some(t) = tests.get(&key) {
-                    if seen_tests.insert(key) {
-                        let (x, y) = scores(&plain, &t.rgb)?;
-                        base_p.extend(x);
-                        base_s.extend(y);
+                let (_, plain) = edit_images(render, &ones, rm);
+                scores.unedited.push(scores_of(&plain, &f.rgb)?);
+                if let Some(t) = self.tests.get(&key) {
+                    if baseline.seen.insert(key) {
+                        baseline.scores.push(scores_of(&plain, &t.rgb)?);
                     }
                 }
             }
         }
-        all_dp.extend(&dp);
-        all_ds.extend(&ds);
-        all_p.extend(&p);
-        all_s.extend(&s);
-        sets.insert(
-            set_name(set, i),
-            RelightSetMetrics {
-                psnr: mean(&p),
-                ssim: mean(&s),
-                psnr_unedited: mean(&pu),
-                ssim_unedited: mean(&su),
-                psnr_differential: mean(&dp),
-                ssim_differential: mean(&ds),
-                frames: set.frames.len(),
-            },
-        );
+        Ok(scores)
     }
-    Ok(RelightMetrics {
-        psnr: mean(&all_p),
-        ssim: mean(&all_s),
-        sets: Some(sets),
-        unedited: (!base_p.is_empty()).then(|| ImagePair {
-            psnr: mean(&base_p),
-            ssim: mean(&base_s),
-            frames: base_p.len(),
-        }),
-        psnr_differential: mean(&all_dp),
-        ssim_differential: mean(&all_ds),
-    })
+
+    /// The unedited render of `camera` (key `key`), on a fresh view index.
+    fn render_unedited(&mut self, key: &[u64], camera: &Camera) {
+        let r = self
+            .recovered
+            .render(&self.unedited_scene, camera, self.settings, self.view, self.on_row);
+        self.shared.insert(key.to_vec(), (r, self.view));
+        self.view += 1;
+    }
+
+    /// The render of `edited` from `camera`: on the unedited render's paths when there is one
+    /// (the differential's edited and unedited images then share their noise), else on a fresh
+    /// view index.
+    fn render_edited(&mut self, edited: &EditedScene, key: &[u64], camera: &Camera) -> ViewRender {
+        let v = self.shared.get(key).map_or_else(
+            || {
+                self.view += 1;
+                self.view - 1
+            },
+            |(_, v)| *v,
+        );
+        self.recovered.render(edited, camera, self.settings, v, self.on_row)
+    }
 }
 
 #[cfg(test)]

@@ -105,6 +105,80 @@ pub struct Integrator {
     pub max_depth: u32,
 }
 
+impl Integrator {
+    /// Traces `paths`, adding emitter k's part of path `i`'s radiance estimate to
+    /// `radiance[i · scene.slots() + k]` (and the radiance field's part, if any, to the last slot).
+    pub fn trace(&self, scene: &Scene, paths: &mut [PathStart], radiance: &mut [Vec3]) {
+        let ne = scene.slots();
+        assert_eq!(
+            radiance.len(),
+            paths.len() * ne,
+            "radiance slots: one per path and emitter"
+        );
+        let mut wave = Wavefront::new(paths);
+        for depth in 0..=self.max_depth {
+            if wave.active.is_empty() {
+                break;
+            }
+            wave.intersect_active(scene.geometry, depth);
+            wave.end_on_emitters(scene, depth < self.max_depth, radiance, ne);
+            if wave.vertices.hits.is_empty() {
+                break;
+            }
+            wave.vertices.eval_materials(&wave.state, scene.material);
+            self.sample_vertices(&mut wave, scene.lights, paths, depth);
+            wave.shadows.resolve(scene, radiance, ne);
+            std::mem::swap(&mut wave.active, &mut wave.next);
+        }
+        if let Some(field) = scene.radiance_field {
+            wave.field.resolve(field, &wave.state, radiance, ne);
+        }
+    }
+
+    /// Step 4 of a bounce: at every scattering vertex, the light samples (one per emitter:
+    /// choosing one by power left the bulb's contribution with selection noise), queued for their
+    /// shadow queries, and the BRDF sample that continues the path; the surviving paths go to
+    /// `wave.next`.
+    #[inline]
+    fn sample_vertices(&self, wave: &mut Wavefront, lights: &LightSet, paths: &mut [PathStart], depth: u32) {
+        let Wavefront {
+            state,
+            next,
+            vertices,
+            shadows,
+            ..
+        } = wave;
+        next.clear();
+        shadows.clear();
+        for (j, &(i, _)) in vertices.hits.iter().enumerate() {
+            let (path, s) = (&mut paths[i as usize], &mut state[i as usize]);
+            let vertex = self.vertex(i, &vertices.points[j], vertices.brdfs[j], s);
+            let u = bounce_uniforms(path, depth);
+            shadows.sample_lights(lights, &vertex, s.beta, [u[0], u[1], u[2]]);
+            if continue_path(&vertex, s, &mut path.rng, [u[3], u[4], u[5]], depth) {
+                next.push(i);
+            }
+        }
+    }
+
+    /// Path `i`'s scattering vertex at `point`, leaving along `-s.dir`, with its BRDF regularized
+    /// once the path has been diffuse (see [`Estimator::regularize_roughness`]).
+    #[inline]
+    fn vertex(&self, i: u32, point: &SurfacePoint, mut brdf: GgxBrdf, s: &PathState) -> Vertex {
+        let n = point.normal;
+        if let (true, Some(rho)) = (s.after_diffuse, self.estimator.regularize_roughness) {
+            brdf.rho = brdf.rho.max(rho);
+        }
+        Vertex {
+            path: i,
+            origin: point.position + n * RAY_EPS,
+            n,
+            wo: -s.dir,
+            brdf,
+        }
+    }
+}
+
 /// A path between bounces.
 #[derive(Clone, Copy)]
 struct PathState {
@@ -118,6 +192,18 @@ struct PathState {
     after_diffuse: bool,
 }
 
+/// A scattering vertex as its light and BRDF samples see it.
+struct Vertex {
+    path: u32,
+    /// Where secondary rays start: the surface point offset along `n` by [`RAY_EPS`].
+    origin: Vec3,
+    /// The shading normal, on the side the path arrived from.
+    n: Vec3,
+    /// Towards where the path came from.
+    wo: Vec3,
+    brdf: GgxBrdf,
+}
+
 /// A light sample's contribution, waiting for its shadow query.
 struct Pending {
     path: u32,
@@ -125,193 +211,285 @@ struct Pending {
     value: Vec3,
 }
 
-impl Integrator {
-    /// Traces `paths`, adding emitter k's part of path `i`'s radiance estimate to
-    /// `radiance[i · scene.slots() + k]` (and the radiance field's part, if any, to the last slot).
-    pub fn trace(&self, scene: &Scene, paths: &mut [PathStart], radiance: &mut [Vec3]) {
-        let ne = scene.slots();
-        assert_eq!(
-            radiance.len(),
-            paths.len() * ne,
-            "radiance slots: one per path and emitter"
-        );
-        let (mut field_rays, mut field_hits, mut field_paths) = (Vec::new(), Vec::new(), Vec::new());
-        let mut state: Vec<PathState> = paths
-            .iter()
-            .map(|p| PathState {
-                origin: p.origin,
-                dir: p.dir,
-                beta: Vec3::ONE,
-                brdf_pdf: None,
-                after_diffuse: false,
-            })
-            .collect();
-        let mut active: Vec<u32> = (0..paths.len() as u32).collect();
-        let mut next = Vec::with_capacity(active.len());
-        let (mut rays, mut hits) = (Vec::new(), Vec::new());
-        let (mut shading, mut points, mut brdfs): (Vec<(u32, Hit)>, Vec<SurfacePoint>, Vec<GgxBrdf>) =
-            (Vec::new(), Vec::new(), Vec::new());
-        let (mut seg_rays, mut seg_pending, mut seg_occluded) = (Vec::new(), Vec::new(), Vec::new());
-        let (mut first_rays, mut first_pending, mut first_hits) = (Vec::new(), Vec::new(), Vec::new());
-        for depth in 0..=self.max_depth {
-            if active.is_empty() {
-                break;
-            }
-            // 1. Closest hits of every live path.
-            let t_min = if depth == 0 { 0.0 } else { RAY_EPS };
-            rays.clear();
-            rays.extend(active.iter().map(|&i| {
-                let s = &state[i as usize];
-                Ray::new(s.origin, s.dir, t_min, f32::INFINITY)
-            }));
-            hits.clear();
-            hits.resize(rays.len(), None);
-            scene.geometry.intersect(&rays, &mut hits);
-            // 2. Emission where a path ends on an emitter (MIS-weighted against light sampling
-            //    unless the camera sees it directly); the rest scatter.
-            shading.clear();
-            for (j, &i) in active.iter().enumerate() {
-                let Some(hit) = hits[j] else {
-                    continue;
-                };
-                let s = &state[i as usize];
-                if let Some(k) = scene.lights.emitter_of(&hit) {
-                    let light = scene.lights.get(k);
-                    let le = light.emitted(&hit, s.dir);
-                    if le != Vec3::ZERO {
-                        let w = match s.brdf_pdf {
-                            None => 1.0,
-                            Some(pb) => power_heuristic(pb, light.pdf(s.origin, s.dir, &hit)),
-                        };
-                        radiance[i as usize * ne + k] += s.beta * le * w;
-                    }
-                    continue;
-                }
-                if depth < self.max_depth {
-                    shading.push((i, hit));
-                } else if scene.radiance_field.is_some() {
-                    field_rays.push(rays[j]);
-                    field_hits.push(hit);
-                    field_paths.push(i);
-                }
-            }
-            if shading.is_empty() {
-                break;
-            }
-            // 3. Materials of every scattering vertex, in one batch.
-            points.clear();
-            points.extend(shading.iter().map(|&(i, hit)| {
-                let s = &state[i as usize];
-                SurfacePoint {
-                    position: s.origin + hit.t * s.dir,
-                    normal: if hit.normal.dot(s.dir) > 0.0 {
-                        -hit.normal
-                    } else {
-                        hit.normal
-                    },
-                    surface: hit.surface,
-                    prim: hit.prim,
-                }
-            }));
-            brdfs.clear();
-            brdfs.resize(points.len(), GgxBrdf::new(Vec3::ZERO, Vec3::ZERO, 1.0));
-            scene.material.eval_batch(&points, &mut brdfs);
-            // 4. Light samples (one per emitter: choosing one by power left the bulb's
-            //    contribution with selection noise) and the BRDF sample that continues the path.
-            next.clear();
-            seg_rays.clear();
-            seg_pending.clear();
-            first_rays.clear();
-            first_pending.clear();
-            for (j, &(i, _)) in shading.iter().enumerate() {
-                let (path, s) = (&mut paths[i as usize], &mut state[i as usize]);
-                let (n, wo) = (points[j].normal, -s.dir);
-                let mut brdf = brdfs[j];
-                if let (true, Some(rho)) = (s.after_diffuse, self.estimator.regularize_roughness) {
-                    brdf.rho = brdf.rho.max(rho);
-                }
-                let origin_out = points[j].position + n * RAY_EPS;
-                let u = if (depth as usize) < STRATIFIED_BOUNCES {
-                    path.strata[depth as usize]
-                } else {
-                    std::array::from_fn(|_| path.rng.gen())
-                };
-                for k in 0..scene.lights.len() {
-                    let Some(ls) = scene.lights.get(k).sample(origin_out, [u[0], u[1], u[2]]) else {
-                        continue;
-                    };
-                    let cos_x = n.dot(ls.wi);
-                    if !(cos_x > 0.0) {
-                        continue;
-                    }
-                    let f = brdf.eval(n, wo, ls.wi);
-                    if !(max_channel(f) > 0.0) {
-                        continue;
-                    }
-                    let w = power_heuristic(ls.pdf, brdf.pdf(n, wo, ls.wi));
-                    let pending = Pending {
-                        path: i,
-                        emitter: k as u32,
-                        value: s.beta * f * ls.radiance * (cos_x * w / ls.pdf),
-                    };
-                    match ls.visibility {
-                        Visibility::Segment(dist) => {
-                            seg_rays.push(Ray::new(origin_out, ls.wi, 0.0, dist * (1.0 - 1e-4)));
-                            seg_pending.push(pending);
-                        }
-                        Visibility::FirstHit(max_dist) => {
-                            first_rays.push(Ray::new(origin_out, ls.wi, 0.0, max_dist));
-                            first_pending.push(pending);
-                        }
-                    }
-                }
-                let Some(smp) = brdf.sample(n, wo, [u[3], u[4], u[5]]) else {
-                    continue;
-                };
-                s.beta *= smp.weight;
-                s.after_diffuse |= smp.lobe == BrdfLobe::Diffuse;
-                s.brdf_pdf = Some(smp.pdf);
-                s.origin = origin_out;
-                s.dir = smp.d;
-                if depth >= 2 {
-                    let q = max_channel(s.beta).min(0.95);
-                    if path.rng.gen::<f32>() >= q {
-                        continue;
-                    }
-                    s.beta /= q;
-                }
-                next.push(i);
-            }
-            // 5. Shadow queries, batched: free segments to sampled points; first hits that must be
-            //    the front of the sampled emitter for cone samples.
-            seg_occluded.clear();
-            seg_occluded.resize(seg_rays.len(), true);
-            scene.geometry.occluded(&seg_rays, &mut seg_occluded);
-            for (p, &occ) in seg_pending.iter().zip(&seg_occluded) {
-                if !occ {
-                    radiance[p.path as usize * ne + p.emitter as usize] += p.value;
-                }
-            }
-            first_hits.clear();
-            first_hits.resize(first_rays.len(), None);
-            scene.geometry.intersect(&first_rays, &mut first_hits);
-            for ((p, h), r) in first_pending.iter().zip(&first_hits).zip(&first_rays) {
-                if h.is_some_and(|h| {
-                    scene.lights.emitter_of(&h) == Some(p.emitter as usize) && h.normal.dot(r.dir) < 0.0
-                }) {
-                    radiance[p.path as usize * ne + p.emitter as usize] += p.value;
-                }
-            }
-            std::mem::swap(&mut active, &mut next);
+/// The state and scratch buffers of one [`Integrator::trace`] call. Every buffer is cleared and
+/// refilled at each bounce, so once they have grown nothing is allocated per bounce.
+struct Wavefront {
+    state: Vec<PathState>,
+    /// Paths alive at this bounce, and those that continue to the next.
+    active: Vec<u32>,
+    next: Vec<u32>,
+    /// The bounce's rays of the live paths (in `active`'s order) and their closest hits.
+    rays: Vec<Ray>,
+    hits: Vec<Option<Hit>>,
+    vertices: Vertices,
+    shadows: ShadowQueries,
+    field: FieldQueries,
+}
+
+impl Wavefront {
+    fn new(paths: &[PathStart]) -> Self {
+        let active: Vec<u32> = (0..paths.len() as u32).collect();
+        Wavefront {
+            state: paths
+                .iter()
+                .map(|p| PathState {
+                    origin: p.origin,
+                    dir: p.dir,
+                    beta: Vec3::ONE,
+                    brdf_pdf: None,
+                    after_diffuse: false,
+                })
+                .collect(),
+            next: Vec::with_capacity(active.len()),
+            active,
+            rays: Vec::new(),
+            hits: Vec::new(),
+            vertices: Vertices {
+                hits: Vec::new(),
+                points: Vec::new(),
+                brdfs: Vec::new(),
+            },
+            shadows: ShadowQueries {
+                seg_rays: Vec::new(),
+                seg_pending: Vec::new(),
+                seg_occluded: Vec::new(),
+                first_rays: Vec::new(),
+                first_pending: Vec::new(),
+                first_hits: Vec::new(),
+            },
+            field: FieldQueries {
+                rays: Vec::new(),
+                hits: Vec::new(),
+                paths: Vec::new(),
+            },
         }
-        // Paths that reached a non-emitting surface after their last scattering event take its
-        // radiance from the field, weight 1: no other strategy samples it.
-        if let Some(field) = scene.radiance_field {
-            let mut l = vec![Vec3::ZERO; field_rays.len()];
-            field.radiance_batch(&field_rays, &field_hits, &mut l);
-            for (&i, l) in field_paths.iter().zip(&l) {
-                radiance[i as usize * ne + ne - 1] += state[i as usize].beta * *l;
+    }
+
+    /// Step 1 of a bounce: the closest hits of every live path (camera rays from their origin,
+    /// secondary rays past [`RAY_EPS`]).
+    #[inline]
+    fn intersect_active(&mut self, geometry: &dyn Geometry, depth: u32) {
+        let t_min = if depth == 0 { 0.0 } else { RAY_EPS };
+        let state = &self.state;
+        self.rays.clear();
+        self.rays.extend(self.active.iter().map(|&i| {
+            let s = &state[i as usize];
+            Ray::new(s.origin, s.dir, t_min, f32::INFINITY)
+        }));
+        self.hits.clear();
+        self.hits.resize(self.rays.len(), None);
+        geometry.intersect(&self.rays, &mut self.hits);
+    }
+
+    /// Step 2 of a bounce: emission where a path ends on an emitter (MIS-weighted against light
+    /// sampling unless the camera sees it directly). The paths on other surfaces scatter when
+    /// `scatter` (they go to `self.vertices`), else queue for the radiance field, if any; paths
+    /// that escape end.
+    #[inline]
+    fn end_on_emitters(&mut self, scene: &Scene, scatter: bool, radiance: &mut [Vec3], ne: usize) {
+        self.vertices.hits.clear();
+        for (j, &i) in self.active.iter().enumerate() {
+            let Some(hit) = self.hits[j] else {
+                continue;
+            };
+            let s = &self.state[i as usize];
+            if let Some(k) = scene.lights.emitter_of(&hit) {
+                if let Some(l) = emission_seen(scene.lights, k, s, &hit) {
+                    radiance[i as usize * ne + k] += l;
+                }
+                continue;
             }
+            if scatter {
+                self.vertices.hits.push((i, hit));
+            } else if scene.radiance_field.is_some() {
+                self.field.rays.push(self.rays[j]);
+                self.field.hits.push(hit);
+                self.field.paths.push(i);
+            }
+        }
+    }
+}
+
+/// The emission of emitter `k` that path `s` reaches at `hit`, MIS-weighted against the light
+/// sample that could have found it (weight 1 for camera rays); `None` where it emits nothing
+/// that way.
+#[inline]
+fn emission_seen(lights: &LightSet, k: usize, s: &PathState, hit: &Hit) -> Option<Vec3> {
+    let light = lights.get(k);
+    let le = light.emitted(hit, s.dir);
+    if le == Vec3::ZERO {
+        return None;
+    }
+    let w = match s.brdf_pdf {
+        None => 1.0,
+        Some(pb) => power_heuristic(pb, light.pdf(s.origin, s.dir, hit)),
+    };
+    Some(s.beta * le * w)
+}
+
+/// The uniforms of path `path`'s vertex at `depth`: its stratified ones for the first
+/// [`STRATIFIED_BOUNCES`], then six draws of its own sampler.
+#[inline]
+fn bounce_uniforms(path: &mut PathStart, depth: u32) -> [f32; 6] {
+    if (depth as usize) < STRATIFIED_BOUNCES {
+        path.strata[depth as usize]
+    } else {
+        std::array::from_fn(|_| path.rng.gen())
+    }
+}
+
+/// Continues path `s` from `vertex` by sampling its BRDF with `u` (weight, pdf for MIS at the
+/// next emitter hit, new ray), with Russian roulette from the third bounce on (drawing from
+/// `rng`). False when the path ends: no sample, or the roulette ended it.
+#[inline]
+fn continue_path(vertex: &Vertex, s: &mut PathState, rng: &mut Pcg32, u: [f32; 3], depth: u32) -> bool {
+    let Some(smp) = vertex.brdf.sample(vertex.n, vertex.wo, u) else {
+        return false;
+    };
+    s.beta *= smp.weight;
+    s.after_diffuse |= smp.lobe == BrdfLobe::Diffuse;
+    s.brdf_pdf = Some(smp.pdf);
+    s.origin = vertex.origin;
+    s.dir = smp.d;
+    if depth >= 2 {
+        let q = max_channel(s.beta).min(0.95);
+        if rng.gen::<f32>() >= q {
+            return false;
+        }
+        s.beta /= q;
+    }
+    true
+}
+
+/// The scattering vertices of one bounce, in one batch: path and hit, surface point, BRDF.
+struct Vertices {
+    hits: Vec<(u32, Hit)>,
+    points: Vec<SurfacePoint>,
+    brdfs: Vec<GgxBrdf>,
+}
+
+impl Vertices {
+    /// Step 3 of a bounce: the surface points of every vertex (normal facing the arriving path)
+    /// and their materials, in one batch.
+    #[inline]
+    fn eval_materials(&mut self, state: &[PathState], material: &dyn Material) {
+        self.points.clear();
+        self.points.extend(self.hits.iter().map(|&(i, hit)| {
+            let s = &state[i as usize];
+            SurfacePoint {
+                position: s.origin + hit.t * s.dir,
+                normal: if hit.normal.dot(s.dir) > 0.0 {
+                    -hit.normal
+                } else {
+                    hit.normal
+                },
+                surface: hit.surface,
+                prim: hit.prim,
+            }
+        }));
+        self.brdfs.clear();
+        self.brdfs
+            .resize(self.points.len(), GgxBrdf::new(Vec3::ZERO, Vec3::ZERO, 1.0));
+        material.eval_batch(&self.points, &mut self.brdfs);
+    }
+}
+
+/// The light samples of one bounce waiting for their shadow queries: free segments to sampled
+/// points, and first hits that must be the front of the sampled emitter (cone samples).
+struct ShadowQueries {
+    seg_rays: Vec<Ray>,
+    seg_pending: Vec<Pending>,
+    seg_occluded: Vec<bool>,
+    first_rays: Vec<Ray>,
+    first_pending: Vec<Pending>,
+    first_hits: Vec<Option<Hit>>,
+}
+
+impl ShadowQueries {
+    #[inline]
+    fn clear(&mut self) {
+        self.seg_rays.clear();
+        self.seg_pending.clear();
+        self.first_rays.clear();
+        self.first_pending.clear();
+    }
+
+    /// Next-event estimation at `vertex` (path throughput `beta`): one sample per emitter with the
+    /// same uniforms `u`, MIS-weighted against BRDF sampling, queued for its shadow query.
+    #[inline]
+    fn sample_lights(&mut self, lights: &LightSet, vertex: &Vertex, beta: Vec3, u: [f32; 3]) {
+        let (n, wo, brdf) = (vertex.n, vertex.wo, &vertex.brdf);
+        for k in 0..lights.len() {
+            let Some(ls) = lights.get(k).sample(vertex.origin, u) else {
+                continue;
+            };
+            let cos_x = n.dot(ls.wi);
+            if !(cos_x > 0.0) {
+                continue;
+            }
+            let f = brdf.eval(n, wo, ls.wi);
+            if !(max_channel(f) > 0.0) {
+                continue;
+            }
+            let w = power_heuristic(ls.pdf, brdf.pdf(n, wo, ls.wi));
+            let pending = Pending {
+                path: vertex.path,
+                emitter: k as u32,
+                value: beta * f * ls.radiance * (cos_x * w / ls.pdf),
+            };
+            match ls.visibility {
+                Visibility::Segment(dist) => {
+                    self.seg_rays
+                        .push(Ray::new(vertex.origin, ls.wi, 0.0, dist * (1.0 - 1e-4)));
+                    self.seg_pending.push(pending);
+                }
+                Visibility::FirstHit(max_dist) => {
+                    self.first_rays.push(Ray::new(vertex.origin, ls.wi, 0.0, max_dist));
+                    self.first_pending.push(pending);
+                }
+            }
+        }
+    }
+
+    /// Step 5 of a bounce: the shadow queries, batched; each unoccluded sample adds its value to
+    /// its path's slot of its emitter.
+    #[inline]
+    fn resolve(&mut self, scene: &Scene, radiance: &mut [Vec3], ne: usize) {
+        self.seg_occluded.clear();
+        self.seg_occluded.resize(self.seg_rays.len(), true);
+        scene.geometry.occluded(&self.seg_rays, &mut self.seg_occluded);
+        for (p, &occ) in self.seg_pending.iter().zip(&self.seg_occluded) {
+            if !occ {
+                radiance[p.path as usize * ne + p.emitter as usize] += p.value;
+            }
+        }
+        self.first_hits.clear();
+        self.first_hits.resize(self.first_rays.len(), None);
+        scene.geometry.intersect(&self.first_rays, &mut self.first_hits);
+        for ((p, h), r) in self.first_pending.iter().zip(&self.first_hits).zip(&self.first_rays) {
+            if h.is_some_and(|h| scene.lights.emitter_of(&h) == Some(p.emitter as usize) && h.normal.dot(r.dir) < 0.0) {
+                radiance[p.path as usize * ne + p.emitter as usize] += p.value;
+            }
+        }
+    }
+}
+
+/// Paths that reached a non-emitting surface after their last scattering event, waiting for the
+/// radiance field: their last ray and hit.
+struct FieldQueries {
+    rays: Vec<Ray>,
+    hits: Vec<Hit>,
+    paths: Vec<u32>,
+}
+
+impl FieldQueries {
+    /// The queued paths take the field's radiance at their hit, weight 1 (no other strategy
+    /// samples it), in the last slot.
+    fn resolve(&self, field: &dyn RadianceField, state: &[PathState], radiance: &mut [Vec3], ne: usize) {
+        let mut l = vec![Vec3::ZERO; self.rays.len()];
+        field.radiance_batch(&self.rays, &self.hits, &mut l);
+        for (&i, l) in self.paths.iter().zip(&l) {
+            radiance[i as usize * ne + ne - 1] += state[i as usize].beta * *l;
         }
     }
 }

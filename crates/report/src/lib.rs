@@ -75,108 +75,215 @@ pub fn write_report(
     progress: &dyn Fn(&str),
 ) -> Result<ReportSummary, DataError> {
     let start = Instant::now();
-    let dataset = input.dataset;
-    let (split, frames): (Split, Vec<_>) = match dataset.count(Split::Test) {
-        0 => (Split::Train, dataset.split(Split::Train).collect()),
-        _ => (Split::Test, dataset.split(Split::Test).collect()),
+    let (split, frame) = shown_frame(input.dataset, options.view)?;
+    let mut page = Page {
+        body: String::new(),
+        assets: Assets::new(out)?,
+        timings: Vec::new(),
+        lap: Instant::now(),
+        progress,
     };
-    let frame = *frames.get(options.view).ok_or_else(|| {
-        DataError::invalid(format!(
-            "--view {}: the {} split has {} views",
-            options.view,
-            split.name(),
-            frames.len()
-        ))
-    })?;
-    let mut assets = Assets::new(out)?;
-    let mut timings: Vec<(String, f64)> = Vec::new();
-    let mut lap = Instant::now();
-    let mut mark = |name: &str, timings: &mut Vec<(String, f64)>| {
-        timings.push((name.to_string(), lap.elapsed().as_secs_f64()));
-        lap = Instant::now();
-    };
-    let mut body = String::new();
-    header(&mut body, input, &frame.name, split);
-    body.push_str(&metrics::metrics_section(
+    header(&mut page.body, input, &frame.name, split);
+    page.body.push_str(&metrics::metrics_section(
         input.metrics,
         &input.run.dir.root,
         input.data,
     ));
 
-    progress("training curves");
+    (page.progress)("training curves");
     let log = TrainingLog::read(&input.run.dir.log_path())?;
-    body.push_str(&curves_section(&mut assets, &log)?);
-    mark("training curves", &mut timings);
+    let curves = curves_section(&mut page.assets, &log)?;
+    page.body.push_str(&curves);
+    page.mark("training curves");
 
-    progress("stage-1 maps of the test view");
+    let mut cache = views::RenderCache::default();
+    stage1_section(&mut page, input.run, frame, &mut cache)?;
+    stage2_section(&mut page, input, options, frame)?;
+
+    (page.progress)("surface (marching cubes)");
+    let run = input.run;
+    let recovered = match &run.fields {
+        Some(_) => Some(RecoveredScene::of_run(run, input.dataset, options.mesh_resolution)?),
+        None => None,
+    };
+    let own;
+    let (mesh, geometry): (&i2sdf_data::TriangleMesh, &dyn Geometry) = match &recovered {
+        Some(r) => (&r.surface.mesh, &r.surface.geometry),
+        None => {
+            own = stage1_surface(run, input.dataset, options.mesh_resolution)?;
+            (&own.0, &own.1)
+        }
+    };
+    page.mark("marching cubes");
+
+    (page.progress)("emitters and mesh preview");
+    let emitters = emitters_section(&mut page.assets, input, &mesh.positions)?;
+    page.body.push_str(&emitters);
+    surface_section(
+        &mut page,
+        options.mesh_resolution,
+        &input.dataset.bounds,
+        frame,
+        mesh,
+        geometry,
+    )?;
+    page.mark("emitters, mesh preview");
+
+    relight_section(&mut page, input, options, recovered.as_ref(), frame, &mut cache)?;
+
+    publish(page, input, start)
+}
+
+/// The page being written: its HTML body and files, and the time each step took.
+struct Page<'p> {
+    body: String,
+    assets: Assets,
+    timings: Vec<(String, f64)>,
+    /// When the step being timed started.
+    lap: Instant,
+    /// Told each step as it starts.
+    progress: &'p dyn Fn(&str),
+}
+
+impl Page<'_> {
+    /// Records the time since the previous mark (or the start) as step `name`'s.
+    fn mark(&mut self, name: &str) {
+        self.timings.push((name.to_string(), self.lap.elapsed().as_secs_f64()));
+        self.lap = Instant::now();
+    }
+}
+
+/// The last sections (timings and memory, the run's configuration) and the page itself, moved
+/// into place.
+fn publish(page: Page, input: &RunInputs, start: Instant) -> Result<ReportSummary, DataError> {
+    let run = input.run;
+    let total = start.elapsed().as_secs_f64();
+    let mut body = page.body;
+    body.push_str(&resources_section(input, &page.timings, total));
+    if let Ok(cfg) = run.dir.read_config_toml() {
+        let _ = write!(
+            body,
+            "<h2 id=\"config\">Configuration</h2><details><summary>RUN/config.toml</summary><pre>{}</pre></details>",
+            esc(&cfg)
+        );
+    }
+    let files = page.assets.files.len() + 1;
+    let index = page.assets.publish(&html::page(
+        &format!("i2sdf report — {}", run.dir.root.display()),
+        &body,
+    ))?;
+    Ok(ReportSummary {
+        index,
+        files,
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// The split and frame the report shows: view `view` of the test split, or of the train split
+/// when the dataset has no test views.
+fn shown_frame(dataset: &Dataset, view: usize) -> Result<(Split, &i2sdf_data::Frame), DataError> {
+    let (split, frames): (Split, Vec<_>) = match dataset.count(Split::Test) {
+        0 => (Split::Train, dataset.split(Split::Train).collect()),
+        _ => (Split::Test, dataset.split(Split::Test).collect()),
+    };
+    let frame = *frames.get(view).ok_or_else(|| {
+        DataError::invalid(format!(
+            "--view {}: the {} split has {} views",
+            view,
+            split.name(),
+            frames.len()
+        ))
+    })?;
+    Ok((split, frame))
+}
+
+/// The test view's GT | ours | error grid of stage 1's volume renders.
+fn stage1_section(
+    page: &mut Page,
+    run: &OpenedRun,
+    frame: &i2sdf_data::Frame,
+    cache: &mut views::RenderCache,
+) -> Result<(), DataError> {
+    (page.progress)("stage-1 maps of the test view");
     let _ = write!(
-        body,
+        page.body,
         "<h2 id=\"images\">Test view {}</h2><p>Ground truth | ours | error heat-map. Stage 1: the \
          volume renderer with the run's sampling settings.</p>",
         esc(&frame.name)
     );
-    let mut cache = views::RenderCache::default();
-    body.push_str(&views::stage1_grid(
-        &mut assets,
-        &input.run.scene,
-        &input.run.config.render,
-        frame,
-        &mut cache,
-    )?);
-    mark("stage-1 maps", &mut timings);
+    let grid = views::stage1_grid(&mut page.assets, &run.scene, &run.config.render, frame, cache)?;
+    page.body.push_str(&grid);
+    page.mark("stage-1 maps");
+    Ok(())
+}
 
+/// The test view's material maps from one Monte Carlo re-render of stage 2's fields, or a note
+/// that the run has no stage 2.
+fn stage2_section(
+    page: &mut Page,
+    input: &RunInputs,
+    options: &ReportOptions,
+    frame: &i2sdf_data::Frame,
+) -> Result<(), DataError> {
     let run = input.run;
-    if let (Some(fields), Some(frozen)) = (&run.fields, run.frozen(dataset)?) {
-        progress("stage-2 maps (re-render)");
-        let cast = match &run.bake {
-            Some(b) => format!("its rays cast in the surface stage 2 baked at {}", b.resolution),
-            None => "its rays sphere traced, as stage 2 traced them".to_string(),
-        };
-        let _ = write!(
-            body,
-            "<h3>Stage 2: materials</h3><p>From one Monte Carlo re-render ({} paths per pixel), {cast}.</p>",
-            options.spp
-        );
-        body.push_str(&views::stage2_grid(
-            &mut assets,
-            &frozen,
-            fields,
-            frame,
-            options.view as u32,
-            options.spp,
-        )?);
-        mark("stage-2 maps", &mut timings);
-    } else {
-        body.push_str("<h3>Stage 2: materials</h3><p class=\"muted\">No stage 2 in this run (no <code>RUN/stage2.safetensors</code>): train it with <code>i2sdf train --stage material</code>.</p>");
-    }
-
-    progress("surface (marching cubes)");
-    let recovered = match &run.fields {
-        Some(_) => Some(RecoveredScene::of_run(run, dataset, options.mesh_resolution)?),
-        None => None,
+    let (Some(fields), Some(frozen)) = (&run.fields, run.frozen(input.dataset)?) else {
+        page.body.push_str("<h3>Stage 2: materials</h3><p class=\"muted\">No stage 2 in this run (no <code>RUN/stage2.safetensors</code>): train it with <code>i2sdf train --stage material</code>.</p>");
+        return Ok(());
     };
-    let own_mesh;
-    let own_geometry;
-    let (mesh, geometry): (&i2sdf_data::TriangleMesh, &dyn Geometry) = match &recovered {
-        Some(r) => (&r.surface.mesh, &r.surface.geometry),
-        None => {
-            own_mesh = extract_mesh(&run.scene, &dataset.bounds, options.mesh_resolution)?;
-            own_geometry = MeshGeometry::new(&own_mesh, vec![0; own_mesh.faces.len()]);
-            (&own_mesh, &own_geometry)
-        }
+    (page.progress)("stage-2 maps (re-render)");
+    let cast = match &run.bake {
+        Some(b) => format!("its rays cast in the surface stage 2 baked at {}", b.resolution),
+        None => "its rays sphere traced, as stage 2 traced them".to_string(),
     };
-    mark("marching cubes", &mut timings);
-
-    progress("emitters and mesh preview");
-    body.push_str(&emitters_section(&mut assets, input, &mesh.positions)?);
     let _ = write!(
-        body,
+        page.body,
+        "<h3>Stage 2: materials</h3><p>From one Monte Carlo re-render ({} paths per pixel), {cast}.</p>",
+        options.spp
+    );
+    let grid = views::stage2_grid(
+        &mut page.assets,
+        &frozen,
+        fields,
+        frame,
+        options.view as u32,
+        options.spp,
+    )?;
+    page.body.push_str(&grid);
+    page.mark("stage-2 maps");
+    Ok(())
+}
+
+/// Without stage 2 (no recovered scene to take it from), the surface extracted from stage 1's
+/// SDF, as one unlabelled mesh for ray casting.
+fn stage1_surface(
+    run: &OpenedRun,
+    dataset: &Dataset,
+    resolution: usize,
+) -> Result<(i2sdf_data::TriangleMesh, MeshGeometry), DataError> {
+    let mesh = extract_mesh(&run.scene, &dataset.bounds, resolution)?;
+    let geometry = MeshGeometry::new(&mesh, vec![0; mesh.faces.len()]);
+    Ok((mesh, geometry))
+}
+
+/// The recovered surface ray cast from the test camera and from a top corner, coloured by
+/// normal.
+fn surface_section(
+    page: &mut Page,
+    mesh_resolution: usize,
+    bounds: &i2sdf_data::Bounds,
+    frame: &i2sdf_data::Frame,
+    mesh: &i2sdf_data::TriangleMesh,
+    geometry: &dyn Geometry,
+) -> Result<(), DataError> {
+    let _ = write!(
+        page.body,
         "<h2 id=\"mesh\">Recovered surface</h2><p>Marching cubes of the SDF at {} samples along the \
          bounds' longest side ({} triangles), ray cast and coloured by normal ((n + 1) / 2).</p>",
-        options.mesh_resolution,
+        mesh_resolution,
         mesh.faces.len()
     );
-    let overview = views::overview_camera(&dataset.bounds, 480, 360);
+    let overview = views::overview_camera(bounds, 480, 360);
+    let assets = &mut page.assets;
     let cells = [
         html::Cell::img(
             format!("test camera ({})", frame.name),
@@ -187,70 +294,60 @@ pub fn write_report(
             assets.png("mesh_overview", &views::normal_shaded(geometry, &overview))?,
         ),
     ];
-    body.push_str(&html::grid_row("mesh", &cells, ""));
-    mark("emitters, mesh preview", &mut timings);
+    page.body.push_str(&html::grid_row("mesh", &cells, ""));
+    Ok(())
+}
 
-    body.push_str("<h2 id=\"relight\">Relighting and editing</h2>");
+/// The relit sets and the mirror edit, path traced by the edit renderer in the recovered scene
+/// (`None` without stage 2: the section says they need it).
+fn relight_section(
+    page: &mut Page,
+    input: &RunInputs,
+    options: &ReportOptions,
+    recovered: Option<&RecoveredScene>,
+    frame: &i2sdf_data::Frame,
+    cache: &mut views::RenderCache,
+) -> Result<(), DataError> {
+    let (run, dataset) = (input.run, input.dataset);
+    page.body.push_str("<h2 id=\"relight\">Relighting and editing</h2>");
     if let Some(note) = no_emitters_note(run.fields.as_ref().map(|f| f.emitters.len())) {
-        body.push_str(&note);
+        page.body.push_str(&note);
     }
-    match &recovered {
-        Some(r) => {
-            let ctx = views::EditContext {
-                recovered: r,
-                volume: &run.config.render,
-                settings: EditSettings {
-                    spp: options.spp,
-                    bounces: options.bounces,
-                    seed: 0,
-                },
-            };
-            let _ = write!(
-                body,
-                "<p>Path traced by the edit renderer ({} paths per pixel, {} bounces) in the \
-                 recovered scene; differential: stage 1's radiance field + the path-traced change \
-                 (Debevec 1998). Captions: PSNR against the ground truth.</p>",
-                options.spp, options.bounces
-            );
-            if dataset.relight.is_empty() {
-                body.push_str("<p class=\"muted\">The dataset has no relit sets.</p>");
-            } else {
-                progress("relit sets");
-                body.push_str(&views::relight_grid(&mut assets, &ctx, &mut cache, dataset)?);
-                mark("relit sets", &mut timings);
-            }
-            progress("mirror edit");
-            body.push_str(&views::mirror_grid(
-                &mut assets,
-                &ctx,
-                &mut cache,
-                &dataset.bounds,
-                frame,
-            )?);
-            mark("mirror edit", &mut timings);
-        }
-        None => body.push_str("<p class=\"muted\">Relighting and editing need stage 2.</p>"),
+    let Some(r) = recovered else {
+        page.body
+            .push_str("<p class=\"muted\">Relighting and editing need stage 2.</p>");
+        return Ok(());
+    };
+    let ctx = views::EditContext {
+        recovered: r,
+        volume: &run.config.render,
+        settings: EditSettings {
+            spp: options.spp,
+            bounces: options.bounces,
+            seed: 0,
+        },
+    };
+    let _ = write!(
+        page.body,
+        "<p>Path traced by the edit renderer ({} paths per pixel, {} bounces) in the \
+         recovered scene; differential: stage 1's radiance field + the path-traced change \
+         (Debevec 1998). Captions: PSNR against the ground truth.</p>",
+        options.spp, options.bounces
+    );
+    if dataset.relight.is_empty() {
+        page.body
+            .push_str("<p class=\"muted\">The dataset has no relit sets.</p>");
+    } else {
+        (page.progress)("relit sets");
+        let grid = views::relight_grid(&mut page.assets, &ctx, cache, dataset)?;
+        page.body.push_str(&grid);
+        page.mark("relit sets");
     }
-
-    let total = start.elapsed().as_secs_f64();
-    body.push_str(&resources_section(input, &timings, total));
-    if let Ok(cfg) = run.dir.read_config_toml() {
-        let _ = write!(
-            body,
-            "<h2 id=\"config\">Configuration</h2><details><summary>RUN/config.toml</summary><pre>{}</pre></details>",
-            esc(&cfg)
-        );
-    }
-    let files = assets.files.len() + 1;
-    let index = assets.publish(&html::page(
-        &format!("i2sdf report — {}", run.dir.root.display()),
-        &body,
-    ))?;
-    Ok(ReportSummary {
-        index,
-        files,
-        seconds: start.elapsed().as_secs_f64(),
-    })
+    (page.progress)("mirror edit");
+    let grid = views::mirror_grid(&mut page.assets, &ctx, cache, &dataset.bounds, frame)?;
+    page.body.push_str(&grid);
+    page.mark("mirror edit");
+    Ok(())
 }
 
 fn header(body: &mut String, input: &RunInputs, view: &str, split: Split) {

@@ -10,8 +10,8 @@
 use clap::Args as ClapArgs;
 use i2sdf_data::edit_spec::EditOp;
 use i2sdf_data::edit_spec::EditSpec;
-use i2sdf_data::{imageio, Camera, DataError, Split};
-use i2sdf_edit::{differential_hdr, edit_images, hdr_ldr_images, light_gains, Composite, EditSettings, RecoveredScene};
+use i2sdf_data::{imageio, Camera, DataError, ImageF32, Split};
+use i2sdf_edit::{Composite, EditRenderer, EditSettings, RecoveredScene};
 use std::path::PathBuf;
 
 #[derive(ClapArgs)]
@@ -73,31 +73,7 @@ const MAX_SPP: u32 = 1 << 20;
 const MAX_BOUNCES: u32 = 1024;
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let split = Split::parse(&args.split)
-        .ok_or_else(|| DataError::invalid(format!("--split {}: expected train or test", args.split)))?;
-    if !(1..=MAX_SPP).contains(&args.spp) {
-        return Err(DataError::invalid(format!("--spp {}: must be in [1, {MAX_SPP}]", args.spp)).into());
-    }
-    if !(1..=MAX_BOUNCES).contains(&args.bounces) {
-        return Err(DataError::invalid(format!("--bounces {}: must be in [1, {MAX_BOUNCES}]", args.bounces)).into());
-    }
-    if !(16..=2048).contains(&args.mesh_resolution) {
-        return Err(DataError::invalid(format!(
-            "--mesh-resolution {}: must be in [16, 2048]",
-            args.mesh_resolution
-        ))
-        .into());
-    }
-    let composite =
-        Composite::from_name(&args.composite).map_err(|e| DataError::invalid(format!("--composite {e}")))?;
-    let size = match (args.width, args.height) {
-        (None, None) => None,
-        (Some(w), Some(h)) if (1..=MAX_SIDE).contains(&w) && (1..=MAX_SIDE).contains(&h) => Some((w, h)),
-        (Some(_), Some(_)) => {
-            return Err(DataError::invalid(format!("--width/--height: each must be in [1, {MAX_SIDE}]")).into())
-        }
-        _ => return Err(DataError::invalid("--width and --height go together").into()),
-    };
+    let (split, composite, size) = check_args(&args)?;
     let spec = EditSpec::read(&args.spec)?;
     let assets = spec.load_assets()?;
     if !i2sdf_model::RunDir::new(&args.run).stage2_checkpoint_path().is_file() {
@@ -105,39 +81,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let (data, dataset) = super::run_dataset(&args.run, args.data.as_deref())?;
     let frames: Vec<_> = dataset.split(split).collect();
-    if args.path.path.is_some() && args.view.is_some() {
-        return Err(DataError::invalid("--view and --path: choose one").into());
-    }
-    let views: Vec<usize> = match args.view {
-        Some(v) if v < frames.len() => vec![v],
-        Some(v) => {
-            return Err(DataError::invalid(format!(
-                "--view {v}: the {} split has {} views (0 to {})",
-                split.name(),
-                frames.len(),
-                frames.len().saturating_sub(1)
-            ))
-            .into())
-        }
-        None if frames.is_empty() => {
-            return Err(DataError::invalid(format!("the {} split has no views", split.name())).into())
-        }
-        None => (0..frames.len()).collect(),
-    };
-    // (name, camera, view index for the sampler) of every image to render.
-    let shots: Vec<(String, Camera, u32)> = match &args.path.path {
-        None => views
-            .iter()
-            .map(|&v| (frames[v].name.clone(), resized(&frames[v].camera, size), v as u32))
-            .collect(),
-        Some(_) => args
-            .path
-            .views(&frames, &dataset.bounds)?
-            .into_iter()
-            .enumerate()
-            .map(|(i, (name, cam))| (name, resized(&cam, size), i as u32))
-            .collect(),
-    };
+    let shots = shots(&args, split, &frames, &dataset.bounds, size)?;
     let spec_text = std::fs::read(&args.spec).map_err(|e| DataError::file(&args.spec, e.to_string()))?;
     let pixels: u64 = shots.iter().map(|(_, c, _)| (c.width * c.height) as u64).sum();
     let staged = super::output_dir(
@@ -154,50 +98,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
     eprintln!("extracting the recovered surface at {}…", args.mesh_resolution);
     let recovered = RecoveredScene::of_run(&run, &dataset, args.mesh_resolution)?;
-    let edited = recovered.edited(&spec, &assets);
-    // Differential rendering needs the unedited scene's render of the same paths: the edited
-    // render itself when the spec only relights (the gains differ, not the paths).
-    let relight_only = spec.ops.iter().all(|op| matches!(op, EditOp::Relight(_)));
-    let unedited = (composite == Composite::Differential && !relight_only)
-        .then(|| recovered.edited(&EditSpec::default(), &Default::default()));
-    let volume = &run.config.render;
-    let gains = light_gains(&spec, &edited);
-    let settings = EditSettings {
-        spp: args.spp,
-        bounces: args.bounces,
-        seed: args.seed,
-    };
+    let renderer = EditRenderer::new(&recovered, &spec, &assets, composite, &run.config.render);
     let out = staged.path().to_path_buf();
     imageio::write_bytes_atomic(&out.join("edit.toml"), &spec_text)?;
-    let rows: usize = shots.iter().map(|(_, c, _)| c.height).sum();
-    let passes = if unedited.is_some() { 2 } else { 1 };
-    let bar = crate::progress::Step::new(
-        &format!("path tracing {} edited view(s)", shots.len()),
-        (rows * passes) as u64,
-        "rows",
-    );
-    let rm = &recovered.radiometry;
-    let mut anim = Vec::new();
-    for (name, cam, v) in &shots {
-        let render = recovered.render(&edited, cam, &settings, *v, &|| bar.inc(1));
-        let (hdr, ldr) = match composite {
-            Composite::PathTraced => edit_images(&render, &gains, rm),
-            Composite::Differential => {
-                let base = unedited
-                    .as_ref()
-                    .map(|u| recovered.render(u, cam, &settings, *v, &|| bar.inc(1)));
-                let captured = recovered.captured(cam, volume);
-                let d = differential_hdr(&captured, &render, &gains, base.as_ref().unwrap_or(&render), rm);
-                hdr_ldr_images(&d, render.width, render.height, rm)
-            }
-        };
-        imageio::write_exr(&out.join(format!("{name}.exr")), &hdr)?;
-        imageio::write_png(&out.join(format!("{name}.png")), &ldr)?;
-        if args.path.path.is_some() {
-            anim.push(ldr);
-        }
-    }
-    bar.finish();
+    let anim = render_shots(&args, &renderer, &shots, &out)?;
     let written = if args.path.path.is_some() {
         // The frames sit in DIR itself: the animation is DIR/edit.gif (and edit.mp4).
         args.path.animate_frames(&out, &out.join("edit"), &anim)?
@@ -213,11 +117,123 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         shots.len(),
         split.name(),
         spec.ops.len(),
-        edited.lights(),
+        renderer.lights(),
         composite.name(),
         args.out.display()
     );
     Ok(())
+}
+
+/// The arguments that need no file: the split, the composite and the output size (`None`: the
+/// views' own), with spp, bounces and mesh resolution in range.
+fn check_args(args: &Args) -> Result<(Split, Composite, Option<(usize, usize)>), DataError> {
+    let split = Split::parse(&args.split)
+        .ok_or_else(|| DataError::invalid(format!("--split {}: expected train or test", args.split)))?;
+    if !(1..=MAX_SPP).contains(&args.spp) {
+        return Err(DataError::invalid(format!(
+            "--spp {}: must be in [1, {MAX_SPP}]",
+            args.spp
+        )));
+    }
+    if !(1..=MAX_BOUNCES).contains(&args.bounces) {
+        return Err(DataError::invalid(format!(
+            "--bounces {}: must be in [1, {MAX_BOUNCES}]",
+            args.bounces
+        )));
+    }
+    if !(16..=2048).contains(&args.mesh_resolution) {
+        return Err(DataError::invalid(format!(
+            "--mesh-resolution {}: must be in [16, 2048]",
+            args.mesh_resolution
+        )));
+    }
+    let composite =
+        Composite::from_name(&args.composite).map_err(|e| DataError::invalid(format!("--composite {e}")))?;
+    let size = match (args.width, args.height) {
+        (None, None) => None,
+        (Some(w), Some(h)) if (1..=MAX_SIDE).contains(&w) && (1..=MAX_SIDE).contains(&h) => Some((w, h)),
+        (Some(_), Some(_)) => {
+            return Err(DataError::invalid(format!(
+                "--width/--height: each must be in [1, {MAX_SIDE}]"
+            )))
+        }
+        _ => return Err(DataError::invalid("--width and --height go together")),
+    };
+    Ok((split, composite, size))
+}
+
+/// (name, camera, view index for the sampler) of every image to render: the chosen views of the
+/// split (`--view`, else all), or the frames of `--path`; cameras resized to `size`.
+fn shots(
+    args: &Args,
+    split: Split,
+    frames: &[&i2sdf_data::Frame],
+    bounds: &i2sdf_data::Bounds,
+    size: Option<(usize, usize)>,
+) -> Result<Vec<(String, Camera, u32)>, DataError> {
+    if args.path.path.is_some() && args.view.is_some() {
+        return Err(DataError::invalid("--view and --path: choose one"));
+    }
+    let views: Vec<usize> = match args.view {
+        Some(v) if v < frames.len() => vec![v],
+        Some(v) => {
+            return Err(DataError::invalid(format!(
+                "--view {v}: the {} split has {} views (0 to {})",
+                split.name(),
+                frames.len(),
+                frames.len().saturating_sub(1)
+            )))
+        }
+        None if frames.is_empty() => {
+            return Err(DataError::invalid(format!("the {} split has no views", split.name())))
+        }
+        None => (0..frames.len()).collect(),
+    };
+    Ok(match &args.path.path {
+        None => views
+            .iter()
+            .map(|&v| (frames[v].name.clone(), resized(&frames[v].camera, size), v as u32))
+            .collect(),
+        Some(_) => args
+            .path
+            .views(frames, bounds)?
+            .into_iter()
+            .enumerate()
+            .map(|(i, (name, cam))| (name, resized(&cam, size), i as u32))
+            .collect(),
+    })
+}
+
+/// Renders every shot into `out` (`NAME.exr` and `NAME.png`) with a progress bar in rows;
+/// returns the PNG frames of a path, for its animation (none otherwise).
+fn render_shots(
+    args: &Args,
+    renderer: &EditRenderer,
+    shots: &[(String, Camera, u32)],
+    out: &std::path::Path,
+) -> Result<Vec<ImageF32>, DataError> {
+    let settings = EditSettings {
+        spp: args.spp,
+        bounces: args.bounces,
+        seed: args.seed,
+    };
+    let rows: usize = shots.iter().map(|(_, c, _)| c.height).sum();
+    let bar = crate::progress::Step::new(
+        &format!("path tracing {} edited view(s)", shots.len()),
+        (rows * renderer.passes()) as u64,
+        "rows",
+    );
+    let mut anim = Vec::new();
+    for (name, cam, v) in shots {
+        let (hdr, ldr) = renderer.render(cam, &settings, *v, &|| bar.inc(1));
+        imageio::write_exr(&out.join(format!("{name}.exr")), &hdr)?;
+        imageio::write_png(&out.join(format!("{name}.png")), &ldr)?;
+        if args.path.path.is_some() {
+            anim.push(ldr);
+        }
+    }
+    bar.finish();
+    Ok(anim)
 }
 
 /// Whether a file of an existing folder is what `edit` writes there: the spec's copy, a view's

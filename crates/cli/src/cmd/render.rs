@@ -176,32 +176,11 @@ impl PathArgs {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let split = Split::parse(&args.split)
         .ok_or_else(|| DataError::invalid(format!("--split {}: expected train or test", args.split)))?;
-    let what: Vec<&str> = args.what.split(',').map(str::trim).filter(|s| !s.is_empty()).collect();
-    if what.is_empty() {
-        return Err(DataError::invalid(format!(
-            "--what '{}': names no map (available: {}, {})",
-            args.what,
-            STAGE1_MAPS.join(", "),
-            STAGE2_MAPS.join(", ")
-        ))
-        .into());
-    }
-    for w in &what {
-        if !STAGE1_MAPS.contains(w) && !STAGE2_MAPS.contains(w) {
-            return Err(DataError::invalid(format!(
-                "--what {w}: not available (available: {}, {})",
-                STAGE1_MAPS.join(", "),
-                STAGE2_MAPS.join(", ")
-            ))
-            .into());
-        }
-    }
+    let maps = chosen_maps(&args.what)?;
     if args.spp == 0 {
         return Err(DataError::invalid("--spp 0: must be at least 1").into());
     }
-    let stage1 = what.iter().any(|w| STAGE1_MAPS.contains(w));
-    let stage2 = what.iter().any(|w| STAGE2_MAPS.contains(w));
-    if stage2 && !i2sdf_model::RunDir::new(&args.run).stage2_checkpoint_path().is_file() {
+    if maps.stage2 && !i2sdf_model::RunDir::new(&args.run).stage2_checkpoint_path().is_file() {
         return Err(i2sdf_model::RunDir::new(&args.run).no_stage2().into());
     }
     let (data, dataset) = super::run_dataset(&args.run, args.data.as_deref())?;
@@ -216,48 +195,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "a render",
         &|dir| super::only_entries(dir, |name, is_dir| previous_render(name, is_dir)),
         &[&data],
-        Some(pixels * what.len() as u64 * 16),
+        Some(pixels * maps.names.len() as u64 * 16),
     )?;
     let run = super::open_run(&args.run)?;
-    let frozen = match stage2 {
+    let frozen = match maps.stage2 {
         true => run.frozen(&dataset)?,
         false => None,
     };
     let animated = args.path.path.is_some();
-    let rows: usize = views.iter().map(|(_, c)| c.height).sum();
-    let passes = stage1 as usize + stage2 as usize;
-    let bar = crate::progress::Step::new(
-        &format!("rendering {} view(s) ({})", views.len(), what.join(", ")),
-        (rows * passes) as u64,
-        "rows",
-    );
-    // Each map's PNG frames of a path, for its animation.
-    let mut anim: Vec<(String, Vec<ImageF32>)> = Vec::new();
-    for (view, (name, camera)) in views.iter().enumerate() {
-        let mut maps = Vec::new();
-        if stage1 {
-            maps.extend(stage1_maps(&run.scene, &run.config.render, camera, &what));
-            bar.inc(camera.height as u64);
-        }
-        if let (Some(frozen), Some(fields)) = (&frozen, &run.fields) {
-            let spp_view = (args.spp, view as u32);
-            maps.extend(stage2_maps(frozen, fields, camera, spp_view, &what, &|| bar.inc(1)));
-        }
-        for m in maps {
-            let file = |ext: &str| staged.path().join(m.map).join(format!("{name}.{ext}"));
-            if let Some(exr) = &m.exr {
-                imageio::write_exr(&file("exr"), exr)?;
-            }
-            imageio::write_png(&file("png"), &m.png)?;
-            if animated {
-                match anim.iter_mut().find(|(k, _)| k == m.map) {
-                    Some((_, v)) => v.push(m.png),
-                    None => anim.push((m.map.to_string(), vec![m.png])),
-                }
-            }
-        }
-    }
-    bar.finish();
+    let anim = render_views(&run, frozen.as_ref(), &views, &maps, args.spp, animated, staged.path())?;
     let written = if animated {
         args.path.animate(staged.path(), &anim)?
     } else {
@@ -282,6 +228,90 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// The maps `--what` names, and which stages they come from.
+struct ChosenMaps<'w> {
+    names: Vec<&'w str>,
+    stage1: bool,
+    stage2: bool,
+}
+
+/// Parses `--what`: at least one map, each one of [`STAGE1_MAPS`] or [`STAGE2_MAPS`].
+fn chosen_maps(what: &str) -> Result<ChosenMaps<'_>, DataError> {
+    let names: Vec<&str> = what.split(',').map(str::trim).filter(|s| !s.is_empty()).collect();
+    if names.is_empty() {
+        return Err(DataError::invalid(format!(
+            "--what '{}': names no map (available: {}, {})",
+            what,
+            STAGE1_MAPS.join(", "),
+            STAGE2_MAPS.join(", ")
+        )));
+    }
+    for w in &names {
+        if !STAGE1_MAPS.contains(w) && !STAGE2_MAPS.contains(w) {
+            return Err(DataError::invalid(format!(
+                "--what {w}: not available (available: {}, {})",
+                STAGE1_MAPS.join(", "),
+                STAGE2_MAPS.join(", ")
+            )));
+        }
+    }
+    Ok(ChosenMaps {
+        stage1: names.iter().any(|w| STAGE1_MAPS.contains(w)),
+        stage2: names.iter().any(|w| STAGE2_MAPS.contains(w)),
+        names,
+    })
+}
+
+/// Renders the chosen maps of every view into `out` (`MAP/NAME.png`, and `MAP/NAME.exr` where
+/// the map has one) with a progress bar in rows; stage 2's maps come from `frozen` (`None`: none
+/// asked for). Returns each map's PNG frames when `animated` (a path), for its animation.
+fn render_views(
+    run: &i2sdf_model::OpenedRun,
+    frozen: Option<&i2sdf_model::FrozenScene>,
+    views: &[(String, Camera)],
+    maps: &ChosenMaps,
+    spp: u32,
+    animated: bool,
+    out: &std::path::Path,
+) -> Result<Vec<(String, Vec<ImageF32>)>, DataError> {
+    let what = &maps.names;
+    let rows: usize = views.iter().map(|(_, c)| c.height).sum();
+    let passes = maps.stage1 as usize + maps.stage2 as usize;
+    let bar = crate::progress::Step::new(
+        &format!("rendering {} view(s) ({})", views.len(), what.join(", ")),
+        (rows * passes) as u64,
+        "rows",
+    );
+    // Each map's PNG frames of a path, for its animation.
+    let mut anim: Vec<(String, Vec<ImageF32>)> = Vec::new();
+    for (view, (name, camera)) in views.iter().enumerate() {
+        let mut images = Vec::new();
+        if maps.stage1 {
+            images.extend(stage1_maps(&run.scene, &run.config.render, camera, what));
+            bar.inc(camera.height as u64);
+        }
+        if let (Some(frozen), Some(fields)) = (frozen, &run.fields) {
+            let spp_view = (spp, view as u32);
+            images.extend(stage2_maps(frozen, fields, camera, spp_view, what, &|| bar.inc(1)));
+        }
+        for m in images {
+            let file = |ext: &str| out.join(m.map).join(format!("{name}.{ext}"));
+            if let Some(exr) = &m.exr {
+                imageio::write_exr(&file("exr"), exr)?;
+            }
+            imageio::write_png(&file("png"), &m.png)?;
+            if animated {
+                match anim.iter_mut().find(|(k, _)| k == m.map) {
+                    Some((_, v)) => v.push(m.png),
+                    None => anim.push((m.map.to_string(), vec![m.png])),
+                }
+            }
+        }
+    }
+    bar.finish();
+    Ok(anim)
 }
 
 /// Whether an entry of an existing folder is what `render` writes there: a map's folder, or a
