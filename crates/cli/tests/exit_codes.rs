@@ -230,7 +230,66 @@ fn eval_bad_input_exits_2() {
         &["marching cubes at resolution 100000", "lower the resolution"],
     );
     assert!(t.elapsed().as_secs() < 30, "refused late: {:?}", t.elapsed());
+    // LPIPS weights that are missing or not weights: refused before any view is rendered.
+    let t = std::time::Instant::now();
+    let gone = dir.path().join("gone.safetensors");
+    expect(
+        i2sdf(&eval_args(run, data, &json, &["--lpips-weights", s(&gone)])),
+        2,
+        &["gone.safetensors", "LPIPS weights"],
+    );
+    let text = dir.path().join("text.safetensors");
+    std::fs::write(&text, "not tensors").unwrap();
+    expect(
+        i2sdf(&eval_args(run, data, &json, &["--lpips-weights", s(&text)])),
+        2,
+        &["text.safetensors", "not a safetensors file"],
+    );
+    assert!(t.elapsed().as_secs() < 30, "refused late: {:?}", t.elapsed());
     assert!(!json.exists());
+}
+
+/// `eval --lpips-weights` with weights of the right shapes: the fixture's 24×18 views are smaller
+/// than AlexNet takes, so `novel_view.lpips` is null and the note says so; without the flag the
+/// note says the weights are missing.
+#[test]
+fn eval_notes_why_lpips_is_null() {
+    let (_, data, run) = trained();
+    let dir = tempfile::tempdir().unwrap();
+    let weights = dir.path().join("lpips.safetensors");
+    let specs = i2sdf_eval::lpips::ALEXNET;
+    i2sdf_eval::LpipsWeights {
+        conv_weights: specs
+            .iter()
+            .map(|l| vec![0.01; l.out_channels * l.in_channels * l.kernel * l.kernel])
+            .collect(),
+        conv_biases: specs.iter().map(|l| vec![0.0; l.out_channels]).collect(),
+        heads: specs.iter().map(|l| vec![0.1; l.out_channels]).collect(),
+    }
+    .write(&weights)
+    .unwrap();
+    for (extra, words) in [
+        (vec!["--lpips-weights", s(&weights)], ["24×18", "31×31"]),
+        (vec![], ["--lpips-weights", "scripts/lpips_weights.py"]),
+    ] {
+        let json = dir.path().join("m.json");
+        let mut args = vec!["--mesh-resolution", "16", "--force"];
+        args.extend(extra);
+        let o = i2sdf(&eval_args(run, data, &json, &args));
+        assert_eq!(o.code, 0, "{}", o.stderr);
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        assert!(
+            v["novel_view"]["lpips"].is_null() && v["novel_view"]["psnr"].is_number(),
+            "{v}"
+        );
+        let notes = v["notes"].to_string();
+        for w in words {
+            assert!(
+                notes.contains("novel_view.lpips is null") && notes.contains(w),
+                "{notes}"
+            );
+        }
+    }
 }
 
 #[test]

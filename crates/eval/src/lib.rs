@@ -1,10 +1,12 @@
-//! Evaluation for i2sdf (the paper's Sec. 6 and supp. Sec. D, as the README's `eval` row lists): image metrics, marching cubes, mesh metrics with
+//! Evaluation for i2sdf (the paper's Sec. 6 and supp. Sec. D, as the README's `eval` row lists): image metrics (with
+//! LPIPS when given its weights, [`lpips`]), marching cubes, mesh metrics with
 //! visibility culling against the training views, and the `eval` JSON report. Meshes and their PLY
 //! I/O are the data layer's (`i2sdf_data::{mesh, ply}`), re-exported here for convenience.
 
 pub mod image_metrics;
 pub mod intrinsic;
 pub mod kdtree;
+pub mod lpips;
 pub mod mesh;
 pub mod mesh_metrics;
 pub mod neural;
@@ -20,6 +22,7 @@ pub use i2sdf_model::marching_cubes::{self, marching_cubes, McGrid, McOptions};
 pub use i2sdf_model::mc_tables;
 pub use image_metrics::{depth_l1, normal_angular_l1, psnr, ssim, ImageRef};
 pub use intrinsic::{intrinsic_metrics, IntrinsicOptions};
+pub use lpips::{Lpips, LpipsWeights};
 pub use mesh::TriangleMesh;
 pub use mesh_metrics::{
     mesh_metrics, mesh_metrics_with_progress, visible_from_views, CullingView, MeshMetrics, MeshMetricsOptions,

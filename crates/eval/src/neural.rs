@@ -4,10 +4,11 @@
 //! objects where the dataset names its objects.
 
 use crate::image_metrics::{depth_l1, normal_angular_l1, psnr, ssim, ImageRef};
+use crate::lpips::{Lpips, MIN_SIDE};
 use crate::mesh::TriangleMesh;
 use crate::mesh_metrics::{mesh_metrics_with_progress, CullingView, MeshMetricsOptions, ObjectGroup};
 use crate::progress::{self, EvalProgress, NoProgress};
-use crate::report::{EvalReport, MeshReport, ThinObjectsReport};
+use crate::report::{lpips_too_small_note, no_lpips_note, EvalReport, MeshReport, ThinObjectsReport};
 use i2sdf_data::dataset::ObjectInfo;
 use i2sdf_data::ply::read_ply;
 use i2sdf_data::{Bounds, DataError, Dataset, Frame, Split};
@@ -43,6 +44,8 @@ pub struct EvalOptions {
     pub mesh_resolution: usize,
     pub mesh: MeshMetricsOptions,
     pub render: RenderSettings,
+    /// The LPIPS metric for `novel_view.lpips` (`None`: null, with [`no_lpips_note`]).
+    pub lpips: Option<std::sync::Arc<Lpips>>,
 }
 
 impl Default for EvalOptions {
@@ -51,6 +54,7 @@ impl Default for EvalOptions {
             mesh_resolution: MESH_RESOLUTION,
             mesh: MeshMetricsOptions::default(),
             render: RenderSettings::default(),
+            lpips: None,
         }
     }
 }
@@ -59,25 +63,30 @@ fn mean(v: &[f64]) -> Option<f64> {
     (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
 }
 
-/// Novel-view metrics on the test views: PSNR and SSIM of the colour; depth L1 (world units) and
-/// normal angular L1 where the test views have GT depth and normals. Means over views.
+/// Novel-view metrics on the test views: PSNR and SSIM of the colour (and LPIPS with
+/// [`view_metrics_with_progress`]); depth L1 (world units) and normal angular L1 where the test
+/// views have GT depth and normals. Means over views.
 pub fn view_metrics(
     scene: &NeuralScene,
     dataset: &Dataset,
     settings: &RenderSettings,
 ) -> Result<EvalReport, DataError> {
-    view_metrics_with_progress(scene, dataset, settings, &NoProgress)
+    view_metrics_with_progress(scene, dataset, settings, None, &NoProgress)
 }
 
-/// [`view_metrics`], reporting the step "test views" to `progress`, counted in views.
+/// [`view_metrics`], with LPIPS when `lpips` is given, reporting the step "test views" to
+/// `progress`, counted in views. LPIPS stays null, with [`lpips_too_small_note`], when a test
+/// view is smaller than AlexNet takes ([`MIN_SIDE`]).
 pub fn view_metrics_with_progress(
     scene: &NeuralScene,
     dataset: &Dataset,
     settings: &RenderSettings,
+    lpips: Option<&Lpips>,
     progress: &dyn EvalProgress,
 ) -> Result<EvalReport, DataError> {
     let mut report = EvalReport::default();
     let (mut p, mut s, mut d, mut n) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut l, mut too_small) = (Vec::new(), None);
     let test: Vec<&Frame> = dataset.split(Split::Test).collect();
     progress.step(progress::TEST_VIEWS, test.len() as u64);
     for f in test {
@@ -90,6 +99,13 @@ pub fn view_metrics_with_progress(
         }
         if let Some(x) = ssim(pred, gt, None)? {
             s.push(x);
+        }
+        if let Some(lpips) = lpips {
+            if w < MIN_SIDE || h < MIN_SIDE {
+                too_small = Some((w, h));
+            } else {
+                l.push(lpips.distance(pred, gt)?);
+            }
         }
         if let Some(gd) = &f.depth {
             if let Some(x) = depth_l1(&v.depth.data, &gd.data, None)? {
@@ -105,6 +121,13 @@ pub fn view_metrics_with_progress(
     }
     report.novel_view.psnr = mean(&p);
     report.novel_view.ssim = mean(&s);
+    report.novel_view.lpips = match too_small {
+        Some((w, h)) => {
+            report.notes.push(lpips_too_small_note(w, h));
+            None
+        }
+        None => mean(&l),
+    };
     report.geometry.depth_l1 = mean(&d);
     report.geometry.normal_angular_l1 = mean(&n);
     Ok(report)
@@ -179,7 +202,10 @@ pub fn evaluate_with_progress(
     options: &EvalOptions,
     progress: &dyn EvalProgress,
 ) -> Result<(EvalReport, TriangleMesh), DataError> {
-    let mut report = view_metrics_with_progress(scene, dataset, &options.render, progress)?;
+    let mut report = view_metrics_with_progress(scene, dataset, &options.render, options.lpips.as_deref(), progress)?;
+    if options.lpips.is_none() {
+        report.notes.push(no_lpips_note());
+    }
     progress.step(progress::MESH_EXTRACTION, 0);
     let mesh = extract_mesh(scene, bounds, options.mesh_resolution)?;
     report.geometry.mesh = match &dataset.mesh_path {
@@ -291,6 +317,60 @@ mod tests {
         assert!(thin.is_none() && report.fscore == Some(1.0));
     }
 
+    /// Stand-in LPIPS weights (not the metric): smooth values of both signs, heads ≥ 0.
+    fn stand_in_lpips() -> std::sync::Arc<Lpips> {
+        let wave = |n: usize, f: f32, a: f32| (0..n).map(|i| a * (f * i as f32).sin()).collect::<Vec<f32>>();
+        let specs = crate::lpips::ALEXNET;
+        std::sync::Arc::new(Lpips::new(&crate::lpips::LpipsWeights {
+            conv_weights: specs
+                .iter()
+                .map(|s| wave(s.out_channels * s.in_channels * s.kernel * s.kernel, 0.37, 0.05))
+                .collect(),
+            conv_biases: specs.iter().map(|s| wave(s.out_channels, 0.9, 0.1)).collect(),
+            heads: specs.iter().map(|s| vec![0.01; s.out_channels]).collect(),
+        }))
+    }
+
+    /// With weights and views of at least 31×31 LPIPS is filled and nothing is noted; with
+    /// smaller views, or without weights, it is null and a note says why.
+    #[test]
+    fn lpips_is_filled_with_weights_or_noted_why_not() {
+        let config = i2sdf_model::ModelConfig {
+            hash_levels: 2,
+            hash_log2_table: 10,
+            hash_finest_resolution: 16,
+            ..Default::default()
+        };
+        let settings = RenderSettings::default();
+        let lpips = stand_in_lpips();
+        for (width, height) in [(40, 32), (24, 18)] {
+            let dir = tempfile::tempdir().unwrap();
+            let options = i2sdf_data::fixture::FixtureOptions {
+                width,
+                height,
+                train_views: 1,
+                test_views: 1,
+                ..Default::default()
+            };
+            i2sdf_data::fixture::write_native(dir.path(), &options);
+            let dataset = i2sdf_data::load(dir.path()).unwrap();
+            let scene = NeuralScene::new(&config, dataset.normalization, 1);
+            let report = view_metrics_with_progress(&scene, &dataset, &settings, Some(&lpips), &NoProgress).unwrap();
+            if width == 40 {
+                let v = report.novel_view.lpips.expect("LPIPS with weights");
+                assert!(v.is_finite() && v > 0.0, "{v}");
+                assert!(report.notes.is_empty(), "{:?}", report.notes);
+            } else {
+                assert_eq!(report.novel_view.lpips, None);
+                assert_eq!(report.notes, [crate::report::lpips_too_small_note(24, 18)]);
+                assert!(report.notes[0].contains("24×18") && report.notes[0].contains("31×31"));
+            }
+            assert!(report.novel_view.psnr.is_some());
+            let without = view_metrics(&scene, &dataset, &settings).unwrap();
+            assert_eq!((without.novel_view.lpips, without.notes.len()), (None, 0));
+        }
+    }
+
     /// Records each step with its total and the units reported done.
     #[derive(Default)]
     struct Recorder(std::sync::Mutex<Vec<(String, u64, u64)>>);
@@ -333,6 +413,7 @@ mod tests {
         let progress = Recorder::default();
         let (report, _) = evaluate_with_progress(&scene, &dataset, &dataset.bounds, &options, &progress).unwrap();
         assert!(report.geometry.mesh.threshold.is_some());
+        assert_eq!(report.notes, [no_lpips_note()], "no LPIPS weights were given");
         let steps = progress.0.into_inner().unwrap();
         let names: Vec<&str> = steps.iter().map(|s| s.0.as_str()).collect();
         assert_eq!(

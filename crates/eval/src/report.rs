@@ -5,7 +5,7 @@
 //! `relight.psnr_differential`/`ssim_differential` and the per-set `*_unedited`, `*_differential`,
 //! and the top-level `notes`: sentences saying why figures are missing or not meaningful (always
 //! present, `[]` when there is nothing to say), e.g. [`zero_emitter_note`] when stage 2 found no
-//! emitters.
+//! emitters, [`no_lpips_note`] when no LPIPS weights were given.
 
 use crate::mesh_metrics::{GroupRecall, MeshMetrics};
 use i2sdf_data::dataset::ObjectInfo;
@@ -42,6 +42,24 @@ pub fn zero_emitter_note() -> String {
      when composited differentially: the relight figures are null, not meaningful. Train stage 1 \
      longer (the emitter field needs a converged surface) or lower stage2.emitter_threshold."
         .to_string()
+}
+
+/// Why `novel_view.lpips` is null: LPIPS needs network weights that i2sdf does not ship.
+pub fn no_lpips_note() -> String {
+    "novel_view.lpips is null: LPIPS needs the lpips package's AlexNet weights, which i2sdf does \
+     not ship; give them with --lpips-weights FILE.safetensors (scripts/lpips_weights.py writes \
+     the file where torchvision's pretrained weights can be downloaded)."
+        .to_string()
+}
+
+/// Why `novel_view.lpips` is null although weights were given: a test view of `width × height`
+/// is smaller than AlexNet's layers take.
+pub fn lpips_too_small_note(width: usize, height: usize) -> String {
+    format!(
+        "novel_view.lpips is null: a test view is {width}×{height} pixels, and LPIPS's AlexNet needs \
+         at least {side}×{side}.",
+        side = crate::lpips::MIN_SIDE
+    )
 }
 
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

@@ -18,6 +18,8 @@
 //!   hash-table update (only entries with a gradient, as Instant-NGP).
 //! * [`save_safetensors`] / [`load_safetensors`] over [`Parameters`] (named, shaped tensors).
 //! * [`mod@bench`]: the engine benchmark behind `i2sdf bench`.
+//! * [`Conv2d`], [`max_pool2d`], [`relu_in_place`] over HWC [`FeatureMap`]s: forward-only image
+//!   convolution (im2col + GEMM) for metrics (LPIPS's AlexNet in `i2sdf-eval`).
 //!
 //! # One training step (the shape stage 1 uses)
 //! ```no_run
@@ -77,6 +79,7 @@ pub mod activation;
 mod activation_simd;
 pub mod adam;
 pub mod bench;
+pub mod conv2d;
 pub mod encoding;
 pub mod hashgrid;
 pub mod linalg;
@@ -92,6 +95,7 @@ pub mod gradcheck;
 
 pub use activation::Activation;
 pub use adam::{Adam, AdamConfig, GroupId, LrSchedule};
+pub use conv2d::{max_pool2d, relu_in_place, Conv2d, FeatureMap};
 pub use encoding::{FrequencyEncoding, SphericalHarmonics};
 pub use hashgrid::{HashGrid, HashGridConfig, HashGridGrad};
 pub use mlp::{GeometricInit, Mlp, MlpConfig, TILE};

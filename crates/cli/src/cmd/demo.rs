@@ -214,6 +214,8 @@ fn outputs(args: &Args, plan: &mut StagePlan, scene: &Path, run_dir: &Path) -> a
         threshold: 0.05,
         spp: if args.quick { 16 } else { 64 },
         bounces: if args.quick { 4 } else { 8 },
+        // No LPIPS weights ship: the demo's metrics note that novel_view.lpips is null.
+        lpips_weights: None,
     })?;
     plan.stage(
         7,

@@ -5,7 +5,9 @@
 //! stage 2 (`RUN/stage2.safetensors`) it fills `rerender`, `material` and `emitters` from a Monte
 //! Carlo re-render of the test views (`--spp` paths per pixel), and `relight` from path-traced
 //! renders of the dataset's relit sets with their specs (`--spp`, `--bounces`), path traced and
-//! by differential rendering; without, they stay null.
+//! by differential rendering; without, they stay null. With `--lpips-weights FILE.safetensors`
+//! (`scripts/lpips_weights.py` writes it) it fills `novel_view.lpips`; without, that is null and
+//! the notes say why. The weights are read and checked before any work.
 
 use clap::Args as ClapArgs;
 use i2sdf_data::{imageio, Split};
@@ -47,6 +49,10 @@ pub struct Args {
     /// Most scattering events per path of the relit sets' renders (the edit renderer's).
     #[arg(long, default_value_t = EditSettings::default().bounces)]
     pub bounces: u32,
+    /// LPIPS (AlexNet, v0.1) weights as safetensors (scripts/lpips_weights.py) for
+    /// novel_view.lpips; without them it is null.
+    #[arg(long, value_name = "FILE.safetensors")]
+    pub lpips_weights: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -63,6 +69,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !(1..=1024).contains(&args.bounces) {
         return Err(i2sdf_data::DataError::invalid(format!("--bounces {}: must be in [1, 1024]", args.bounces)).into());
     }
+    // Read and checked now, not after the views are rendered.
+    let lpips = match &args.lpips_weights {
+        Some(path) => Some(std::sync::Arc::new(i2sdf_eval::Lpips::load(path)?)),
+        None => None,
+    };
     let (data, dataset) = super::run_dataset(&args.run, args.data.as_deref())?;
     let inputs = [data.as_path()];
     super::output_file("--out", &args.out, &["json"], args.force, &inputs, Some(1 << 20))?;
@@ -81,6 +92,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut options = EvalOptions {
         mesh_resolution: args.mesh_resolution,
         render: run.config.render.clone(),
+        lpips,
         ..Default::default()
     };
     options.mesh.threshold = args.threshold;
