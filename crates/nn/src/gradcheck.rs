@@ -39,6 +39,16 @@ pub fn central_difference(p: &[f32], h: f32, mut f: impl FnMut(&[f32]) -> f64) -
         .collect()
 }
 
+/// Central differences (step 1e-3) of a scalar f32 function of a flat parameter vector.
+pub fn numeric_gradient(f: &dyn Fn(&[f32]) -> f32, x: &[f32]) -> Vec<f32> {
+    central_difference(x, 1e-3, |y| f(y) as f64)
+}
+
+/// [`assert_grad_close`] with one tolerance, absolute and relative.
+pub fn assert_close(analytic: &[f32], fd: &[f32], tol: f32) {
+    assert_grad_close("gradient", analytic, fd, tol, tol);
+}
+
 /// Assert `|analytic − fd| ≤ abs + rel·|fd|` elementwise, and that the overall relative error is
 /// small; a wrong sign or a missing term fails one or the other.
 pub fn assert_grad_close(what: &str, analytic: &[f32], fd: &[f32], abs: f32, rel: f32) {

@@ -146,16 +146,7 @@ pub fn inside(sdf: &[f32], w: f32, grad: &mut [f32]) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use i2sdf_nn::gradcheck::{assert_grad_close, central_difference};
-
-    /// Central differences (step 1e-3) of a scalar function of a flat parameter vector.
-    fn numeric(f: &dyn Fn(&[f32]) -> f32, x: &[f32]) -> Vec<f32> {
-        central_difference(x, 1e-3, |y| f(y) as f64)
-    }
-
-    fn close(a: &[f32], b: &[f32], tol: f32) {
-        assert_grad_close("gradient", a, b, tol, tol);
-    }
+    use i2sdf_nn::gradcheck::{assert_close as close, numeric_gradient as numeric};
 
     fn v3(x: &[f32]) -> Vec<[f32; 3]> {
         x.chunks(3).map(|c| [c[0], c[1], c[2]]).collect()

@@ -52,14 +52,7 @@ impl Stage1 {
         let rendered = self.rendered_surfaces(&w, rng);
         let counts = self.draw_extra_points(&w, rendered.as_deref(), rng);
         if rendered.is_none() {
-            renderer::sample(
-                &self.scene,
-                &self.settings,
-                &self.batch.origin,
-                &self.batch.dir,
-                &mut self.ws,
-                Some(rng),
-            );
+            self.place_samples(rng);
         }
         let t1 = std::time::Instant::now();
         renderer::forward_with_samples(
@@ -148,14 +141,7 @@ impl Stage1 {
     /// detached). `None` with depth, or when no geometry term needs surface points.
     fn rendered_surfaces(&mut self, w: &LossWeights, rng: &mut Pcg64) -> Option<Vec<Option<f32>>> {
         (self.no_depth && (w.bubble > 0.0 || w.smooth > 0.0)).then(|| {
-            renderer::sample(
-                &self.scene,
-                &self.settings,
-                &self.batch.origin,
-                &self.batch.dir,
-                &mut self.ws,
-                Some(&mut *rng),
-            );
+            self.place_samples(rng);
             renderer::rendered_surface_distances(
                 &self.scene,
                 &self.batch.origin,
@@ -164,6 +150,18 @@ impl Stage1 {
                 SURFACE_OPACITY,
             )
         })
+    }
+
+    /// Places the batch's samples along its rays (the error-bounded sampler).
+    fn place_samples(&mut self, rng: &mut Pcg64) {
+        renderer::sample(
+            &self.scene,
+            &self.settings,
+            &self.batch.origin,
+            &self.batch.dir,
+            &mut self.ws,
+            Some(rng),
+        );
     }
 
     /// The surface point of ray `r` of the batch: by its pixel's depth, or rendered.

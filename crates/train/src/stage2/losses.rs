@@ -87,16 +87,7 @@ pub fn material_regularizers(out: &[f32], b: usize, w: &MaterialPriors, d_out: &
 #[cfg(test)]
 mod tests {
     use super::*;
-    use i2sdf_nn::gradcheck::{assert_grad_close, central_difference};
-
-    /// Central differences (step 1e-3) of a scalar function of a flat parameter vector.
-    fn numeric(f: &dyn Fn(&[f32]) -> f32, x: &[f32]) -> Vec<f32> {
-        central_difference(x, 1e-3, |y| f(y) as f64)
-    }
-
-    fn close(a: &[f32], b: &[f32], tol: f32) {
-        assert_grad_close("gradient", a, b, tol, tol);
-    }
+    use i2sdf_nn::gradcheck::{assert_close as close, numeric_gradient as numeric};
 
     /// The regularizers' gradients match central differences of their weighted sum (with the
     /// prior's weight w(Ks) frozen at the point, as the gradient holds it).
