@@ -4,7 +4,6 @@
 
 pub mod image_metrics;
 pub mod intrinsic;
-pub mod kdtree;
 pub mod mesh;
 pub mod mesh_metrics;
 pub mod neural;
