@@ -1,6 +1,7 @@
 //! i2sdf datasets: the native nerfstudio-style format, the paper's release format and COLMAP sparse
 //! models, read into one internal scene (OpenCV cameras, world-space normals, z-depth, a
-//! normalization into the unit sphere), with every file validated on load. Also the image/array I/O every other crate uses.
+//! normalization into the unit sphere), with every file validated on load. Also the image/array I/O every other crate uses, and the one
+//! point-neighbour structure ([`KdTree`]: nearest distances for `eval`, radius queries for stage 2).
 
 pub mod animation;
 pub mod camera;
@@ -17,6 +18,7 @@ pub mod fingerprint;
 #[cfg(any(test, feature = "test-support"))]
 pub mod fixture;
 pub mod imageio;
+pub mod kdtree;
 pub mod lens;
 pub mod mesh;
 pub mod native;
@@ -35,6 +37,7 @@ pub use edit_assets::EditAssets;
 pub use edit_spec::{EditOp, EditSpec};
 pub use error::DataError;
 pub use imageio::ImageF32;
+pub use kdtree::KdTree;
 pub use lens::Lens;
 pub use mesh::TriangleMesh;
 pub use radiometry::{Radiometry, Transfer};

@@ -18,7 +18,7 @@
 //!
 //! `cargo run --release -p i2sdf-eval --example kdtree_bench [-- POINTS [PRED.ply GT.ply]]`
 
-use i2sdf_eval::kdtree::KdTree;
+use i2sdf_data::KdTree;
 use i2sdf_eval::mesh_metrics::sample_surface;
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;

@@ -5,7 +5,6 @@
 
 pub mod image_metrics;
 pub mod intrinsic;
-pub mod kdtree;
 pub mod lpips;
 pub mod mesh;
 pub mod mesh_metrics;

@@ -6,11 +6,10 @@
 //! see [`visible_from_views`]. Recall is also reported per GT object and for groups of objects
 //! (the thin and suspended ones) at thresholds of their own.
 
-use crate::kdtree::KdTree;
 use crate::mesh::TriangleMesh;
 use crate::progress::{self, EvalProgress, NoProgress};
 use glam::{DMat4, DVec3};
-use i2sdf_data::{Camera, DataError};
+use i2sdf_data::{Camera, DataError, KdTree};
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

@@ -15,7 +15,6 @@ pub mod config;
 pub mod driver;
 pub mod maps;
 pub mod memory;
-pub mod neighbour_grid;
 pub mod resume;
 pub mod run;
 pub mod stage1;

@@ -14,7 +14,7 @@
 //! it). Connected pieces holding fewer than a fraction of the points are dropped first, as stray
 //! positives of the emitter field.
 
-use crate::neighbour_grid::NeighbourGrid;
+use i2sdf_data::KdTree;
 use rand::Rng;
 
 /// One cluster of a clustering.
@@ -116,14 +116,13 @@ pub fn inertia(points: &[[f64; 3]], centres: &[[f64; 3]], labels: &[usize]) -> f
     points.iter().zip(labels).map(|(p, &l)| dist2(p, &centres[l])).sum()
 }
 
-/// Connected components of the points when points closer than `link` are joined: a label per
-/// point and the number of components. A [`NeighbourGrid`] of cell `link` finds each point's
-/// neighbours.
+/// Connected components of the points when points closer than `link` are joined (those with
+/// `dist2 <= link²`, found by a [`KdTree`] of the points with that test, in f64): a label per
+/// point, numbered in the order of each component's lowest point index, and the number of
+/// components.
 pub fn components(points: &[[f64; 3]], link: f64) -> (Vec<usize>, usize) {
-    let cell = |p: &[f64; 3]| p.map(|v| (v / link).floor() as i64);
-    let grid = NeighbourGrid::new(points.len(), |i| cell(&points[i]));
+    let tree = KdTree::new(points);
     let mut label = vec![usize::MAX; points.len()];
-    let l2 = link * link;
     let mut count = 0;
     let mut stack = Vec::new();
     for start in 0..points.len() {
@@ -133,8 +132,9 @@ pub fn components(points: &[[f64; 3]], link: f64) -> (Vec<usize>, usize) {
         label[start] = count;
         stack.push(start);
         while let Some(i) = stack.pop() {
-            grid.for_each_near(cell(&points[i]), |j| {
-                if label[j] == usize::MAX && dist2(&points[i], &points[j]) <= l2 {
+            // The order of the neighbours does not matter: the components are sets.
+            tree.for_each_within(points[i], link, |j| {
+                if label[j] == usize::MAX {
                     label[j] = count;
                     stack.push(j);
                 }
@@ -340,6 +340,50 @@ mod tests {
         gap.push([10.0, 0.0, 0.0]);
         assert!(!is_connected(&gap, 0.11));
         assert!(is_connected(&[], 0.1) && is_connected(&[[1.0, 2.0, 3.0]], 0.1));
+        // Points exactly `link` apart are joined (`<=`), a hair further apart are not.
+        let exact: Vec<[f64; 3]> = (0..20).map(|i| [0.0, i as f64 * 0.25, 3.0]).collect();
+        assert!(is_connected(&exact, 0.25));
+        assert!(!is_connected(&exact, f64::from_bits(0.25f64.to_bits() - 1)));
+    }
+
+    /// Random clouds at several link distances (on a lattice of the link too, where many pairs
+    /// are exactly `link` apart): the same labels as joining every pair with `dist2 <= link²`.
+    #[test]
+    fn components_match_brute_force() {
+        let mut rng = Pcg64::seed_from_u64(12);
+        let mut pts = blob(&mut rng, [0.0; 3], [1.0; 3], 600);
+        pts.extend((0..125).map(|i| {
+            [
+                (i % 5) as f64 * 0.5 + 3.0,
+                (i / 5 % 5) as f64 * 0.5,
+                (i / 25) as f64 * 0.5,
+            ]
+        }));
+        for link in [0.05, 0.1, 0.2, 0.5] {
+            let mut label: Vec<usize> = (0..pts.len()).collect();
+            fn root(label: &[usize], mut i: usize) -> usize {
+                while label[i] != i {
+                    i = label[i];
+                }
+                i
+            }
+            for i in 0..pts.len() {
+                for j in 0..i {
+                    if dist2(&pts[i], &pts[j]) <= link * link {
+                        let (a, b) = (root(&label, i), root(&label, j));
+                        label[a.max(b)] = a.min(b);
+                    }
+                }
+            }
+            // Renumber by lowest index, as `components` does.
+            let (mut number, mut expected) = (std::collections::HashMap::new(), Vec::new());
+            for i in 0..pts.len() {
+                let r = root(&label, i);
+                let next = number.len();
+                expected.push(*number.entry(r).or_insert(next));
+            }
+            assert_eq!(components(&pts, link), (expected, number.len()), "link {link}");
+        }
     }
 
     /// Forty points spread over the same panel (a small cache): still one emitter, not pieces.

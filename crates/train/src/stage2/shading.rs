@@ -16,8 +16,8 @@
 //!    the backward (the pdf is detached), which keeps the gradient of the expectation unbiased:
 //!    ∂/∂θ E_p[f_θ L cos / p] = E_p[∂f_θ/∂θ L cos / p] for any fixed proposal p.
 
-use crate::neighbour_grid::NeighbourGrid;
 use glam::Vec3;
+use i2sdf_data::KdTree;
 use i2sdf_model::intrinsic::{FrozenScene, LabelledHit};
 use i2sdf_render::{DirectionMixture, GgxBrdf, GgxGrad, Ray};
 use rand::Rng;
@@ -269,39 +269,47 @@ pub fn shade_pooled_backward(
 }
 
 /// Averages each surface pixel's [`DiffuseSums`] over the surface pixels within `radius` (world)
-/// whose normals agree (cos > 0.9): a [`NeighbourGrid`] of cell `radius` finds them.
-/// Irradiance varies slowly across a surface while albedo does not, so the diffuse estimate of
-/// a pixel borrows the samples of its neighbours (from other views too) — the material fit no
-/// longer bakes one noisy draw per pixel into Kd. The bias is the blur of irradiance over the
-/// radius (shadow edges soften by about that much).
+/// whose normals agree (cos > 0.9): those with `|q − p|² <= radius²` in f32, which a [`KdTree`]
+/// of the positions finds, summed in ascending pixel index (the same on every run and thread
+/// count). Irradiance varies slowly across a surface while albedo does not, so the diffuse
+/// estimate of a pixel borrows the samples of its neighbours (from other views too) — the
+/// material fit no longer bakes one noisy draw per pixel into Kd. The bias is the blur of
+/// irradiance over the radius (shadow edges soften by about that much).
 pub fn pool_diffuse(points: &[ShadingPoint], sums: &[DiffuseSums], radius: f32) -> Vec<DiffuseSums> {
-    let cell = |p: Vec3| (p / radius).floor().as_ivec3().to_array().map(i64::from);
-    let grid = NeighbourGrid::new(points.len(), |i| cell(points[i].position));
-    let r2 = radius * radius;
-    (0..points.len())
-        .into_par_iter()
-        .map(|i| {
-            let p = &points[i];
+    let positions: Vec<[f32; 3]> = points.iter().map(|p| p.position.to_array()).collect();
+    let tree = KdTree::new(&positions);
+    // Pixels in the tree's order: consecutive ones share most of their neighbours, which stay in
+    // cache (pixels come from many views, in no spatial order). Each result is its own pixel's.
+    let order = tree.storage_order();
+    let pooled: Vec<DiffuseSums> = order
+        .par_iter()
+        .map_init(Vec::new, |near, &i| {
+            let p = &points[i as usize];
             let mut acc = DiffuseSums {
                 field: Vec3::ZERO,
-                emit: vec![0.0; sums[i].emit.len()],
+                emit: vec![0.0; sums[i as usize].emit.len()],
             };
             let mut n = 0u32;
-            grid.for_each_near(cell(p.position), |j| {
-                let q = &points[j];
-                if (q.position - p.position).length_squared() <= r2 && q.normal.dot(p.normal) > 0.9 {
+            tree.within(positions[i as usize], radius, near);
+            for &j in near.iter() {
+                if points[j].normal.dot(p.normal) > 0.9 {
                     let s = &sums[j];
                     acc.field += s.field;
                     acc.emit.iter_mut().zip(&s.emit).for_each(|(a, b)| *a += b);
                     n += 1;
                 }
-            });
+            }
             let inv = 1.0 / n.max(1) as f32;
             acc.field *= inv;
             acc.emit.iter_mut().for_each(|a| *a *= inv);
             acc
         })
-        .collect()
+        .collect();
+    let mut out = vec![DiffuseSums::default(); points.len()];
+    for (&i, d) in order.iter().zip(pooled) {
+        out[i as usize] = d;
+    }
+    out
 }
 
 /// Test support: the analytic gradient of ⟨g, R̂⟩ (material `grad`, emissions `d_emission`)
@@ -422,6 +430,63 @@ mod tests {
                 );
             }
             assert!((g2.rho - grad.rho).abs() < 1e-4 * (1.0 + grad.rho.abs()));
+        }
+    }
+
+    /// The pooling's neighbours are exactly those of the distance test it had with its grid,
+    /// `(q − p).length_squared() <= r²` on glam vectors, points at exactly the radius included
+    /// (positions on a quarter-unit lattice, radius 0.5 and 0.75), and the sums run in index
+    /// order: equal, to the bit, to this brute-force pooling.
+    #[test]
+    fn pooling_matches_brute_force_at_the_radius() {
+        let mut rng = Pcg32::seed_from_u64(4);
+        let mut positions: Vec<Vec3> = (0..6 * 6 * 6)
+            .map(|i| Vec3::new((i % 6) as f32, (i / 6 % 6) as f32, (i / 36) as f32) * 0.25)
+            .collect();
+        positions.extend((0..400).map(|_| Vec3::new(rng.gen(), rng.gen(), rng.gen()) * 1.5));
+        let mut points: Vec<ShadingPoint> = positions
+            .into_iter()
+            .map(|position| {
+                let normal = if rng.gen::<f32>() < 0.8 { Vec3::Y } else { Vec3::X };
+                ShadingPoint {
+                    position,
+                    normal,
+                    view: normal,
+                }
+            })
+            .collect();
+        points[3].normal = Vec3::new(0.0, 0.9, 0.1).normalize();
+        let sums: Vec<DiffuseSums> = (0..points.len())
+            .map(|_| DiffuseSums {
+                field: Vec3::new(rng.gen(), rng.gen(), rng.gen()),
+                emit: vec![rng.gen(), rng.gen()],
+            })
+            .collect();
+        for radius in [0.5f32, 0.75, 0.1] {
+            let pooled = pool_diffuse(&points, &sums, radius);
+            let r2 = radius * radius;
+            let mut at_radius = 0;
+            for (i, p) in points.iter().enumerate() {
+                let mut acc = DiffuseSums {
+                    field: Vec3::ZERO,
+                    emit: vec![0.0; 2],
+                };
+                let mut n = 0u32;
+                for (q, s) in points.iter().zip(&sums) {
+                    let d2 = (q.position - p.position).length_squared();
+                    at_radius += usize::from(d2 == r2);
+                    if d2 <= r2 && q.normal.dot(p.normal) > 0.9 {
+                        acc.field += s.field;
+                        acc.emit.iter_mut().zip(&s.emit).for_each(|(a, b)| *a += b);
+                        n += 1;
+                    }
+                }
+                let inv = 1.0 / n.max(1) as f32;
+                acc.field *= inv;
+                acc.emit.iter_mut().for_each(|a| *a *= inv);
+                assert_eq!(pooled[i], acc, "pixel {i}, radius {radius}");
+            }
+            assert!(radius == 0.1 || at_radius > 500, "{at_radius} pairs at radius {radius}");
         }
     }
 }
