@@ -166,3 +166,101 @@ fn bad_input_exits_2_and_failed_writes_exit_1() {
         &["not_a_directory"],
     );
 }
+
+/// Eval and the report of one run agree on the relit sets: the report renders the first frame of
+/// each set through eval's own relight scoring, so at eval's settings its captions are the
+/// figures eval's metrics give that frame (`relight.sets.NAME.per_frame`); at other settings the
+/// report says that its renders differ.
+#[test]
+fn relit_captions_are_evals_per_frame_figures() {
+    let (_, _, stage1, _) = runs();
+    let dir = tempfile::tempdir().unwrap();
+    // The fixture again, with a relit set: the test frames under a spec that doubles the light
+    // nearest the origin (the images are not relit: only the agreement is tested).
+    let data = dir.path().join("data");
+    i2sdf_data::fixture::write_native(&data, &i2sdf_data::fixture::FixtureOptions::default());
+    let json_path = data.join("transforms.json");
+    let mut json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+    let tests: Vec<serde_json::Value> = json["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|f| f["split"] == "test")
+        .cloned()
+        .collect();
+    assert!(!tests.is_empty());
+    json["relight"] = serde_json::json!([{"spec": "relight/brighter.toml", "frames": tests}]);
+    std::fs::write(&json_path, serde_json::to_string_pretty(&json).unwrap()).unwrap();
+    std::fs::create_dir_all(data.join("relight")).unwrap();
+    std::fs::write(
+        data.join("relight/brighter.toml"),
+        "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = 2\n",
+    )
+    .unwrap();
+    // Stage 2 at emitter threshold 0, so that it has emitters to relight.
+    let run = dir.path().join("run");
+    copy_stage1(stage1, &run);
+    let o = train_material(
+        &data,
+        &run,
+        &[&TINY_STAGE2[..], &["--set", "stage2.emitter_threshold=0"]].concat(),
+    );
+    assert_eq!(o.code, 0, "{}", o.stderr);
+
+    let metrics = dir.path().join("metrics.json");
+    let fast = ["--spp", "2", "--bounces", "2", "--mesh-resolution", "32"];
+    let o = i2sdf(&eval_args(&run, &data, &metrics, &fast));
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&metrics).unwrap()).unwrap();
+    let frame = &m["relight"]["sets"]["brighter"]["per_frame"][0];
+    let (traced, diff) = (
+        frame["psnr"].as_f64().unwrap(),
+        frame["psnr_differential"].as_f64().unwrap(),
+    );
+
+    let caption = |text: &str, what: &str| -> String {
+        let at = text
+            .find(&format!("{what}, "))
+            .unwrap_or_else(|| panic!("no '{what}' caption"));
+        let rest = &text[at + what.len() + 2..];
+        rest[..rest.find(" dB").unwrap()].to_string()
+    };
+    let out = dir.path().join("r");
+    let o = report(&run, &out, &["--data", s(&data), "--metrics", s(&metrics)]);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    let (text, _) = check_page(&out);
+    for (what, figure) in [("path traced", traced), ("differential", diff)] {
+        let shown = caption(&text, what);
+        assert_eq!(
+            shown,
+            i2sdf_report::html::format_sig(figure),
+            "{what}: the report shows {shown} dB, eval {figure} dB"
+        );
+    }
+    assert!(
+        !text.contains("Eval scored the relit sets at"),
+        "same settings, no note"
+    );
+    // At other settings the report says so.
+    let out = dir.path().join("r3");
+    let o = i2sdf(&[
+        "report",
+        "--run",
+        s(&run),
+        "--out",
+        s(&out),
+        "--data",
+        s(&data),
+        "--metrics",
+        s(&metrics),
+        "--spp",
+        "3",
+        "--bounces",
+        "2",
+        "--mesh-resolution",
+        "32",
+    ]);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    let (text, _) = check_page(&out);
+    assert!(text.contains("Eval scored the relit sets at 2 paths per pixel"));
+}

@@ -28,4 +28,6 @@ pub use mesh_metrics::{
     ObjectRecall,
 };
 pub use progress::{EvalProgress, NoProgress};
-pub use report::{EmitterMetrics, EvalReport, GeometryMetrics, MaterialMetrics, MeshReport, RerenderMetrics};
+pub use report::{
+    EmitterMetrics, EvalReport, GeometryMetrics, MaterialMetrics, MeshReport, RelightSettings, RerenderMetrics,
+};

@@ -9,9 +9,14 @@
 //! scored by differential rendering ([`i2sdf_edit::differential`]): stage 1's radiance field of
 //! the camera + the path-traced change, from the same renders (and, for a set that edits more
 //! than lights, the unedited render of the same paths).
+//!
+//! Each camera's paths are drawn with a view index fixed by the dataset alone (the order in which
+//! the relit sets first show the camera), so a frame's images do not depend on which other
+//! frames are rendered: the report, which renders only the first frame of each set through
+//! [`score_relit_sets`], shows the images and figures that `eval` scored.
 
 use crate::image_metrics::{psnr, ssim, ImageRef};
-use crate::report::{ImagePair, RelightMetrics, RelightSetMetrics};
+use crate::report::{ImagePair, RelightFrameMetrics, RelightMetrics, RelightSetMetrics, RelightSettings};
 use glam::Vec3;
 use i2sdf_data::edit_spec::{EditOp, EditSpec};
 use i2sdf_data::{Camera, DataError, Dataset, EditAssets, Frame, ImageF32, RelightSet, Split};
@@ -65,10 +70,23 @@ fn mean(v: &[f64]) -> Option<f64> {
 }
 
 /// A set's name in the report: its spec's file stem (`set{index}` without one).
-fn set_name(set: &RelightSet, index: usize) -> String {
+pub fn set_name(set: &RelightSet, index: usize) -> String {
     set.spec
         .file_stem()
         .map_or_else(|| format!("set{index}"), |s| s.to_string_lossy().into_owned())
+}
+
+/// Every set's spec and assets, read before any (long) rendering starts.
+pub fn read_specs(dataset: &Dataset) -> Result<Vec<(EditSpec, EditAssets)>, DataError> {
+    dataset
+        .relight
+        .iter()
+        .map(|set| {
+            let spec = EditSpec::read(&set.spec)?;
+            let assets = spec.load_assets()?;
+            Ok((spec, assets))
+        })
+        .collect()
 }
 
 /// The relight section of the report; all null without relit sets. `on_row` is called after
@@ -92,30 +110,80 @@ pub fn relight_metrics(
     if run.stage2()?.emitters.is_empty() {
         return Ok(frame_counts_only(dataset));
     }
-    // Every spec and asset is read before the (long) rendering starts.
-    let mut specs = Vec::new();
-    for set in &dataset.relight {
-        let spec = EditSpec::read(&set.spec)?;
-        let assets = spec.load_assets()?;
-        specs.push((spec, assets));
-    }
+    let specs = read_specs(dataset)?;
     let recovered = RecoveredScene::of_run(run, dataset, options.mesh_resolution)?;
-    let mut eval = RelightEval {
-        unedited_scene: recovered.edited(&EditSpec::default(), &Default::default()),
+    let scoring = RelitScoring {
         recovered: &recovered,
         volume: options.differential.then_some(&run.config.render),
         settings: &options.render,
+        frames_per_set: None,
+    };
+    let mut metrics = score_relit_sets(
+        &scoring,
+        dataset,
+        &specs,
+        &mut SharedRenders::default(),
+        on_row,
+        &mut |_| {},
+    )?;
+    metrics.settings = Some(RelightSettings {
+        spp: options.render.spp,
+        bounces: options.render.bounces,
+        seed: options.render.seed,
+        mesh_resolution: options.mesh_resolution,
+    });
+    Ok(metrics)
+}
+
+/// How relit frames are rendered and which are: the recovered scene, the radiance field's
+/// settings for differential rendering (None: path traced only), the path tracer's settings,
+/// and how many frames of each set (None: all).
+pub struct RelitScoring<'r, 'a> {
+    pub recovered: &'r RecoveredScene<'a>,
+    pub volume: Option<&'r RenderSettings>,
+    pub settings: &'r EditSettings,
+    pub frames_per_set: Option<usize>,
+}
+
+/// One scored relit frame, as it is scored: the path-traced image, the differential composite
+/// (with `volume`), the ground truth and the figures.
+pub struct RelitFrame<'f> {
+    pub set: usize,
+    pub frame: &'f Frame,
+    pub traced: &'f ImageF32,
+    pub differential: Option<&'f ImageF32>,
+    pub figures: &'f RelightFrameMetrics,
+}
+
+/// Renders and scores the frames `scoring` selects of every relit set (`specs` from
+/// [`read_specs`]), calling `on_frame` with each frame's images. `renders` may already hold
+/// renders of some cameras (and keeps those made here, for the caller's other views).
+pub fn score_relit_sets(
+    scoring: &RelitScoring,
+    dataset: &Dataset,
+    specs: &[(EditSpec, EditAssets)],
+    renders: &mut SharedRenders,
+    on_row: &(dyn Fn() + Sync),
+    on_frame: &mut dyn FnMut(RelitFrame),
+) -> Result<RelightMetrics, DataError> {
+    let mut views = HashMap::new();
+    for f in dataset.relight.iter().flat_map(|s| &s.frames) {
+        let next = views.len() as u32;
+        views.entry(camera_key(f)).or_insert(next);
+    }
+    let mut eval = RelightEval {
+        scoring,
+        unedited_scene: scoring.recovered.edited(&EditSpec::default(), &Default::default()),
         on_row,
         tests: dataset.split(Split::Test).map(|f| (camera_key(f), f)).collect(),
-        shared: HashMap::new(),
-        captured: HashMap::new(),
-        view: 0,
+        views,
+        renders,
     };
     let mut baseline = Baseline::default();
     let mut all = SetScores::default();
     let mut sets = BTreeMap::new();
-    for (i, (set, (spec, assets))) in dataset.relight.iter().zip(&specs).enumerate() {
-        let scores = eval.score_set(set, spec, assets, &mut baseline)?;
+    for (i, (set, (spec, assets))) in dataset.relight.iter().zip(specs).enumerate() {
+        let scores = eval.score_set(i, set, spec, assets, &mut baseline, on_frame)?;
         all.relit.extend(&scores.relit);
         all.differential.extend(&scores.differential);
         sets.insert(set_name(set, i), scores.metrics(set.frames.len()));
@@ -131,6 +199,7 @@ pub fn relight_metrics(
         }),
         psnr_differential: mean(&all.differential.psnr),
         ssim_differential: mean(&all.differential.ssim),
+        settings: None,
     })
 }
 
@@ -172,12 +241,14 @@ impl Scores {
 }
 
 /// A set's scores: its relit images, the unedited render against the same truth (what doing
-/// nothing scores, relight-only sets), and the differential composites (with `volume`).
+/// nothing scores, relight-only sets), the differential composites (with `volume`), and each
+/// frame's figures.
 #[derive(Default)]
 struct SetScores {
     relit: Scores,
     unedited: Scores,
     differential: Scores,
+    per_frame: Vec<RelightFrameMetrics>,
 }
 
 impl SetScores {
@@ -190,6 +261,7 @@ impl SetScores {
             psnr_differential: mean(&self.differential.psnr),
             ssim_differential: mean(&self.differential.ssim),
             frames,
+            per_frame: self.per_frame.clone(),
         }
     }
 }
@@ -201,63 +273,158 @@ struct Baseline {
     seen: HashSet<Vec<u64>>,
 }
 
-/// What the sets of one evaluation share: the recovered scene and its unedited edit, the test
-/// frames by camera, and per camera the unedited render (shared by the relight-only sets, the
-/// differential base of the others) with the view index its paths were drawn with, and the
-/// radiance field's image.
-struct RelightEval<'r, 'a> {
-    recovered: &'r RecoveredScene<'a>,
-    unedited_scene: EditedScene,
-    /// The radiance field's render settings when sets are also scored by differential rendering.
-    volume: Option<&'r RenderSettings>,
-    settings: &'r EditSettings,
-    on_row: &'r (dyn Fn() + Sync),
-    tests: HashMap<Vec<u64>, &'r Frame>,
-    shared: HashMap<Vec<u64>, (ViewRender, u32)>,
+/// Renders of the recovered scene kept per camera (by [`Camera::key`]): the unedited scene's
+/// path-traced render with the view index its paths were drawn with (what relight-only sets
+/// share, and the differential's base), and the radiance field's image (the differential's
+/// captured image). A caller can share them with its own views of the same cameras.
+#[derive(Default)]
+pub struct SharedRenders {
+    unedited: HashMap<Vec<u64>, (ViewRender, u32)>,
     captured: HashMap<Vec<u64>, ImageF32>,
-    /// The next unused view index (each render's own paths).
-    view: u32,
 }
 
-impl RelightEval<'_, '_> {
-    /// Renders and scores every frame of `set` with its edit. A spec that only relights reuses
-    /// the camera's unedited render with its gains (and scores the unedited image too, feeding
-    /// `baseline`); any other spec renders its edited scene.
+impl SharedRenders {
+    /// The unedited render of `camera` and its view index; rendered on `view` when there is
+    /// none yet.
+    pub fn unedited(
+        &mut self,
+        recovered: &RecoveredScene,
+        unedited: &EditedScene,
+        camera: &Camera,
+        settings: &EditSettings,
+        view: u32,
+        on_row: &(dyn Fn() + Sync),
+    ) -> (&ViewRender, u32) {
+        let (r, v) = self
+            .unedited
+            .entry(camera.key())
+            .or_insert_with(|| (recovered.render(unedited, camera, settings, view, on_row), view));
+        (r, *v)
+    }
+
+    /// The radiance field's image of `camera`, rendered with `volume` when there is none yet.
+    pub fn captured(&mut self, recovered: &RecoveredScene, camera: &Camera, volume: &RenderSettings) -> &ImageF32 {
+        self.captured
+            .entry(camera.key())
+            .or_insert_with(|| recovered.captured(camera, volume))
+    }
+
+    /// Keeps `image` as the radiance field's image of `camera` (rendered elsewhere with the
+    /// same settings).
+    pub fn insert_captured(&mut self, camera: &Camera, image: ImageF32) {
+        self.captured.insert(camera.key(), image);
+    }
+}
+
+/// An edited view: the render of the edited scene (None: the unedited render serves, the spec
+/// only relights) and the images it gives.
+pub struct EditedView {
+    pub render: Option<ViewRender>,
+    /// Path traced, in the dataset's tone map.
+    pub traced: ImageF32,
+    /// Stage 1's radiance field + the path-traced change (with a `volume`).
+    pub differential: Option<ImageF32>,
+}
+
+/// `camera` seen with an edit: `edited` (None when the spec only relights: the unedited render
+/// with `gains` is exact) path traced, and with `scoring.volume` its differential composite.
+/// The unedited render is made on `view` when `renders` has none and it is needed (relighting,
+/// or the differential's base); the edited scene is rendered on the unedited render's paths when
+/// there is one, so their difference carries no noise of its own.
+#[allow(clippy::too_many_arguments)]
+pub fn edited_view(
+    scoring: &RelitScoring,
+    unedited: &EditedScene,
+    edited: Option<&EditedScene>,
+    gains: &[Vec3],
+    renders: &mut SharedRenders,
+    camera: &Camera,
+    view: u32,
+    on_row: &(dyn Fn() + Sync),
+) -> EditedView {
+    let r = scoring.recovered;
+    let rm = &r.radiometry;
+    let base_view = (edited.is_none() || scoring.volume.is_some())
+        .then(|| renders.unedited(r, unedited, camera, scoring.settings, view, on_row).1);
+    let own = edited.map(|ed| r.render(ed, camera, scoring.settings, base_view.unwrap_or(view), on_row));
+    if let Some(volume) = scoring.volume {
+        renders.captured(r, camera, volume);
+    }
+    let key = camera.key();
+    let base = renders.unedited.get(&key).map(|(b, _)| b);
+    let render = own.as_ref().or(base).expect("a render of the edited scene");
+    let (_, traced) = edit_images(render, gains, rm);
+    let differential = match (scoring.volume, base) {
+        (Some(_), Some(base)) => {
+            let d = differential_hdr(&renders.captured[&key], render, gains, base, rm);
+            Some(hdr_ldr_images(&d, render.width, render.height, rm).1)
+        }
+        _ => None,
+    };
+    EditedView {
+        render: own,
+        traced,
+        differential,
+    }
+}
+
+/// What the sets of one evaluation share: how they are rendered, the unedited scene, the test
+/// frames by camera, each camera's view index, and the per-camera renders.
+struct RelightEval<'s, 'r, 'a> {
+    scoring: &'s RelitScoring<'r, 'a>,
+    unedited_scene: EditedScene,
+    on_row: &'s (dyn Fn() + Sync),
+    tests: HashMap<Vec<u64>, &'s Frame>,
+    views: HashMap<Vec<u64>, u32>,
+    renders: &'s mut SharedRenders,
+}
+
+impl RelightEval<'_, '_, '_> {
+    /// Renders and scores the selected frames of `set` (number `index`) with its edit. A spec
+    /// that only relights reuses the camera's unedited render with its gains (and scores the
+    /// unedited image too, feeding `baseline`); any other spec renders its edited scene.
     fn score_set(
         &mut self,
+        index: usize,
         set: &RelightSet,
         spec: &EditSpec,
         assets: &EditAssets,
         baseline: &mut Baseline,
+        on_frame: &mut dyn FnMut(RelitFrame),
     ) -> Result<SetScores, DataError> {
         let relight_only = spec.ops.iter().all(|op| matches!(op, EditOp::Relight(_)));
-        let own = (!relight_only).then(|| self.recovered.edited(spec, assets));
-        let edited = own.as_ref().unwrap_or(&self.unedited_scene);
-        let gains = light_gains(spec, edited);
-        let ones = vec![Vec3::ONE; edited.lights()];
-        let rm = &self.recovered.radiometry;
+        let own = (!relight_only).then(|| self.scoring.recovered.edited(spec, assets));
+        let gains = light_gains(spec, own.as_ref().unwrap_or(&self.unedited_scene));
+        let rm = &self.scoring.recovered.radiometry;
         let mut scores = SetScores::default();
-        for f in &set.frames {
+        let frames = self.scoring.frames_per_set.unwrap_or(usize::MAX);
+        for f in set.frames.iter().take(frames) {
             let key = camera_key(f);
-            if !self.shared.contains_key(&key) && (relight_only || self.volume.is_some()) {
-                self.render_unedited(&key, &f.camera);
-            }
-            let own_render = own.as_ref().map(|ed| self.render_edited(ed, &key, &f.camera));
-            let base = self.shared.get(&key).map(|(r, _)| r);
-            let render = own_render.as_ref().or(base).expect("a render of the edited scene");
-            let (_, relit) = edit_images(render, &gains, rm);
-            scores.relit.push(scores_of(&relit, &f.rgb)?);
-            if let (Some(volume), Some(base)) = (self.volume, base) {
-                let cap = self
-                    .captured
-                    .entry(key.clone())
-                    .or_insert_with(|| self.recovered.captured(&f.camera, volume));
-                let d = differential_hdr(cap, render, &gains, base, rm);
-                let (_, ldr) = hdr_ldr_images(&d, render.width, render.height, rm);
-                scores.differential.push(scores_of(&ldr, &f.rgb)?);
+            let view = edited_view(
+                self.scoring,
+                &self.unedited_scene,
+                own.as_ref(),
+                &gains,
+                self.renders,
+                &f.camera,
+                self.views[&key],
+                self.on_row,
+            );
+            let relit = scores_of(&view.traced, &f.rgb)?;
+            scores.relit.push(relit);
+            let mut figures = RelightFrameMetrics {
+                name: f.name.clone(),
+                psnr: relit.0,
+                psnr_differential: None,
+            };
+            if let Some(d) = &view.differential {
+                let s = scores_of(d, &f.rgb)?;
+                scores.differential.push(s);
+                figures.psnr_differential = s.0;
             }
             if relight_only {
-                let (_, plain) = edit_images(render, &ones, rm);
+                let (base, _) = &self.renders.unedited[&key];
+                let (_, plain) = edit_images(base, &vec![Vec3::ONE; gains.len()], rm);
                 scores.unedited.push(scores_of(&plain, &f.rgb)?);
                 if let Some(t) = self.tests.get(&key) {
                     if baseline.seen.insert(key) {
@@ -265,34 +432,18 @@ impl RelightEval<'_, '_> {
                     }
                 }
             }
+            on_frame(RelitFrame {
+                set: index,
+                frame: f,
+                traced: &view.traced,
+                differential: view.differential.as_ref(),
+                figures: &figures,
+            });
+            scores.per_frame.push(figures);
         }
         Ok(scores)
     }
-
-    /// The unedited render of `camera` (key `key`), on a fresh view index.
-    fn render_unedited(&mut self, key: &[u64], camera: &Camera) {
-        let r = self
-            .recovered
-            .render(&self.unedited_scene, camera, self.settings, self.view, self.on_row);
-        self.shared.insert(key.to_vec(), (r, self.view));
-        self.view += 1;
-    }
-
-    /// The render of `edited` from `camera`: on the unedited render's paths when there is one
-    /// (the differential's edited and unedited images then share their noise), else on a fresh
-    /// view index.
-    fn render_edited(&mut self, edited: &EditedScene, key: &[u64], camera: &Camera) -> ViewRender {
-        let v = self.shared.get(key).map_or_else(
-            || {
-                self.view += 1;
-                self.view - 1
-            },
-            |(_, v)| *v,
-        );
-        self.recovered.render(edited, camera, self.settings, v, self.on_row)
-    }
 }
-
 #[cfg(test)]
 mod tests {
     use super::*;

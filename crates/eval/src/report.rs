@@ -243,6 +243,20 @@ pub struct RelightMetrics {
     /// radiance field + the path-traced change), over all their frames.
     pub psnr_differential: Option<f64>,
     pub ssim_differential: Option<f64>,
+    /// How the sets were rendered (None when nothing was): a report rendering with the same
+    /// settings shows the same images and figures.
+    #[serde(default)]
+    pub settings: Option<RelightSettings>,
+}
+
+/// The path tracer's settings of a relight evaluation, and the marching-cubes resolution of the
+/// recovered surface it traces.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RelightSettings {
+    pub spp: u32,
+    pub bounces: u32,
+    pub seed: u64,
+    pub mesh_resolution: usize,
 }
 
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -256,6 +270,17 @@ pub struct RelightSetMetrics {
     pub psnr_differential: Option<f64>,
     pub ssim_differential: Option<f64>,
     pub frames: usize,
+    /// Each scored frame's figures, in the set's order.
+    #[serde(default)]
+    pub per_frame: Vec<RelightFrameMetrics>,
+}
+
+/// One relit frame's figures: path traced, and by differential rendering.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RelightFrameMetrics {
+    pub name: String,
+    pub psnr: Option<f64>,
+    pub psnr_differential: Option<f64>,
 }
 
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

@@ -17,6 +17,8 @@ use charts::{line_chart, top_view, Series, TopView, TrainingLog};
 use html::{esc, format_sig, Assets};
 use i2sdf_data::{DataError, Dataset, Split};
 use i2sdf_edit::{EditSettings, RecoveredScene};
+use i2sdf_eval::relight::RelitScoring;
+use i2sdf_eval::RelightSettings;
 use i2sdf_model::{extract_mesh, OpenedRun};
 use i2sdf_render::{Geometry, MeshGeometry};
 use serde_json::Value;
@@ -318,14 +320,19 @@ fn relight_section(
             .push_str("<p class=\"muted\">Relighting and editing need stage 2.</p>");
         return Ok(());
     };
+    let settings = EditSettings {
+        spp: options.spp,
+        bounces: options.bounces,
+        ..Default::default()
+    };
     let ctx = views::EditContext {
-        recovered: r,
-        volume: &run.config.render,
-        settings: EditSettings {
-            spp: options.spp,
-            bounces: options.bounces,
-            seed: 0,
+        scoring: RelitScoring {
+            recovered: r,
+            volume: Some(&run.config.render),
+            settings: &settings,
+            frames_per_set: Some(1),
         },
+        unedited: r.edited(&Default::default(), &Default::default()),
     };
     let _ = write!(
         page.body,
@@ -334,9 +341,22 @@ fn relight_section(
          (Debevec 1998). Captions: PSNR against the ground truth.</p>",
         options.spp, options.bounces
     );
+    let ours = RelightSettings {
+        spp: options.spp,
+        bounces: options.bounces,
+        seed: settings.seed,
+        mesh_resolution: options.mesh_resolution,
+    };
+    if let Some(note) = input.metrics.and_then(|(_, m)| settings_note(m, &ours)) {
+        page.body.push_str(&note);
+    }
     if dataset.relight.is_empty() {
         page.body
             .push_str("<p class=\"muted\">The dataset has no relit sets.</p>");
+    } else if run.fields.as_ref().is_some_and(|f| f.emitters.is_empty()) {
+        // As eval: without emitters every relit image would be black (see the note above).
+        page.body
+            .push_str("<p class=\"muted\">The relit sets are not rendered: no emitters.</p>");
     } else {
         (page.progress)("relit sets");
         let grid = views::relight_grid(&mut page.assets, &ctx, cache, dataset)?;
@@ -526,6 +546,28 @@ fn emitters_section(assets: &mut Assets, input: &RunInputs, vertices: &[[f32; 3]
         None => s.push_str("<p class=\"muted\">No stage 2: emitters are clustered there.</p>"),
     }
     Ok(s)
+}
+
+/// A note when `metrics` (eval's) scored the relit sets with other settings than `ours`: the
+/// captions then differ from eval's figures by the Monte Carlo noise (and the surface) of
+/// each. With the same settings they are eval's own figures.
+fn settings_note(metrics: &Value, ours: &RelightSettings) -> Option<String> {
+    let theirs: RelightSettings = serde_json::from_value(metrics.get("relight")?.get("settings")?.clone()).ok()?;
+    (theirs != *ours).then(|| {
+        format!(
+            "<p class=\"muted\">Eval scored the relit sets at {} paths per pixel, {} bounces, seed {}, \
+             surface at {}³; this report renders at {}, {}, {}, {}³, so its captions differ from \
+             the metrics' per-frame figures by the noise of each.</p>",
+            theirs.spp,
+            theirs.bounces,
+            theirs.seed,
+            theirs.mesh_resolution,
+            ours.spp,
+            ours.bounces,
+            ours.seed,
+            ours.mesh_resolution
+        )
+    })
 }
 
 /// The warning at the top of the relighting section when stage 2 found no emitters

@@ -7,55 +7,23 @@
 use crate::html::{colour_bar, esc, format_sig, grid_row, Assets, Cell};
 use crate::images::{abs_error, depth_display, depth_error, depth_far, normal_display, normal_error, ErrorMap};
 use glam::{DVec3, Vec3};
-use i2sdf_data::edit_spec::EditOp;
 use i2sdf_data::imageio::tone_map_srgb;
 use i2sdf_data::{Bounds, Camera, DataError, Dataset, EditSpec, Frame, ImageF32};
-use i2sdf_edit::{differential_hdr, edit_images, hdr_ldr_images, light_gains, EditSettings, RecoveredScene};
+use i2sdf_edit::{edit_images, light_gains, EditedScene};
+use i2sdf_eval::relight::{edited_view, read_specs, score_relit_sets, set_name, RelitFrame, RelitScoring};
 use i2sdf_eval::{psnr, ImageRef};
 use i2sdf_model::images::{render_volume_view, rerender_ldr, rgb_map};
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::{rerender_view, FrozenScene, NeuralScene};
-use i2sdf_render::{Geometry, Ray, ViewRender};
+use i2sdf_render::{Geometry, Ray};
 use rayon::prelude::*;
 use std::fmt::Write as _;
 
-/// A camera's identity: the relit sets' first frames are often the test camera itself, and each
-/// render of it is made once.
-fn camera_key(c: &Camera) -> Vec<u64> {
-    c.key()
-}
-
 /// Renders shared between the sections: the radiance field's view of a camera (stage 1's map,
-/// the differential's captured image) and the unedited scene's path-traced render (with the
-/// view index its paths were drawn with).
-#[derive(Default)]
-pub struct RenderCache {
-    captured: Vec<(Vec<u64>, ImageF32)>,
-    bases: Vec<(Vec<u64>, ViewRender, u32)>,
-}
-
-impl RenderCache {
-    fn captured_index(&mut self, ctx: &EditContext, camera: &Camera) -> usize {
-        let key = camera_key(camera);
-        if let Some(i) = self.captured.iter().position(|(k, _)| *k == key) {
-            return i;
-        }
-        self.captured.push((key, ctx.recovered.captured(camera, ctx.volume)));
-        self.captured.len() - 1
-    }
-
-    fn base_index(&mut self, ctx: &EditContext, camera: &Camera, view: u32) -> usize {
-        let key = camera_key(camera);
-        if let Some(i) = self.bases.iter().position(|(k, _, _)| *k == key) {
-            return i;
-        }
-        let unedited = ctx.recovered.edited(&EditSpec::default(), &Default::default());
-        let r = ctx.recovered.render(&unedited, camera, &ctx.settings, view, &|| {});
-        self.bases.push((key, r, view));
-        self.bases.len() - 1
-    }
-}
+/// the differential's captured image) and the unedited scene's path-traced render, kept by eval's
+/// relight scoring so that the relit sets and the mirror edit render each camera once.
+pub use i2sdf_eval::relight::SharedRenders as RenderCache;
 
 /// PSNR of two same-sized 3-channel images (None when it cannot be computed).
 fn psnr_of(a: &ImageF32, b: &ImageF32) -> Option<f64> {
@@ -123,7 +91,7 @@ pub fn stage1_grid(
     cache: &mut RenderCache,
 ) -> Result<String, DataError> {
     let v = render_volume_view(scene, settings, &frame.camera);
-    cache.captured.push((camera_key(&frame.camera), v.rgb.clone()));
+    cache.insert_captured(&frame.camera, v.rgb.clone());
     let mut s = String::new();
     s.push_str(&triple_row(
         assets,
@@ -299,91 +267,71 @@ pub fn normal_shaded(geometry: &dyn Geometry, camera: &Camera) -> ImageF32 {
     out
 }
 
-/// Where a relit or edited view is rendered, and how.
-pub struct EditContext<'a> {
-    pub recovered: &'a RecoveredScene<'a>,
-    pub volume: &'a RenderSettings,
-    pub settings: EditSettings,
-}
-
-/// A view rendered with `spec`: (path traced, differential) in the dataset's tone map. The
-/// unedited render of the camera (the differential's base, and the render itself when the spec
-/// only relights) and the captured image come from `cache`; an edit that changes more than
-/// lights is rendered with the base's paths (its view index), so their difference has no noise
-/// of its own.
-fn edited_pair(
-    ctx: &EditContext,
-    cache: &mut RenderCache,
-    spec: &EditSpec,
-    assets: &i2sdf_data::EditAssets,
-    camera: &Camera,
-    view: u32,
-) -> (ImageF32, ImageF32) {
-    let r = ctx.recovered;
-    let b = cache.base_index(ctx, camera, view);
-    let c = cache.captured_index(ctx, camera);
-    let (base, base_view) = (&cache.bases[b].1, cache.bases[b].2);
-    let relight_only = spec.ops.iter().all(|op| matches!(op, EditOp::Relight(_)));
-    let unedited = r.edited(&EditSpec::default(), &Default::default());
-    let own = (!relight_only).then(|| r.edited(spec, assets));
-    let edited = own.as_ref().unwrap_or(&unedited);
-    let gains = light_gains(spec, edited);
-    let own_render = own
-        .as_ref()
-        .map(|ed| r.render(ed, camera, &ctx.settings, base_view, &|| {}));
-    let render = own_render.as_ref().unwrap_or(base);
-    let (_, traced) = edit_images(render, &gains, &r.radiometry);
-    let d = differential_hdr(&cache.captured[c].1, render, &gains, base, &r.radiometry);
-    let (_, diff) = hdr_ldr_images(&d, render.width, render.height, &r.radiometry);
-    (traced, diff)
+/// Where a relit or edited view is rendered, and how: eval's relight scoring (the recovered
+/// scene, the radiance field's settings for the differential, the path tracer's settings) and
+/// the unedited scene.
+pub struct EditContext<'r, 'a> {
+    pub scoring: RelitScoring<'r, 'a>,
+    pub unedited: EditedScene,
 }
 
 fn psnr_caption(what: &str, img: &ImageF32, gt: &ImageF32) -> String {
     psnr_of(img, gt).map_or_else(|| what.to_string(), |p| format!("{what}, {} dB", format_sig(p)))
 }
 
-/// The dataset's relit sets, the first frame of each: GT | path traced | differential.
+/// The dataset's relit sets, the first frame of each: GT | path traced | differential. The
+/// frames are rendered and scored by eval's relight scoring itself (`ctx.scoring` selects the
+/// first frame of each set), so with eval's settings the captions are the figures `eval` gives
+/// these frames (`relight.sets.NAME.per_frame` in its metrics).
 pub fn relight_grid(
     assets: &mut Assets,
     ctx: &EditContext,
     cache: &mut RenderCache,
     dataset: &Dataset,
 ) -> Result<String, DataError> {
-    let mut s = String::new();
-    for (i, set) in dataset.relight.iter().enumerate() {
-        let Some(f) = set.frames.first() else { continue };
-        let spec = EditSpec::read(&set.spec)?;
-        let spec_assets = spec.load_assets()?;
-        let (traced, diff) = edited_pair(ctx, cache, &spec, &spec_assets, &f.camera, 1000 + i as u32);
-        let name = set
-            .spec
-            .file_stem()
-            .map_or_else(|| format!("set{i}"), |n| n.to_string_lossy().into_owned());
+    let specs = read_specs(dataset)?;
+    let mut rows = String::new();
+    let mut saved: Result<(), DataError> = Ok(());
+    let mut on_frame = |f: RelitFrame| {
+        if saved.is_err() {
+            return;
+        }
+        let set = &dataset.relight[f.set];
+        let name = set_name(set, f.set);
         let safe: String = name
             .chars()
             .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
             .collect();
-        let cells = [
-            Cell::img(
-                "ground truth (relit)",
-                assets.png(&format!("relight_{i}_{safe}_gt"), &f.rgb)?,
-            ),
-            Cell::img(
-                psnr_caption("path traced", &traced, &f.rgb),
-                assets.png(&format!("relight_{i}_{safe}_traced"), &traced)?,
-            ),
-            Cell::img(
-                psnr_caption("differential", &diff, &f.rgb),
-                assets.png(&format!("relight_{i}_{safe}_diff"), &diff)?,
-            ),
-        ];
-        s.push_str(&grid_row(
-            &name.replace('_', " "),
-            &cells,
-            &format!("frame {} of {}", esc(&f.name), set.frames.len()),
-        ));
-    }
-    Ok(s)
+        let caption = |what: &str, p: Option<f64>| {
+            p.map_or_else(|| what.to_string(), |p| format!("{what}, {} dB", format_sig(p)))
+        };
+        let stem = format!("relight_{}_{safe}", f.set);
+        let cells = (|| -> Result<_, DataError> {
+            let gt = Cell::img("ground truth (relit)", assets.png(&format!("{stem}_gt"), &f.frame.rgb)?);
+            let traced = Cell::img(
+                caption("path traced", f.figures.psnr),
+                assets.png(&format!("{stem}_traced"), f.traced)?,
+            );
+            let diff = match f.differential {
+                Some(d) => Cell::img(
+                    caption("differential", f.figures.psnr_differential),
+                    assets.png(&format!("{stem}_diff"), d)?,
+                ),
+                None => Cell::missing("differential", "no radiance field settings"),
+            };
+            Ok([gt, traced, diff])
+        })();
+        match cells {
+            Ok(cells) => {
+                let note = format!("frame {} of {}", esc(&f.frame.name), set.frames.len());
+                rows.push_str(&grid_row(&name.replace('_', " "), &cells, &note));
+            }
+            Err(e) => saved = Err(e),
+        }
+    };
+    score_relit_sets(&ctx.scoring, dataset, &specs, cache, &|| {}, &mut on_frame)?;
+    saved?;
+    Ok(rows)
 }
 
 /// The wall the camera faces (the bounds' side along its dominant horizontal viewing axis) made
@@ -418,6 +366,9 @@ pub fn mirror_spec(bounds: &Bounds, camera: &Camera) -> (EditSpec, String, Strin
     (spec, name, text)
 }
 
+/// The view index of the mirror edit's camera when no relit set renders it.
+const MIRROR_VIEW: u32 = 2000;
+
 /// A mirror edit of the wall the test camera faces: unedited | path traced | differential (no
 /// ground truth exists for this edit).
 pub fn mirror_grid(
@@ -428,17 +379,42 @@ pub fn mirror_grid(
     frame: &Frame,
 ) -> Result<String, DataError> {
     let (spec, wall, text) = mirror_spec(bounds, &frame.camera);
-    let (traced, diff) = edited_pair(ctx, cache, &spec, &Default::default(), &frame.camera, 2000);
-    let b = cache.base_index(ctx, &frame.camera, 2000);
-    let base = &cache.bases[b].1;
-    let (_, plain) = edit_images(base, &vec![Vec3::ONE; base.emitters], &ctx.recovered.radiometry);
+    let r = ctx.scoring.recovered;
+    let mirror = r.edited(&spec, &Default::default());
+    let gains = light_gains(&spec, &mirror);
+    // A view index of its own when the test camera is not one of the relit sets' (whose
+    // indices count from 0).
+    let view = edited_view(
+        &ctx.scoring,
+        &ctx.unedited,
+        Some(&mirror),
+        &gains,
+        cache,
+        &frame.camera,
+        MIRROR_VIEW,
+        &|| {},
+    );
+    let (traced, diff) = (view.traced, view.differential);
+    let (base, _) = cache.unedited(
+        r,
+        &ctx.unedited,
+        &frame.camera,
+        ctx.scoring.settings,
+        MIRROR_VIEW,
+        &|| {},
+    );
+    let (_, plain) = edit_images(base, &vec![Vec3::ONE; base.emitters], &r.radiometry);
+    let diff_cell = match &diff {
+        Some(d) => Cell::img("mirror, differential", assets.png("mirror_diff", d)?),
+        None => Cell::missing("mirror, differential", "no radiance field settings"),
+    };
     let cells = [
         Cell::img(
             psnr_caption("unedited, path traced (vs test image)", &plain, &frame.rgb),
             assets.png("mirror_unedited", &plain)?,
         ),
         Cell::img("mirror, path traced", assets.png("mirror_traced", &traced)?),
-        Cell::img("mirror, differential", assets.png("mirror_diff", &diff)?),
+        diff_cell,
     ];
     let mut s = grid_row(
         "mirror edit",

@@ -252,9 +252,10 @@ fn outputs(args: &Args, plan: &mut StagePlan, scene: &Path, run_dir: &Path) -> a
         data: Some(scene.to_path_buf()),
         metrics: Some(args.out.join("metrics.json")),
         view: 0,
-        spp: if args.quick { 8 } else { 32 },
+        // Eval's relight settings, so the report's relit frames are the ones eval scored.
+        spp: if args.quick { 16 } else { 64 },
         bounces: if args.quick { 4 } else { 8 },
-        mesh_resolution: resolution.min(128),
+        mesh_resolution: edit_resolution,
     })?;
     Ok(())
 }

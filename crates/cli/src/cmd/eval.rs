@@ -37,7 +37,8 @@ pub struct Args {
     /// Replace --out (and --mesh-out) if they exist.
     #[arg(long)]
     pub force: bool,
-    /// Marching-cubes resolution of the evaluated mesh.
+    /// Marching-cubes resolution of the evaluated mesh; the relit sets are traced in the
+    /// recovered surface at this resolution, at most 256.
     #[arg(long, default_value_t = i2sdf_eval::neural::MESH_RESOLUTION)]
     pub mesh_resolution: usize,
     /// F-score threshold in scene (world) units.
@@ -118,8 +119,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 bounces: args.bounces,
                 seed: 0,
             },
+            // The recovered surface the sets are traced in: the edit renderer's, or coarser when
+            // the mesh is (a report at the same settings then shows the same renders).
+            mesh_resolution: args.mesh_resolution.min(i2sdf_edit::MESH_RESOLUTION),
             differential: true,
-            ..Default::default()
         };
         if fields.emitters.is_empty() {
             // Nothing to relight: no black images are scored, the figures are null (the sets
