@@ -216,6 +216,25 @@ impl DiffuseSums {
         d
     }
 
+    /// The mean of `sums` (zeros for none), each with `emitters` emitter weights. The sums
+    /// are added in the order given (pooling is bit-reproducible).
+    pub(crate) fn mean<'s>(sums: impl IntoIterator<Item = &'s DiffuseSums>, emitters: usize) -> Self {
+        let mut acc = DiffuseSums {
+            field: Vec3::ZERO,
+            emit: vec![0.0; emitters],
+        };
+        let mut n = 0u32;
+        for s in sums {
+            acc.field += s.field;
+            acc.emit.iter_mut().zip(&s.emit).for_each(|(a, b)| *a += b);
+            n += 1;
+        }
+        let inv = 1.0 / n.max(1) as f32;
+        acc.field *= inv;
+        acc.emit.iter_mut().for_each(|a| *a *= inv);
+        acc
+    }
+
     pub(crate) fn irradiance(&self, emission: &[Vec3]) -> Vec3 {
         self.field + self.emit.iter().zip(emission).map(|(w, l)| *l * *w).sum::<Vec3>()
     }
@@ -285,24 +304,9 @@ pub fn pool_diffuse(points: &[ShadingPoint], sums: &[DiffuseSums], radius: f32) 
         .par_iter()
         .map_init(Vec::new, |near, &i| {
             let p = &points[i as usize];
-            let mut acc = DiffuseSums {
-                field: Vec3::ZERO,
-                emit: vec![0.0; sums[i as usize].emit.len()],
-            };
-            let mut n = 0u32;
             tree.within(positions[i as usize], radius, near);
-            for &j in near.iter() {
-                if points[j].normal.dot(p.normal) > 0.9 {
-                    let s = &sums[j];
-                    acc.field += s.field;
-                    acc.emit.iter_mut().zip(&s.emit).for_each(|(a, b)| *a += b);
-                    n += 1;
-                }
-            }
-            let inv = 1.0 / n.max(1) as f32;
-            acc.field *= inv;
-            acc.emit.iter_mut().for_each(|a| *a *= inv);
-            acc
+            let similar = near.iter().filter(|&&j| points[j].normal.dot(p.normal) > 0.9);
+            DiffuseSums::mean(similar.map(|&j| &sums[j]), sums[i as usize].emit.len())
         })
         .collect();
     let mut out = vec![DiffuseSums::default(); points.len()];
@@ -467,23 +471,15 @@ mod tests {
             let r2 = radius * radius;
             let mut at_radius = 0;
             for (i, p) in points.iter().enumerate() {
-                let mut acc = DiffuseSums {
-                    field: Vec3::ZERO,
-                    emit: vec![0.0; 2],
-                };
-                let mut n = 0u32;
+                let mut similar = Vec::new();
                 for (q, s) in points.iter().zip(&sums) {
                     let d2 = (q.position - p.position).length_squared();
                     at_radius += usize::from(d2 == r2);
                     if d2 <= r2 && q.normal.dot(p.normal) > 0.9 {
-                        acc.field += s.field;
-                        acc.emit.iter_mut().zip(&s.emit).for_each(|(a, b)| *a += b);
-                        n += 1;
+                        similar.push(s);
                     }
                 }
-                let inv = 1.0 / n.max(1) as f32;
-                acc.field *= inv;
-                acc.emit.iter_mut().for_each(|a| *a *= inv);
+                let acc = DiffuseSums::mean(similar, 2);
                 assert_eq!(pooled[i], acc, "pixel {i}, radius {radius}");
             }
             assert!(radius == 0.1 || at_radius > 500, "{at_radius} pairs at radius {radius}");
