@@ -30,4 +30,5 @@ pub use mesh_metrics::{
 pub use progress::{EvalProgress, NoProgress};
 pub use report::{
     EmitterMetrics, EvalReport, GeometryMetrics, MaterialMetrics, MeshReport, RelightSettings, RerenderMetrics,
+    ViewSplitMetrics,
 };

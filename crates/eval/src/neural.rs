@@ -8,7 +8,9 @@ use crate::lpips::{Lpips, MIN_SIDE};
 use crate::mesh::TriangleMesh;
 use crate::mesh_metrics::{mesh_metrics_with_progress, CullingView, MeshMetricsOptions, ObjectGroup};
 use crate::progress::{self, EvalProgress, NoProgress};
-use crate::report::{lpips_too_small_note, no_lpips_note, EvalReport, MeshReport, ThinObjectsReport};
+use crate::report::{
+    lpips_too_small_note, no_lpips_note, EvalReport, MeshReport, NovelViewMetrics, ThinObjectsReport, ViewSplitMetrics,
+};
 use i2sdf_data::dataset::ObjectInfo;
 use i2sdf_data::ply::read_ply;
 use i2sdf_data::{Bounds, DataError, Dataset, Frame, Split};
@@ -46,6 +48,40 @@ pub struct EvalOptions {
     pub render: RenderSettings,
     /// The LPIPS metric for `novel_view.lpips` (`None`: null, with [`no_lpips_note`]).
     pub lpips: Option<std::sync::Arc<Lpips>>,
+    /// Whose image metrics: the test views', the training views' or both.
+    pub splits: ViewSplits,
+}
+
+/// Which views' image metrics an evaluation scores (`eval --split`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ViewSplits {
+    /// The test views: `novel_view`, and the depth and normal errors.
+    #[default]
+    Test,
+    /// The training views: `train_view` (how well the field fits what it was trained on).
+    Train,
+    /// Both.
+    Both,
+}
+
+impl ViewSplits {
+    /// `test`, `train` or `both`.
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "test" => Some(ViewSplits::Test),
+            "train" => Some(ViewSplits::Train),
+            "both" => Some(ViewSplits::Both),
+            _ => None,
+        }
+    }
+
+    pub fn splits(self) -> &'static [Split] {
+        match self {
+            ViewSplits::Test => &[Split::Test],
+            ViewSplits::Train => &[Split::Train],
+            ViewSplits::Both => &[Split::Test, Split::Train],
+        }
+    }
 }
 
 impl Default for EvalOptions {
@@ -55,6 +91,7 @@ impl Default for EvalOptions {
             mesh: MeshMetricsOptions::default(),
             render: RenderSettings::default(),
             lpips: None,
+            splits: ViewSplits::Test,
         }
     }
 }
@@ -71,25 +108,62 @@ pub fn view_metrics(
     dataset: &Dataset,
     settings: &RenderSettings,
 ) -> Result<EvalReport, DataError> {
-    view_metrics_with_progress(scene, dataset, settings, None, &NoProgress)
+    view_metrics_with_progress(scene, dataset, settings, None, &[Split::Test], &NoProgress)
 }
 
-/// [`view_metrics`], with LPIPS when `lpips` is given, reporting the step "test views" to
-/// `progress`, counted in views. LPIPS stays null, with [`lpips_too_small_note`], when a test
+/// [`view_metrics`] of the views of `splits`, with LPIPS when `lpips` is given, reporting the
+/// step "test views" (or "training views") to `progress`, counted in views. The test views fill
+/// `novel_view` and `geometry`'s depth and normal errors, the training views `train_view` (the
+/// paper's figures in brackets, Table 1). LPIPS stays null, with [`lpips_too_small_note`], when a
 /// view is smaller than AlexNet takes ([`MIN_SIDE`]).
 pub fn view_metrics_with_progress(
     scene: &NeuralScene,
     dataset: &Dataset,
     settings: &RenderSettings,
     lpips: Option<&Lpips>,
+    splits: &[Split],
     progress: &dyn EvalProgress,
 ) -> Result<EvalReport, DataError> {
     let mut report = EvalReport::default();
+    for &split in splits {
+        let (views, too_small) = split_metrics(scene, dataset, split, settings, lpips, progress)?;
+        if let Some((w, h)) = too_small {
+            let note = lpips_too_small_note(w, h);
+            if !report.notes.contains(&note) {
+                report.notes.push(note);
+            }
+        }
+        match split {
+            Split::Test => {
+                report.novel_view = views.images;
+                report.geometry.depth_l1 = views.depth_l1;
+                report.geometry.normal_angular_l1 = views.normal_angular_l1;
+            }
+            Split::Train => report.train_view = Some(views),
+        }
+    }
+    Ok(report)
+}
+
+/// The radiance field's images, depths and normals of `split`'s views against their ground truth,
+/// and the size of a view too small for LPIPS (its figure is then null).
+fn split_metrics(
+    scene: &NeuralScene,
+    dataset: &Dataset,
+    split: Split,
+    settings: &RenderSettings,
+    lpips: Option<&Lpips>,
+    progress: &dyn EvalProgress,
+) -> Result<(ViewSplitMetrics, Option<(usize, usize)>), DataError> {
     let (mut p, mut s, mut d, mut n) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let (mut l, mut too_small) = (Vec::new(), None);
-    let test: Vec<&Frame> = dataset.split(Split::Test).collect();
-    progress.step(progress::TEST_VIEWS, test.len() as u64);
-    for f in test {
+    let frames: Vec<&Frame> = dataset.split(split).collect();
+    let step = match split {
+        Split::Test => progress::TEST_VIEWS,
+        Split::Train => progress::TRAIN_VIEWS,
+    };
+    progress.step(step, frames.len() as u64);
+    for f in &frames {
         let v = render_volume_view(scene, settings, &f.camera);
         let (w, h) = (f.camera.width, f.camera.height);
         let pred = ImageRef::new(&v.rgb.data, w, h, 3)?;
@@ -119,18 +193,17 @@ pub fn view_metrics_with_progress(
         }
         progress.inc(1);
     }
-    report.novel_view.psnr = mean(&p);
-    report.novel_view.ssim = mean(&s);
-    report.novel_view.lpips = match too_small {
-        Some((w, h)) => {
-            report.notes.push(lpips_too_small_note(w, h));
-            None
-        }
-        None => mean(&l),
+    let metrics = ViewSplitMetrics {
+        images: NovelViewMetrics {
+            psnr: mean(&p),
+            ssim: mean(&s),
+            lpips: if too_small.is_some() { None } else { mean(&l) },
+        },
+        depth_l1: mean(&d),
+        normal_angular_l1: mean(&n),
+        views: frames.len(),
     };
-    report.geometry.depth_l1 = mean(&d);
-    report.geometry.normal_angular_l1 = mean(&n);
-    Ok(report)
+    Ok((metrics, too_small))
 }
 
 /// Objects with any of these tags make up `geometry.thin_objects`.
@@ -202,7 +275,14 @@ pub fn evaluate_with_progress(
     options: &EvalOptions,
     progress: &dyn EvalProgress,
 ) -> Result<(EvalReport, TriangleMesh), DataError> {
-    let mut report = view_metrics_with_progress(scene, dataset, &options.render, options.lpips.as_deref(), progress)?;
+    let mut report = view_metrics_with_progress(
+        scene,
+        dataset,
+        &options.render,
+        options.lpips.as_deref(),
+        options.splits.splits(),
+        progress,
+    )?;
     if options.lpips.is_none() {
         report.notes.push(no_lpips_note());
     }
@@ -355,7 +435,9 @@ mod tests {
             i2sdf_data::fixture::write_native(dir.path(), &options);
             let dataset = i2sdf_data::load(dir.path()).unwrap();
             let scene = NeuralScene::new(&config, dataset.normalization, 1);
-            let report = view_metrics_with_progress(&scene, &dataset, &settings, Some(&lpips), &NoProgress).unwrap();
+            let report =
+                view_metrics_with_progress(&scene, &dataset, &settings, Some(&lpips), &[Split::Test], &NoProgress)
+                    .unwrap();
             if width == 40 {
                 let v = report.novel_view.lpips.expect("LPIPS with weights");
                 assert!(v.is_finite() && v > 0.0, "{v}");
@@ -431,5 +513,53 @@ mod tests {
         }
         assert_eq!(steps[0].1, 2, "two test views");
         assert_eq!(steps[2].1, 80_000, "points on both meshes");
+    }
+
+    /// `--split`: the test views fill `novel_view` and the geometry's depth and normal errors,
+    /// the training views `train_view` (each counted), both fill both with the same figures as
+    /// alone; and the training views, which the figures come from, are rendered.
+    #[test]
+    fn each_split_fills_its_own_figures() {
+        let dir = tempfile::tempdir().unwrap();
+        let fixture = i2sdf_data::fixture::FixtureOptions::default();
+        i2sdf_data::fixture::write_native(dir.path(), &fixture);
+        let dataset = i2sdf_data::load(dir.path()).unwrap();
+        let config = i2sdf_model::ModelConfig {
+            hash_levels: 2,
+            hash_log2_table: 10,
+            hash_finest_resolution: 16,
+            ..Default::default()
+        };
+        let scene = NeuralScene::new(&config, dataset.normalization, 1);
+        let settings = RenderSettings::default();
+        let run = |splits: ViewSplits| {
+            let progress = Recorder::default();
+            let r = view_metrics_with_progress(&scene, &dataset, &settings, None, splits.splits(), &progress).unwrap();
+            (r, progress.0.into_inner().unwrap())
+        };
+        let (test, steps) = run(ViewSplits::Test);
+        assert!(test.novel_view.psnr.is_some() && test.geometry.depth_l1.is_some() && test.train_view.is_none());
+        assert_eq!(
+            steps,
+            [(
+                "test views".to_string(),
+                fixture.test_views as u64,
+                fixture.test_views as u64
+            )]
+        );
+        let (train, steps) = run(ViewSplits::Train);
+        let t = train.train_view.clone().expect("train_view");
+        assert!(train.novel_view.psnr.is_none() && train.geometry.depth_l1.is_none());
+        assert_eq!(t.views, fixture.train_views);
+        assert!(
+            t.images.psnr.is_some() && t.images.ssim.is_some() && t.depth_l1.is_some() && t.normal_angular_l1.is_some()
+        );
+        assert_eq!(steps[0].0, "training views");
+        assert_eq!(steps[0].1, fixture.train_views as u64);
+        let (both, _) = run(ViewSplits::Both);
+        assert_eq!(both.novel_view, test.novel_view);
+        assert_eq!(both.train_view, train.train_view);
+        assert_ne!(t.images.psnr, test.novel_view.psnr, "other views, other figures");
+        assert_eq!(ViewSplits::parse("val"), None);
     }
 }

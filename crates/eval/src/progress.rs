@@ -7,7 +7,7 @@
 /// hence `Sync`. A step ends when the next one starts or the evaluation returns.
 ///
 /// The steps of [`crate::neural::evaluate_with_progress`], in order, with the unit of their count:
-/// `"test views"` (views rendered), `"mesh extraction"` (no count), and with a ground-truth mesh
+/// `"test views"` and/or `"training views"` (views rendered), `"mesh extraction"` (no count), and with a ground-truth mesh
 /// `"sampling surfaces"` (points sampled on both meshes), `"visibility culling"` (points tested
 /// against the training views; skipped without views) and `"nearest neighbours"` (points whose
 /// nearest neighbour on the other mesh is found).
@@ -29,6 +29,7 @@ impl EvalProgress for NoProgress {
 
 /// Step names, as [`EvalProgress::step`] receives them.
 pub const TEST_VIEWS: &str = "test views";
+pub const TRAIN_VIEWS: &str = "training views";
 pub const MESH_EXTRACTION: &str = "mesh extraction";
 pub const SAMPLING: &str = "sampling surfaces";
 pub const CULLING: &str = "visibility culling";

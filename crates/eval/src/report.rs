@@ -14,6 +14,10 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct EvalReport {
     pub novel_view: NovelViewMetrics,
+    /// The same figures on the training views (`eval --split train|both`; null otherwise): the
+    /// paper's bracketed figures (Table 1), how closely the field fits what it was trained on.
+    #[serde(default)]
+    pub train_view: Option<ViewSplitMetrics>,
     pub geometry: GeometryMetrics,
     pub rerender: RerenderMetrics,
     pub material: MaterialMetrics,
@@ -67,6 +71,16 @@ pub struct NovelViewMetrics {
     pub psnr: Option<f64>,
     pub ssim: Option<f64>,
     pub lpips: Option<f64>,
+}
+
+/// One split's image metrics, with its depth and normal errors and its number of views.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ViewSplitMetrics {
+    #[serde(flatten)]
+    pub images: NovelViewMetrics,
+    pub depth_l1: Option<f64>,
+    pub normal_angular_l1: Option<f64>,
+    pub views: usize,
 }
 
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

@@ -53,7 +53,8 @@ const fn row(label: &'static str, path: &'static str, paper: Option<(f64, &'stat
     }
 }
 
-/// The rows of the table. The paper's figures: Table "novel" (synthetic, test views), Table
+/// The rows of the table. The paper's figures: Table "novel" (synthetic, test views; training
+/// views in brackets, which `eval --split train|both` measures), Table
 /// "mesh" (synthetic), the supplementary's per-scene normal / depth table (its mean). The paper
 /// reports no material, re-render or relighting figures.
 const ROWS: &[Row] = &[
@@ -73,6 +74,24 @@ const ROWS: &[Row] = &[
         "novel view LPIPS",
         "novel_view.lpips",
         Some((0.15, "Tab. novel, synthetic")),
+        "↓",
+    ),
+    row(
+        "training views PSNR (dB)",
+        "train_view.psnr",
+        Some((29.70, "Tab. novel, synthetic, in brackets")),
+        "↑",
+    ),
+    row(
+        "training views SSIM",
+        "train_view.ssim",
+        Some((0.87, "Tab. novel, synthetic, in brackets")),
+        "↑",
+    ),
+    row(
+        "training views LPIPS",
+        "train_view.lpips",
+        Some((0.19, "Tab. novel, synthetic, in brackets")),
         "↓",
     ),
     row(
@@ -179,7 +198,12 @@ pub fn metrics_section(metrics: Option<(&Path, &Value)>, run: &Path, data: &Path
     s.push_str(
         "<table><tr><th>metric</th><th></th><th>ours</th><th>paper (its dataset)</th><th>paper's source</th></tr>",
     );
+    let train_evaluated = m.get("train_view").is_some_and(|t| !t.is_null());
     for r in ROWS {
+        if r.path.starts_with("train_view.") && !train_evaluated {
+            // Not asked for (`eval --split test`): no row of dashes.
+            continue;
+        }
         let ours = at(m, r.path);
         let _ = write!(
             s,

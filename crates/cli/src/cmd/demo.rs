@@ -216,6 +216,9 @@ fn outputs(args: &Args, plan: &mut StagePlan, scene: &Path, run_dir: &Path) -> a
         bounces: if args.quick { 4 } else { 8 },
         // No LPIPS weights ship: the demo's metrics note that novel_view.lpips is null.
         lpips_weights: None,
+        // The test views only: the training views' figures (`--split both`) take another
+        // render of every training view.
+        split: "test".into(),
     })?;
     plan.stage(
         7,

@@ -13,7 +13,7 @@ use clap::Args as ClapArgs;
 use i2sdf_data::{imageio, Split};
 use i2sdf_edit::EditSettings;
 use i2sdf_eval::intrinsic::{intrinsic_metrics_with_progress, IntrinsicOptions};
-use i2sdf_eval::neural::{evaluate_with_progress, EvalOptions};
+use i2sdf_eval::neural::{evaluate_with_progress, EvalOptions, ViewSplits};
 use i2sdf_eval::progress::EvalProgress;
 use i2sdf_eval::relight::{relight_frames, relight_metrics, RelightOptions};
 use std::path::PathBuf;
@@ -54,9 +54,16 @@ pub struct Args {
     /// novel_view.lpips; without them it is null.
     #[arg(long, value_name = "FILE.safetensors")]
     pub lpips_weights: Option<PathBuf>,
+    /// Whose image metrics: test (novel_view), train (train_view: the paper's bracketed
+    /// figures) or both.
+    #[arg(long, default_value = "test", value_name = "test|train|both")]
+    pub split: String,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    let splits = ViewSplits::parse(&args.split).ok_or_else(|| {
+        i2sdf_data::DataError::invalid(format!("--split {}: expected test, train or both", args.split))
+    })?;
     if !(args.threshold.is_finite() && args.threshold > 0.0) {
         return Err(i2sdf_data::DataError::invalid(format!(
             "--threshold {}: must be a positive distance in world units",
@@ -94,6 +101,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         mesh_resolution: args.mesh_resolution,
         render: run.config.render.clone(),
         lpips,
+        splits,
         ..Default::default()
     };
     options.mesh.threshold = args.threshold;
@@ -173,7 +181,7 @@ impl EvalSteps {
 impl EvalProgress for EvalSteps {
     fn step(&self, name: &str, total: u64) {
         self.end();
-        let unit = if name == i2sdf_eval::progress::TEST_VIEWS {
+        let unit = if [i2sdf_eval::progress::TEST_VIEWS, i2sdf_eval::progress::TRAIN_VIEWS].contains(&name) {
             "views"
         } else {
             "points"
