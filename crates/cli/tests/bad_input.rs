@@ -608,6 +608,7 @@ fn nothing_a_user_has_is_overwritten() {
         ("train over the machine's memory", vec!["train", "--data", d, "--out", p("big"), "--set", "train.rays=1048576"], 2, vec!["train.rays", "1048576", "GiB", "--ignore-memory"]),
         ("train --stage material over the memory", vec!["train", "--stage", "material", "--out", r1, "--set", "stage2.pixels=1048576", "--set", "stage2.samples=256", "--set", "material.hidden_dim=256", "--set", "material.hidden_layers=8"], 2, vec!["stage 2 needs", "stage2.pixels × stage2.samples", "--ignore-memory"]),
         ("demo --out a user's folder", vec!["demo", "--out", u, "--quick"], 2, vec!["not a demo's"]),
+        ("demo --lpips-weights not safetensors", vec!["demo", "--out", p("demo"), "--quick", "--lpips-weights", e], 2, vec![e]),
         ("bench --rays 0", vec!["bench", "--rays", "0"], 2, vec!["--rays 0"]),
         ("bench --iterations 0", vec!["bench", "--iterations", "0"], 2, vec!["--iterations 0"]),
         ("check --data a file", vec!["check", "--data", leak(&data.join("transforms.json"))], 2, vec!["is a file, not a dataset folder"]),

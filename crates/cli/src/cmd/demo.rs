@@ -21,10 +21,18 @@ pub struct Args {
     /// (the demo says what to expect on this machine before it starts).
     #[arg(long)]
     pub quick: bool,
+    /// LPIPS (AlexNet, v0.1) weights as safetensors (scripts/lpips_weights.py), for the metrics'
+    /// and the report's LPIPS; without them it is null, with a note.
+    #[arg(long, value_name = "FILE.safetensors")]
+    pub lpips_weights: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     check_demo_folder(&args.out)?;
+    if let Some(path) = &args.lpips_weights {
+        // Checked before the minutes of training, not at the evaluation.
+        i2sdf_eval::Lpips::load(path)?;
+    }
     // This machine's pace against the plan's, from a second of the bench's representative
     // iteration; the steps done then correct it.
     let bench_ms = i2sdf_nn::bench::representative_iteration_ms(4);
@@ -214,8 +222,8 @@ fn outputs(args: &Args, plan: &mut StagePlan, scene: &Path, run_dir: &Path) -> a
         threshold: 0.05,
         spp: if args.quick { 16 } else { 64 },
         bounces: if args.quick { 4 } else { 8 },
-        // No LPIPS weights ship: the demo's metrics note that novel_view.lpips is null.
-        lpips_weights: None,
+        // No LPIPS weights ship: without --lpips-weights the metrics note that LPIPS is null.
+        lpips_weights: args.lpips_weights.clone(),
         // The test views only: the training views' figures (`--split both`) take another
         // render of every training view.
         split: "test".into(),
