@@ -397,6 +397,17 @@ mod tests {
         assert!(thin.is_none() && report.fscore == Some(1.0));
     }
 
+    /// An untrained scene of two small hash levels over `dataset`'s normalization.
+    fn tiny_scene(dataset: &Dataset) -> NeuralScene {
+        let config = i2sdf_model::ModelConfig {
+            hash_levels: 2,
+            hash_log2_table: 10,
+            hash_finest_resolution: 16,
+            ..Default::default()
+        };
+        NeuralScene::new(&config, dataset.normalization, 1)
+    }
+
     /// Stand-in LPIPS weights (not the metric): smooth values of both signs, heads ≥ 0.
     fn stand_in_lpips() -> std::sync::Arc<Lpips> {
         let wave = |n: usize, f: f32, a: f32| (0..n).map(|i| a * (f * i as f32).sin()).collect::<Vec<f32>>();
@@ -415,12 +426,6 @@ mod tests {
     /// smaller views, or without weights, it is null and a note says why.
     #[test]
     fn lpips_is_filled_with_weights_or_noted_why_not() {
-        let config = i2sdf_model::ModelConfig {
-            hash_levels: 2,
-            hash_log2_table: 10,
-            hash_finest_resolution: 16,
-            ..Default::default()
-        };
         let settings = RenderSettings::default();
         let lpips = stand_in_lpips();
         for (width, height) in [(40, 32), (24, 18)] {
@@ -434,7 +439,7 @@ mod tests {
             };
             i2sdf_data::fixture::write_native(dir.path(), &options);
             let dataset = i2sdf_data::load(dir.path()).unwrap();
-            let scene = NeuralScene::new(&config, dataset.normalization, 1);
+            let scene = tiny_scene(&dataset);
             let report =
                 view_metrics_with_progress(&scene, &dataset, &settings, Some(&lpips), &[Split::Test], &NoProgress)
                     .unwrap();
@@ -477,13 +482,7 @@ mod tests {
         let b = dataset.bounds;
         crate::write_ply(&gt_path, &box_mesh(b.min.map(|x| x as f32), b.max.map(|x| x as f32))).unwrap();
         dataset.mesh_path = Some(gt_path);
-        let config = i2sdf_model::ModelConfig {
-            hash_levels: 2,
-            hash_log2_table: 10,
-            hash_finest_resolution: 16,
-            ..Default::default()
-        };
-        let scene = NeuralScene::new(&config, dataset.normalization, 1);
+        let scene = tiny_scene(&dataset);
         let options = EvalOptions {
             mesh_resolution: 16,
             mesh: MeshMetricsOptions {
@@ -524,13 +523,7 @@ mod tests {
         let fixture = i2sdf_data::fixture::FixtureOptions::default();
         i2sdf_data::fixture::write_native(dir.path(), &fixture);
         let dataset = i2sdf_data::load(dir.path()).unwrap();
-        let config = i2sdf_model::ModelConfig {
-            hash_levels: 2,
-            hash_log2_table: 10,
-            hash_finest_resolution: 16,
-            ..Default::default()
-        };
-        let scene = NeuralScene::new(&config, dataset.normalization, 1);
+        let scene = tiny_scene(&dataset);
         let settings = RenderSettings::default();
         let run = |splits: ViewSplits| {
             let progress = Recorder::default();
