@@ -815,3 +815,86 @@ fn a_contradicted_exposure_is_refused_unless_trusted() {
     let o = train_material(&data, &run, &[&TINY_STAGE2[..], &["--trust-exposure"]].concat());
     assert_eq!(o.code, 0, "{}", o.stderr);
 }
+
+/// The paper release's files beyond the cameras and images (issue 27): material masks, the val
+/// views' annotations, `radiometry.json`, a GT point cloud, a scene without `val/`. Each wrong one
+/// exits 2 naming the file (and field), and nothing is written into the dataset or beside it.
+#[test]
+fn paper_release_bad_input_table() {
+    use i2sdf_data::fixture::{FixtureOptions, PaperOptions};
+    use i2sdf_data::imageio::{self, ImageF32};
+    let t = trained();
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    let full = PaperOptions {
+        val_maps: true,
+        material_masks: true,
+        materials: true,
+        point_cloud: true,
+        ..Default::default()
+    };
+    let small = |channels| ImageF32::new(10, 7, channels);
+    type Break = Box<dyn Fn(&Path)>;
+    #[rustfmt::skip]
+    let rows: Vec<(&str, Break, Vec<&str>)> = vec![
+        ("material mask of the wrong size",
+         Box::new(move |d| imageio::write_png(&d.join("mask/0001.png"), &small(1)).unwrap()),
+         vec!["mask/0001.png", "10×7", "24×18"]),
+        ("material masks not one per image",
+         Box::new(|d| std::fs::remove_file(d.join("mask/0003.png")).unwrap()),
+         vec!["mask", "3 files but image/ has 4"]),
+        ("val depth of the wrong size",
+         Box::new(move |d| imageio::write_exr(&d.join("val/depth/0001.exr"), &small(3)).unwrap()),
+         vec!["val/depth/0001.exr", "10×7"]),
+        ("val Kd map of the wrong size",
+         Box::new(move |d| imageio::write_exr(&d.join("val/material/0000_kd.exr"), &small(3)).unwrap()),
+         vec!["val/material/0000_kd.exr", "10×7"]),
+        ("val normals not one per val image",
+         Box::new(|d| std::fs::remove_file(d.join("val/normal/0001.exr")).unwrap()),
+         vec!["val/normal", "1 files but val/ has 2"]),
+        ("radiometry.json not JSON",
+         Box::new(|d| std::fs::write(d.join("radiometry.json"), "ldr: srgb").unwrap()),
+         vec!["radiometry.json", "invalid JSON"]),
+        ("radiometry.json without ldr",
+         Box::new(|d| std::fs::write(d.join("radiometry.json"), r#"{"exposure": 2}"#).unwrap()),
+         vec!["radiometry.json", "ldr", "missing"]),
+        ("radiometry.json with a bad transfer",
+         Box::new(|d| std::fs::write(d.join("radiometry.json"), r#"{"ldr": {"transfer": "log"}}"#).unwrap()),
+         vec!["radiometry.json", "ldr.transfer", "log"]),
+        ("no val/ and one image",
+         Box::new(|d| {
+             std::fs::remove_dir_all(d.join("val")).unwrap();
+             for k in 1..4 {
+                 for (sub, ext) in [("image", "png"), ("depth", "exr"), ("normal", "exr"), ("light_mask", "png"),
+                                    ("mask", "png")] {
+                     std::fs::remove_file(d.join(format!("{sub}/{k:04}.{ext}"))).unwrap();
+                 }
+             }
+         }),
+         vec!["image", "nothing to train on"]),
+    ];
+    let mut table = Table::default();
+    let mut row = |case: &str, args: &[&str], needles: &[&str]| {
+        let before = tree(root);
+        let o = i2sdf(args);
+        let diff = tree_diff(&before, &tree(root));
+        let untouched = if diff.is_empty() { Ok(()) } else { Err(diff.join(", ")) };
+        table.record(case, o, 2, needles, untouched);
+    };
+    for (k, (case, break_it, needles)) in rows.iter().enumerate() {
+        let data = root.join(format!("paper{k}"));
+        i2sdf_data::fixture::write_paper_with(&data, &FixtureOptions::default(), &full);
+        break_it(&data);
+        let (case, args) = (format!("check (paper): {case}"), ["check", "--data", s(&data)]);
+        row(&case, &args, needles);
+    }
+    // A GT point cloud without points: refused before any view is rendered, no metrics written.
+    let data = root.join("paper_cloud");
+    i2sdf_data::fixture::write_paper_with(&data, &FixtureOptions::default(), &full);
+    i2sdf_data::ply::write_ply(data.join("mesh.ply"), &Default::default()).unwrap();
+    let out = root.join("metrics.json");
+    let eval = eval_args(&t.stage1, &data, &out, &["--mesh-resolution", "16"]);
+    let needles = ["mesh.ply", "vertex", "no vertices"];
+    row("eval (paper): GT point cloud with no vertices", &eval, &needles);
+    table.finish(&[root]);
+}

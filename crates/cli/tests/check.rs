@@ -179,8 +179,11 @@ fn empty_split_and_bad_split() {
     assert_bad(dir.path(), &["frames[0].split"]);
     let dir = tempfile::tempdir().unwrap();
     fixture::write_paper(dir.path(), &FixtureOptions::default());
+    // Without val/, the paper format holds out every 8th training view instead.
     std::fs::remove_dir_all(dir.path().join("val")).unwrap();
-    assert_bad(dir.path(), &["val", "'test' split is empty"]);
+    let (code, out, err) = check(dir.path());
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("3 train, 1 test"), "{out}");
 }
 
 #[test]
@@ -223,6 +226,49 @@ fn paper_format_errors_name_the_file() {
     n.data.iter_mut().for_each(|v| *v = 0.5);
     imageio::write_exr(&dir.path().join("normal/0002.exr"), &n).unwrap();
     assert_bad(dir.path(), &["0002.exr", "unit normals"]);
+}
+
+/// The paper's release declares no exposure; `check` measures the one its LDR/HDR pairs show and
+/// says it, and a `radiometry.json` declares it (and is checked against the images).
+#[test]
+fn paper_format_exposure_is_measured_and_declared() {
+    let dir = tempfile::tempdir().unwrap();
+    let extra = fixture::PaperOptions {
+        hdr_exposure: Some(2.0),
+        material_masks: true,
+        ..Default::default()
+    };
+    fixture::write_paper_with(dir.path(), &FixtureOptions::default(), &extra);
+    let (code, out, err) = check(dir.path());
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("exposure     declared –, measured 2.0000"), "{out}");
+    assert!(
+        err.contains("no exposure is declared") && err.contains("2.0000"),
+        "{err}"
+    );
+    // The material masks are counted and what stage 2 does with them is said.
+    assert!(
+        out.contains("material_mask 4/6") && out.contains("material masks"),
+        "{out}"
+    );
+    std::fs::write(
+        dir.path().join("radiometry.json"),
+        r#"{"ldr": {"transfer": "srgb", "exposure": 2.0}}"#,
+    )
+    .unwrap();
+    let (code, out, err) = check(dir.path());
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("exposure     declared 2, measured 2.0000"), "{out}");
+    assert!(!err.contains("warning"), "{err}");
+    std::fs::write(dir.path().join("radiometry.json"), r#"{"ldr": {"exposure": 6.0}}"#).unwrap();
+    let (code, _, err) = check(dir.path());
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("ldr.exposure = 6 is declared") && err.contains("2.0000"),
+        "{err}"
+    );
+    std::fs::write(dir.path().join("radiometry.json"), r#"{"ldr": {"exposure": "bright"}}"#).unwrap();
+    assert_bad(dir.path(), &["radiometry.json", "ldr.exposure"]);
 }
 
 fn check_with(dir: &Path, extra: &[&str]) -> (i32, String, String) {

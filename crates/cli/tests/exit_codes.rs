@@ -666,36 +666,64 @@ fn camera_paths_render_frames_and_an_animation() {
     assert!(std::fs::read(edited.join("edit.gif")).unwrap().starts_with(b"GIF89a"));
 }
 
-/// A dataset in the paper's release format with a `mesh.ply` beside its cameras (where the
-/// official code's `--score` looks) gets its mesh scored, as the native format does.
+/// A scene in the paper's release format with every optional file (a GT point cloud as
+/// `mesh.ply`, material masks, GT materials, HDR, the val views' annotations), trained through
+/// stage 2 with the tiny settings, is evaluated with every depth, normal, material and mesh figure
+/// filled — the val views scored on their own depth, normals and materials. A triangle `mesh.ply`
+/// (where the official code's `--score` looks) is scored as well, and without one the mesh
+/// figures are null.
 #[test]
-fn eval_scores_the_mesh_of_a_paper_format_dataset() {
+fn a_paper_format_scene_is_evaluated_with_every_figure_filled() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("paper");
-    fixture::write_paper(&data, &FixtureOptions::default());
+    let extra = fixture::PaperOptions {
+        val_maps: true,
+        material_masks: true,
+        materials: true,
+        hdr_exposure: Some(1.5),
+        point_cloud: true,
+        ..Default::default()
+    };
+    fixture::write_paper_with(&data, &FixtureOptions::default(), &extra);
     let run = dir.path().join("run");
     let mut args = vec!["train", "--quiet", "--data", s(&data), "--out", s(&run)];
     args.extend_from_slice(&TINY);
     expect(i2sdf(&args), 0, &[]);
+    expect(train_material(&data, &run, &TINY_STAGE2), 0, &[]);
     let metrics = |name: &str| {
         let out = dir.path().join(name);
-        let o = i2sdf(&[
-            "eval",
-            "--run",
-            s(&run),
-            "--data",
-            s(&data),
-            "--out",
-            s(&out),
-            "--mesh-resolution",
-            "32",
-        ]);
+        let o = i2sdf(&eval_args(
+            &run,
+            &data,
+            &out,
+            &["--mesh-resolution", "32", "--spp", "2"],
+        ));
         assert_eq!(o.code, 0, "{}", o.stderr);
         serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(out).unwrap()).unwrap()
     };
-    assert!(metrics("none.json")["geometry"]["mesh"]["fscore"].is_null());
-    // Any mesh in world units will do: the run's own, put into the dataset by hand (no command
-    // writes into a dataset).
+    let m = metrics("cloud.json");
+    let filled = |group: &str, keys: &[&str]| {
+        for k in keys {
+            let v = k.split('.').fold(&m[group], |v, k| &v[k]);
+            assert!(v.as_f64().is_some(), "{group}.{k} is {v} in {}", m[group]);
+        }
+    };
+    filled("geometry", &["depth_l1", "normal_angular_l1"]);
+    filled(
+        "geometry",
+        &[
+            "mesh.accuracy",
+            "mesh.completeness",
+            "mesh.precision",
+            "mesh.recall",
+            "mesh.fscore",
+        ],
+    );
+    filled("material", &["albedo_psnr", "albedo_psnr_scaled", "roughness_l1"]);
+    filled("rerender", &["psnr", "ssim"]);
+    filled("novel_view", &["psnr", "ssim"]);
+    // A triangle mesh in world units is scored too: the run's own, put into the dataset by hand
+    // (no command writes into a dataset).
     let ply = dir.path().join("gt.ply");
     let o = i2sdf(&["mesh", "--run", s(&run), "--out", s(&ply), "--resolution", "32"]);
     assert_eq!(o.code, 0, "{}", o.stderr);
@@ -706,4 +734,6 @@ fn eval_scores_the_mesh_of_a_paper_format_dataset() {
         "{}",
         m["geometry"]
     );
+    std::fs::remove_file(data.join("mesh.ply")).unwrap();
+    assert!(metrics("none.json")["geometry"]["mesh"]["fscore"].is_null());
 }

@@ -449,6 +449,7 @@ fn load_frame(image: &ColmapImage, camera: &Camera, split: Split, dirs: &FrameDi
         depth,
         normal: None,
         emitter_mask,
+        material_mask: None,
         albedo: None,
         specular: None,
         roughness: None,

@@ -64,6 +64,10 @@ pub struct Frame {
     pub normal: Option<ImageF32>,
     /// 1 where the pixel sees an emitter, else 0.
     pub emitter_mask: Option<ImageF32>,
+    /// 1 where the surface's material is one the GGX model can fit, 0 where it is not (the
+    /// paper's release marks such areas — glass, mirrors, … — to be skipped): stage 2 does not fit
+    /// the pixels marked 0 and the material metrics do not score them. `None`: every pixel is used.
+    pub material_mask: Option<ImageF32>,
     /// Ground-truth diffuse albedo Kd, specular albedo Ks (3 channels) and roughness (1 channel),
     /// for evaluation only.
     pub albedo: Option<ImageF32>,
@@ -78,13 +82,14 @@ impl Frame {
 
     /// Every map of the frame, in the order of [`Frame::MAP_NAMES`]: the LDR colour, then the
     /// optional maps (`None` where the frame has none).
-    pub fn maps(&self) -> [Option<&ImageF32>; 8] {
+    pub fn maps(&self) -> [Option<&ImageF32>; 9] {
         [
             Some(&self.rgb),
             self.hdr.as_ref(),
             self.depth.as_ref(),
             self.normal.as_ref(),
             self.emitter_mask.as_ref(),
+            self.material_mask.as_ref(),
             self.albedo.as_ref(),
             self.specular.as_ref(),
             self.roughness.as_ref(),
@@ -93,19 +98,20 @@ impl Frame {
 
     /// The names of [`Frame::maps`]. The first [`Frame::TRAINING_MAPS`] are the ones training
     /// reads; the rest are ground truth for evaluation.
-    pub const MAP_NAMES: [&'static str; 8] = [
+    pub const MAP_NAMES: [&'static str; 9] = [
         "rgb",
         "hdr",
         "depth",
         "normal",
         "emitter_mask",
+        "material_mask",
         "albedo",
         "specular",
         "roughness",
     ];
 
     /// How many of [`Frame::maps`] (the first ones) training reads.
-    pub const TRAINING_MAPS: usize = 5;
+    pub const TRAINING_MAPS: usize = 6;
 }
 
 /// A set of relit ground-truth views: the edit spec that produced them and the images.
@@ -188,9 +194,9 @@ pub struct Dataset {
     pub root: PathBuf,
     pub format: Format,
     pub frames: Vec<Frame>,
-    /// The radiometry the dataset declares (native `ldr`): how the LDR images encode light
-    /// (`transfer`: sRGB by default, or linear), and the exposure they were made with
-    /// (`ldr.exposure`: LDR = transfer(exposure · HDR)) when the dataset states it. Stage 2 scales
+    /// The radiometry the dataset declares (native `ldr`, paper `radiometry.json`): how the LDR
+    /// images encode light (`transfer`: sRGB by default, or linear), and the exposure they were
+    /// made with (`ldr.exposure`: LDR = transfer(exposure · HDR)) when the dataset states it. Stage 2 scales
     /// HDR images by the exposure into the LDR images' linear units, and reports each emitter's
     /// radiance as emission / exposure; with none declared it uses the one the images measure
     /// (`exposure::exposure_in_use`).

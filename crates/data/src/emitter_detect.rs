@@ -351,6 +351,7 @@ mod tests {
             depth: Some(depth),
             normal: None,
             emitter_mask: None,
+            material_mask: None,
             albedo: None,
             specular: None,
             roughness: None,

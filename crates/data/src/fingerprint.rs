@@ -15,9 +15,14 @@ pub struct DatasetFingerprint {
     pub size: [usize; 2],
     /// FNV-1a over the cameras' intrinsics and poses (f64 bits), hex.
     pub cameras: String,
-    /// FNV-1a over the training images, HDR images, depth, normal and emitter maps (f32 bits), hex.
+    /// FNV-1a over the training images, HDR images, depth, normal, emitter and material masks
+    /// (f32 bits), hex.
     pub images: String,
 }
+
+/// How many of the training maps ([`Frame::maps`]) add their presence to the fingerprint whether
+/// present or not: those a fingerprint has always covered.
+const FINGERPRINT_MAPS_ALWAYS: usize = 5;
 
 /// FNV-1a, one 64-bit word at a time (the fingerprint needs stability across builds and Rust
 /// versions, which std's hasher does not promise, not cryptographic strength).
@@ -51,6 +56,11 @@ impl DatasetFingerprint {
                 cams.word(v.to_bits());
             }
             for (k, m) in f.maps().into_iter().take(Frame::TRAINING_MAPS).enumerate() {
+                // The maps after the first five came later (the material mask): they add words
+                // only where present, so a dataset without them keeps the fingerprint it had.
+                if k >= FINGERPRINT_MAPS_ALWAYS && m.is_none() {
+                    continue;
+                }
                 // Which maps are present is part of the data (a mask added changes training).
                 imgs.word(k as u64 + 1);
                 if let Some(m) = m {

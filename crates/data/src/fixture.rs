@@ -50,6 +50,12 @@ fn is_emitter(p: DVec3, n: DVec3) -> bool {
     n.z < -0.5 && p.x.abs() < 0.6 && p.y.abs() < 0.5
 }
 
+/// The fixture's material masks call the wall at `ROOM_MAX.x` (inward normal −x) not GGX, as
+/// the paper's release marks mirrors and glass.
+fn is_ggx(n: DVec3) -> bool {
+    n.x > -0.5
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DepthFormat {
     Exr,
@@ -123,6 +129,8 @@ struct Maps {
     depth: ImageF32,
     normal_world: ImageF32,
     mask: ImageF32,
+    /// 1 where the surface is GGX, 0 on the wall at `ROOM_MAX.x` (a "mirror": see [`is_ggx`]).
+    ggx: ImageF32,
 }
 
 fn render(cam: &Camera, cx: f64, cy: f64, pixel_offset: f64) -> Maps {
@@ -132,6 +140,7 @@ fn render(cam: &Camera, cx: f64, cy: f64, pixel_offset: f64) -> Maps {
         depth: ImageF32::new(w, h, 1),
         normal_world: ImageF32::new(w, h, 3),
         mask: ImageF32::new(w, h, 1),
+        ggx: ImageF32::new(w, h, 1),
     };
     let r = DMat3::from_mat4(cam.c2w);
     for j in 0..h {
@@ -151,6 +160,7 @@ fn render(cam: &Camera, cx: f64, cy: f64, pixel_offset: f64) -> Maps {
                 .pixel_mut(i, j)
                 .copy_from_slice(&[n.x as f32, n.y as f32, n.z as f32]);
             m.mask.pixel_mut(i, j)[0] = is_emitter(p, n) as u8 as f32;
+            m.ggx.pixel_mut(i, j)[0] = is_ggx(n) as u8 as f32;
         }
     }
     m
@@ -216,13 +226,78 @@ pub fn write_native(dir: &Path, opts: &FixtureOptions) -> Vec<Camera> {
     cams
 }
 
+/// What [`write_paper_with`] writes beyond the release's usual files (cameras, `image/`, `depth/`,
+/// `normal/`, `light_mask/`, `val/`), each off by default.
+#[derive(Clone, Debug, Default)]
+pub struct PaperOptions {
+    /// No `val/`: every view is a training image (`world_mat_i`), so the loader holds out its own.
+    pub no_val: bool,
+    /// The validation views' annotations under `val/` (`depth/`, `normal/`, `light_mask/`, and
+    /// `mask/`, `material/`, `hdr/` where those are asked for).
+    pub val_maps: bool,
+    /// Material masks in `mask/` (1 = GGX, 0 on the wall at `ROOM_MAX.x`).
+    pub material_masks: bool,
+    /// GT materials in `material/`: Kd the image's linearized colour, Ks 0.04, roughness 0.6.
+    pub materials: bool,
+    /// HDR images in `hdr/` such that LDR = sRGB(exposure · HDR).
+    pub hdr_exposure: Option<f64>,
+    /// `mesh.ply` as a point cloud (vertices only): a grid of points on the room's walls.
+    pub point_cloud: bool,
+    /// `radiometry.json`, as written.
+    pub radiometry_json: Option<String>,
+}
+
 /// Writes the paper's release format into `dir` and returns the true cameras (train, then val).
 pub fn write_paper(dir: &Path, opts: &FixtureOptions) -> Vec<Camera> {
-    use npyz::WriterBuilder;
+    write_paper_with(dir, opts, &PaperOptions::default())
+}
+
+/// [`write_paper`] with the extra files of `extra`. With `extra.no_val` all the views are training
+/// images, in the order of the returned cameras.
+pub fn write_paper_with(dir: &Path, opts: &FixtureOptions, extra: &PaperOptions) -> Vec<Camera> {
     let cams = cameras(opts);
-    let npz_path = dir.join("cameras_normalize.npz");
     std::fs::create_dir_all(dir).unwrap();
-    let mut npz = npyz::npz::NpzWriter::create(&npz_path).unwrap();
+    let train_views = if extra.no_val { cams.len() } else { opts.train_views };
+    write_paper_cameras(&dir.join("cameras_normalize.npz"), &cams, train_views);
+    for (k, cam) in cams.iter().enumerate() {
+        let is_train = k < train_views;
+        let idx = if is_train { k } else { k - train_views };
+        // The release's convention: ray through K⁻¹[u, v, 1] with integer u, v.
+        let maps = render(cam, cam.cx - 0.5, cam.cy - 0.5, 0.0);
+        let name = format!("{idx:04}");
+        let (base, images) = if is_train {
+            (dir.to_path_buf(), "image")
+        } else {
+            (dir.join("val"), "")
+        };
+        imageio::write_png(&base.join(images).join(format!("{name}.png")), &maps.rgb).unwrap();
+        if is_train || extra.val_maps {
+            write_paper_annotations(&base, &name, cam, &maps, extra);
+        }
+    }
+    if extra.point_cloud {
+        let positions = room_points(0.05);
+        crate::ply::write_ply(
+            &dir.join("mesh.ply"),
+            &crate::mesh::TriangleMesh {
+                positions,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+    }
+    if let Some(text) = &extra.radiometry_json {
+        std::fs::write(dir.join("radiometry.json"), text).unwrap();
+    }
+    cams
+}
+
+/// `cameras_normalize.npz`: `world_mat_i` for the first `train_views` cameras, `val_mat_i` for the
+/// rest, as K·W2C in the release's integer-pixel convention, and a VolSDF `scale_mat_i` per
+/// training view.
+fn write_paper_cameras(npz_path: &Path, cams: &[Camera], train_views: usize) {
+    use npyz::WriterBuilder;
+    let mut npz = npyz::npz::NpzWriter::create(npz_path).unwrap();
     let mut put = |name: &str, m: [[f64; 4]; 4]| {
         let mut w = npz
             .array::<f64>(name, Default::default())
@@ -236,23 +311,20 @@ pub fn write_paper(dir: &Path, opts: &FixtureOptions) -> Vec<Camera> {
     };
     // A VolSDF-style normalization: uniform scale + translation.
     let s = 2.0;
-    put(
-        "scale_mat_0",
-        [
-            [s, 0.0, 0.0, 0.2],
-            [0.0, s, 0.0, 0.1],
-            [0.0, 0.0, s, 1.1],
-            [0.0, 0.0, 0.0, 1.0],
-        ],
-    );
+    let scale_mat = [
+        [s, 0.0, 0.0, 0.2],
+        [0.0, s, 0.0, 0.1],
+        [0.0, 0.0, s, 1.1],
+        [0.0, 0.0, 0.0, 1.0],
+    ];
+    put("scale_mat_0", scale_mat);
     for (k, cam) in cams.iter().enumerate() {
         // The release's convention: ray through K⁻¹[u, v, 1] with integer u, v, so its principal
         // point is ours minus ½.
-        let (cxp, cyp) = (cam.cx - 0.5, cam.cy - 0.5);
         let k_mat = DMat3::from_cols(
             DVec3::new(cam.fx, 0.0, 0.0),
             DVec3::new(0.0, cam.fy, 0.0),
-            DVec3::new(cxp, cyp, 1.0),
+            DVec3::new(cam.cx - 0.5, cam.cy - 0.5, 1.0),
         );
         let w2c = cam.w2c();
         let mut p = [[0.0; 4]; 4];
@@ -262,47 +334,85 @@ pub fn write_paper(dir: &Path, opts: &FixtureOptions) -> Vec<Camera> {
             }
         }
         p[3] = [0.0, 0.0, 0.0, 1.0];
-        let is_train = k < opts.train_views;
-        let idx = if is_train { k } else { k - opts.train_views };
-        put(&format!("{}_{idx}", if is_train { "world_mat" } else { "val_mat" }), p);
-        if is_train {
-            put(
-                &format!("scale_mat_{idx}"),
-                [
-                    [s, 0.0, 0.0, 0.2],
-                    [0.0, s, 0.0, 0.1],
-                    [0.0, 0.0, s, 1.1],
-                    [0.0, 0.0, 0.0, 1.0],
-                ],
-            );
-        }
-        let maps = render(cam, cxp, cyp, 0.0);
-        let name = format!("{idx:04}");
-        if is_train {
-            imageio::write_png(&dir.join("image").join(format!("{name}.png")), &maps.rgb).unwrap();
-            // Depth as a 3-channel EXR, as the release ships it (the loader reads the R channel).
-            let depth3 = ImageF32::from_data(
-                maps.depth.width,
-                maps.depth.height,
-                3,
-                maps.depth.data.iter().flat_map(|d| [*d; 3]).collect(),
-            );
-            imageio::write_exr(&dir.join("depth").join(format!("{name}.exr")), &depth3).unwrap();
-            // Normals in OpenCV camera space: n_cam = Rᵀ n_world.
-            let rt = DMat3::from_mat4(cam.c2w).transpose();
-            let mut ncam = maps.normal_world.clone();
-            for px in ncam.data.chunks_mut(3) {
-                let n = rt * DVec3::new(px[0] as f64, px[1] as f64, px[2] as f64);
-                px.copy_from_slice(&[n.x as f32, n.y as f32, n.z as f32]);
-            }
-            imageio::write_exr(&dir.join("normal").join(format!("{name}.exr")), &ncam).unwrap();
-            imageio::write_png(&dir.join("light_mask").join(format!("{name}.png")), &maps.mask).unwrap();
+        if k < train_views {
+            put(&format!("world_mat_{k}"), p);
+            put(&format!("scale_mat_{k}"), scale_mat);
         } else {
-            imageio::write_png(&dir.join("val").join(format!("{name}.png")), &maps.rgb).unwrap();
+            put(&format!("val_mat_{}", k - train_views), p);
         }
     }
     drop(npz); // finishes the zip archive
-    cams
+}
+
+/// One view's annotations in the release's layout under `base` (the dataset, or its `val/`).
+fn write_paper_annotations(base: &Path, name: &str, cam: &Camera, maps: &Maps, extra: &PaperOptions) {
+    let exr = |sub: &str, file: String, img: &ImageF32| imageio::write_exr(&base.join(sub).join(file), img).unwrap();
+    // Depth as a 3-channel EXR, as the release ships it (the loader reads the R channel).
+    let depth3 = ImageF32::from_data(
+        maps.depth.width,
+        maps.depth.height,
+        3,
+        maps.depth.data.iter().flat_map(|d| [*d; 3]).collect(),
+    );
+    exr("depth", format!("{name}.exr"), &depth3);
+    // Normals in OpenCV camera space: n_cam = Rᵀ n_world.
+    let rt = DMat3::from_mat4(cam.c2w).transpose();
+    let mut ncam = maps.normal_world.clone();
+    for px in ncam.data.chunks_mut(3) {
+        let n = rt * DVec3::new(px[0] as f64, px[1] as f64, px[2] as f64);
+        px.copy_from_slice(&[n.x as f32, n.y as f32, n.z as f32]);
+    }
+    exr("normal", format!("{name}.exr"), &ncam);
+    imageio::write_png(&base.join("light_mask").join(format!("{name}.png")), &maps.mask).unwrap();
+    if extra.material_masks {
+        imageio::write_png(&base.join("mask").join(format!("{name}.png")), &maps.ggx).unwrap();
+    }
+    // The linear colour of the image as written (8-bit), so that the HDR images relate to the
+    // LDR ones by exactly the exposure.
+    let mut linear = maps.rgb.clone();
+    linear
+        .data
+        .iter_mut()
+        .for_each(|v| *v = imageio::srgb_to_linear((v.clamp(0.0, 1.0) * 255.0 + 0.5).floor() / 255.0));
+    if extra.materials {
+        let (w, h) = (maps.rgb.width, maps.rgb.height);
+        exr("material", format!("{name}_kd.exr"), &linear);
+        exr(
+            "material",
+            format!("{name}_ks.exr"),
+            &ImageF32::from_data(w, h, 3, vec![0.04; w * h * 3]),
+        );
+        exr(
+            "material",
+            format!("{name}_rough.exr"),
+            &ImageF32::from_data(w, h, 1, vec![0.6; w * h]),
+        );
+    }
+    if let Some(exposure) = extra.hdr_exposure {
+        linear.data.iter_mut().for_each(|v| *v /= exposure as f32);
+        exr("hdr", format!("{name}.exr"), &linear);
+    }
+}
+
+/// Points on a grid of `spacing` over each of the room's six walls (world units).
+pub fn room_points(spacing: f64) -> Vec<[f32; 3]> {
+    let mut points = Vec::new();
+    for axis in 0..3 {
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        let steps = |a: usize| ((ROOM_MAX[a] - ROOM_MIN[a]) / spacing).round() as usize;
+        for wall in [ROOM_MIN[axis], ROOM_MAX[axis]] {
+            for i in 0..=steps(u) {
+                for j in 0..=steps(v) {
+                    let mut p = DVec3::ZERO;
+                    p[axis] = wall;
+                    p[u] = ROOM_MIN[u] + i as f64 * spacing;
+                    p[v] = ROOM_MIN[v] + j as f64 * spacing;
+                    points.push(p.min(ROOM_MAX).as_vec3().to_array());
+                }
+            }
+        }
+    }
+    points
 }
 
 /// Writes a COLMAP text model into `sparse_dir`: one camera per view (PINHOLE, OPENCV or

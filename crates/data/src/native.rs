@@ -225,6 +225,7 @@ fn load_frame(
         depth,
         normal,
         emitter_mask,
+        material_mask: None,
         albedo,
         specular,
         roughness,
@@ -430,7 +431,7 @@ fn parse_mesh_path(root: &Path, json_path: &Path, top: &Map<String, Value>) -> R
 /// The top-level `ldr: {transfer, exposure}`: how the LDR images encode radiance (`transfer`,
 /// "srgb" by default, or "linear") and the optional positive exposure relating them to the HDR
 /// images. Parsed here so that a bad value is refused at load, naming its key.
-fn parse_ldr(json_path: &Path, top: &Map<String, Value>) -> Result<Radiometry> {
+pub(crate) fn parse_ldr(json_path: &Path, top: &Map<String, Value>) -> Result<Radiometry> {
     let ldr = match top.get("ldr") {
         None | Some(Value::Null) => return Ok(Radiometry::default()),
         Some(Value::Object(ldr)) => ldr,

@@ -7,12 +7,27 @@
 //!                         validity window = no depth; see `sensor_depth`)
 //! normal/NNNN.exr         unit normals in OpenCV camera space (0 = invalid)
 //! light_mask/NNNN.png     emitter masks (optional)
-//! val/NNNN.png            held-out test images (↔ val_mat_i)
+//! mask/NNNN.png           material masks (optional): 1 where the material is GGX, 0 where it is
+//!                         not (stage 2 does not fit those pixels, the material metrics skip them)
 //! hdr/NNNN.exr            HDR images (optional)
 //! material/NNNN_kd.exr, NNNN_ks.exr, NNNN_rough.exr   GT materials (optional)
-//! mesh.ply                the ground-truth mesh in world units (optional; where the official
-//!                         code's `--score` looks for it): `eval` scores the mesh against it
+//! val/NNNN.png            held-out test images (↔ val_mat_i; optional, see below)
+//! val/depth/, val/normal/, val/light_mask/, val/mask/, val/hdr/, val/material/
+//!                         the same annotations of the test images (each optional; read as the
+//!                         training views' are, so `eval` scores depth, normals and materials on
+//!                         them)
+//! mesh.ply                the geometry GT in world units (optional; where the official code's
+//!                         `--score` looks for it): a triangle mesh, or a point cloud (vertices
+//!                         only), against which `eval` scores the mesh
+//! radiometry.json         {"ldr": {"transfer": "srgb"|"linear", "exposure": x}} (optional; the
+//!                         native format's `ldr` key): the release declares neither, so sRGB and
+//!                         no exposure without it
 //! ```
+//!
+//! Each annotation directory matches its images one to one in name order; the GT materials are
+//! found by the image's stem. Without validation images (no `val/`, or none in it), every
+//! [`HOLDOUT_EVERY`]th training view (0, 8, 16, … in name order) is a test view instead, with its
+//! annotations, and is not trained on — the native and COLMAP formats' rule.
 //!
 //! Two conventions of the release's own loader are kept to read its data right: pixel (u, v)'s ray
 //! goes through K⁻¹·[u, v, 1] with integer u, v (no half-pixel offset) — so the principal point is
@@ -149,51 +164,67 @@ pub fn load(root: &Path) -> Result<Dataset> {
     load_with_npz(root, &npz_path, npz)
 }
 
-/// The training and validation images: `image/` and `val/`, sorted by name, neither empty.
+/// Without validation images, training view i (in name order) is a test view when i is a multiple
+/// of this: 0, 8, 16, … — the rule of the native and COLMAP formats, so a scene gets the same split
+/// whichever format it is read from.
+pub const HOLDOUT_EVERY: usize = 8;
+
+/// The training images (`image/`, sorted by name, not empty) and the validation images (`val/`,
+/// sorted by name; empty when there is no `val/` or it holds no image, and then there must be
+/// training images to hold out: at least two).
 fn list_views(root: &Path, frame_exts: &[&str]) -> Result<(Vec<PathBuf>, Vec<PathBuf>)> {
     let image_dir = root.join("image");
     let images = list_dir(&image_dir, frame_exts)?.ok_or_else(|| DataError::file(&image_dir, "directory not found"))?;
     if images.is_empty() {
         return Err(DataError::file(&image_dir, "no images: the 'train' split is empty"));
     }
-    let val_dir = root.join("val");
-    let vals = list_dir(&val_dir, frame_exts)?.unwrap_or_default();
-    if vals.is_empty() {
+    let vals = list_dir(&root.join("val"), frame_exts)?.unwrap_or_default();
+    if vals.is_empty() && images.len() < 2 {
         return Err(DataError::file(
-            &val_dir,
-            "no validation images: the 'test' split is empty",
+            &image_dir,
+            format!(
+                "holds 1 image and val/ none: holding out every {HOLDOUT_EVERY}th view for testing leaves \
+                 nothing to train on"
+            ),
         ));
     }
     Ok((images, vals))
 }
 
-/// The optional per-view annotation files of the training images (`None` where the release has no
-/// such directory).
+/// The optional per-view annotation files of a set of views (`None` where the release has no such
+/// directory): in `image/`'s siblings for the training views, in `val/`'s subdirectories for the
+/// validation views.
 struct Annotations {
+    /// The directory the annotation directories are in (the dataset's root, or `val/`).
+    base: PathBuf,
     depths: Option<Vec<PathBuf>>,
     normals: Option<Vec<PathBuf>>,
     light_masks: Option<Vec<PathBuf>>,
+    material_masks: Option<Vec<PathBuf>>,
     hdrs: Option<Vec<PathBuf>>,
 }
 
 impl Annotations {
-    /// Lists the annotation directories; each must match the `image_count` images one to one.
-    fn list(root: &Path, image_count: usize) -> Result<Annotations> {
+    /// Lists the annotation directories under `base`; each must match the `image_count` images of
+    /// `images` (a directory's name, for messages) one to one.
+    fn list(base: &Path, images: &str, image_count: usize) -> Result<Annotations> {
         let matched = |sub: &str, exts: &[&str]| -> Result<Option<Vec<PathBuf>>> {
-            let dir = root.join(sub);
+            let dir = base.join(sub);
             match list_dir(&dir, exts)? {
                 None => Ok(None),
                 Some(files) if files.len() == image_count => Ok(Some(files)),
                 Some(files) => Err(DataError::file(
                     &dir,
-                    format!("has {} files but image/ has {} images", files.len(), image_count),
+                    format!("has {} files but {images} has {} images", files.len(), image_count),
                 )),
             }
         };
         Ok(Annotations {
+            base: base.to_path_buf(),
             depths: matched("depth", &["exr", "npy"])?,
             normals: matched("normal", &["exr", "npy"])?,
             light_masks: matched("light_mask", &["png", "exr"])?,
+            material_masks: matched("mask", &["png", "exr"])?,
             hdrs: matched("hdr", &["exr"])?,
         })
     }
@@ -237,25 +268,26 @@ fn check_scale_mat<R: std::io::Read + std::io::Seek>(
     Ok(())
 }
 
-/// Training view `i`: its image and every annotation the release has for it (the GT materials are
-/// found by the image's stem in `material/`); also what became of its depth samples.
-fn load_train_frame(
-    root: &Path,
+/// One view: its image and every annotation `annotations` has for it (the GT materials are found
+/// by the image's stem in the `material/` directory beside the annotations), as a frame of
+/// `split` named `name`; also what became of its depth samples.
+fn load_frame(
     i: usize,
     camera: Camera,
     image_path: PathBuf,
+    (name, split): (String, Split),
     annotations: &Annotations,
 ) -> Result<(Frame, DepthDropped)> {
-    let material_dir = root.join("material");
-    let material = |stem: &str, suffix: &str| -> Option<PathBuf> {
-        let p = material_dir.join(format!("{stem}_{suffix}.exr"));
-        p.is_file().then_some(p)
-    };
+    let material_dir = annotations.base.join("material");
     let stem = image_path
         .file_stem()
         .unwrap_or_default()
         .to_string_lossy()
         .into_owned();
+    let material = |suffix: &str| -> Option<PathBuf> {
+        let p = material_dir.join(format!("{stem}_{suffix}.exr"));
+        p.is_file().then_some(p)
+    };
     let rgb = dataset::load_rgb(&image_path, &camera)?;
     let rot = camera.rotation();
     let (depth, depth_dropped) = match &annotations.depths {
@@ -270,28 +302,26 @@ fn load_train_frame(
         .as_ref()
         .map(|n| dataset::load_normal(&n[i], &camera, Some(rot)))
         .transpose()?;
-    let emitter_mask = annotations
-        .light_masks
-        .as_ref()
-        .map(|m| dataset::load_mask(&m[i], &camera))
-        .transpose()?;
+    let mask = |masks: &Option<Vec<PathBuf>>| masks.as_ref().map(|m| dataset::load_mask(&m[i], &camera)).transpose();
+    let emitter_mask = mask(&annotations.light_masks)?;
+    let material_mask = mask(&annotations.material_masks)?;
     let hdr = annotations
         .hdrs
         .as_ref()
         .map(|m| dataset::load_rgb(&m[i], &camera))
         .transpose()?;
-    let albedo = material(&stem, "kd")
+    let albedo = material("kd")
         .map(|p| dataset::load_float(&p, &camera, 3, "a Kd map"))
         .transpose()?;
-    let specular = material(&stem, "ks")
+    let specular = material("ks")
         .map(|p| dataset::load_float(&p, &camera, 3, "a Ks map"))
         .transpose()?;
-    let roughness = material(&stem, "rough")
+    let roughness = material("rough")
         .map(|p| dataset::load_float(&p, &camera, 1, "a roughness map"))
         .transpose()?;
     let frame = Frame {
-        name: stem,
-        split: Split::Train,
+        name,
+        split,
         camera,
         image_path,
         rgb,
@@ -299,6 +329,7 @@ fn load_train_frame(
         depth,
         normal,
         emitter_mask,
+        material_mask,
         albedo,
         specular,
         roughness,
@@ -306,24 +337,34 @@ fn load_train_frame(
     Ok((frame, depth_dropped))
 }
 
-/// A validation view: its image only (the release has no annotations for them).
-fn load_test_frame(camera: Camera, image_path: PathBuf) -> Result<Frame> {
-    let rgb = dataset::load_rgb(&image_path, &camera)?;
-    Ok(Frame {
-        name: format!("val_{}", image_path.file_stem().unwrap_or_default().to_string_lossy()),
-        split: Split::Test,
-        camera,
-        image_path,
-        rgb,
-        hdr: None,
-        depth: None,
-        normal: None,
-        emitter_mask: None,
-        albedo: None,
-        specular: None,
-        roughness: None,
-    })
+/// The radiometry the dataset declares in the optional `radiometry.json` beside its cameras —
+/// `{"ldr": {"transfer": "srgb" | "linear", "exposure": x}}`, the native format's `ldr` key, read
+/// by the same parser — as the release itself declares none. Without the file: sRGB images, no
+/// exposure (stage 2 then uses the one the LDR/HDR pairs measure, `exposure`).
+fn read_radiometry(root: &Path) -> Result<Radiometry> {
+    let path = root.join(RADIOMETRY_FILE);
+    if !path.exists() {
+        return Ok(Radiometry::default());
+    }
+    let text = std::fs::read_to_string(&path).map_err(|e| DataError::file(&path, format!("cannot read: {e}")))?;
+    let value: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| DataError::file(&path, format!("invalid JSON: {e}")))?;
+    let top = value
+        .as_object()
+        .ok_or_else(|| DataError::file(&path, "the top level is not a JSON object"))?;
+    // The file exists only to declare `ldr`: without it, whatever was meant is not read.
+    if !top.contains_key("ldr") {
+        return Err(DataError::field(
+            &path,
+            "ldr",
+            "missing: the file declares {\"ldr\": {\"transfer\": …, \"exposure\": …}}",
+        ));
+    }
+    crate::native::parse_ldr(&path, top)
 }
+
+/// The name of the optional radiometry declaration of a paper-format dataset ([`read_radiometry`]).
+pub const RADIOMETRY_FILE: &str = "radiometry.json";
 
 /// [`load`] with the camera archive already open (from a file or from bytes in memory: see
 /// [`load_with_npz_bytes`]); `npz_path` names it in errors. The images are read from `root`.
@@ -334,39 +375,48 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
 ) -> Result<Dataset> {
     let frame_exts: Vec<&str> = imageio::RASTER_EXTENSIONS.iter().copied().chain(["exr"]).collect();
     let (images, vals) = list_views(root, &frame_exts)?;
-    let annotations = Annotations::list(root, images.len())?;
+    let annotations = Annotations::list(root, "image/", images.len())?;
+    let val_annotations = Annotations::list(&root.join("val"), "val/", vals.len())?;
+    let radiometry = read_radiometry(root)?;
 
     let size = image_size(&images[0])?;
     let cameras = read_cameras(&mut npz, npz_path, "world_mat", images.len(), size)?;
     let val_cameras = read_cameras(&mut npz, npz_path, "val_mat", vals.len(), size)?;
     check_scale_mat(&mut npz, npz_path)?;
 
+    let stem = |p: &Path| p.file_stem().unwrap_or_default().to_string_lossy().into_owned();
+    let held_out = |i: usize| vals.is_empty() && i % HOLDOUT_EVERY == 0;
     // Every view is loaded before any error is reported, then the first error in view order wins
     // (so the message does not depend on thread timing).
     let train: Vec<Result<(Frame, DepthDropped)>> = (0..images.len())
         .into_par_iter()
-        .map(|i| load_train_frame(root, i, cameras[i].clone(), images[i].clone(), &annotations))
+        .map(|i| {
+            let split = if held_out(i) { Split::Test } else { Split::Train };
+            let name = (stem(&images[i]), split);
+            load_frame(i, cameras[i].clone(), images[i].clone(), name, &annotations)
+        })
         .collect();
-    let test: Vec<Result<Frame>> = (0..vals.len())
+    let test: Vec<Result<(Frame, DepthDropped)>> = (0..vals.len())
         .into_par_iter()
-        .map(|i| load_test_frame(val_cameras[i].clone(), vals[i].clone()))
+        .map(|i| {
+            let name = (format!("val_{}", stem(&vals[i])), Split::Test);
+            load_frame(i, val_cameras[i].clone(), vals[i].clone(), name, &val_annotations)
+        })
         .collect();
     let mut depth_dropped = DepthDropped::default();
     let mut frames = Vec::with_capacity(train.len() + test.len());
-    for loaded in train {
+    for loaded in train.into_iter().chain(test) {
         let (frame, dropped) = loaded?;
         depth_dropped.add(&dropped);
         frames.push(frame);
     }
-    frames.extend(test.into_iter().collect::<Result<Vec<_>>>()?);
     let (bounds, bounds_source, normalization) = dataset::measure_bounds(&frames);
     sensor_depth::apply_validity_window(&mut frames, &normalization, &mut depth_dropped);
     Ok(Dataset {
         root: root.to_path_buf(),
         format: Format::Paper,
         frames,
-        // The format declares no radiometry: sRGB images, no exposure.
-        radiometry: Radiometry::default(),
+        radiometry,
         // The release's poses are the renderer's own (synthetic) or calibrated (real rooms).
         poses_exact: true,
         emitters: Vec::new(),

@@ -1,7 +1,8 @@
 //! How a dataset's LDR pixels relate to linear radiance: the transfer they were encoded with and
 //! the exposure relating them to the HDR images. Parsed when the dataset is loaded (native
-//! `ldr: {transfer, exposure}`; the paper's and COLMAP's formats are sRGB without a declared
-//! exposure) and read back from stage 2's checkpoint metadata.
+//! `ldr: {transfer, exposure}`, and the same key in a paper-format dataset's optional
+//! `radiometry.json`; otherwise sRGB without a declared exposure, as COLMAP's format always is)
+//! and read back from stage 2's checkpoint metadata.
 
 use crate::imageio::{self, linear_to_srgb, srgb_to_linear, ImageF32};
 

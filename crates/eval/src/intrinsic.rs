@@ -1,8 +1,9 @@
 //! Evaluating stage 2 (materials and emitters) on the test views: the Monte Carlo re-render of
 //! eq:render tone-mapped with the dataset's transfer against the test LDR images, the material
-//! maps (Kd, ρ of the pixel-centre rays) against the GT maps, and the emitters found against the
-//! dataset's GT emitters. The frozen scene is the run's as stage 2 built it
-//! ([`i2sdf_model::OpenedRun::frozen`]); the images come from [`i2sdf_model::images`].
+//! maps (Kd, ρ of the pixel-centre rays) against the GT maps (where the material mask, if any,
+//! says GGX), and the emitters found against the dataset's GT emitters. The frozen scene is the
+//! run's as stage 2 built it ([`i2sdf_model::OpenedRun::frozen`]); the images come from
+//! [`i2sdf_model::images`].
 
 use crate::image_metrics::{psnr, psnr_from_mse, ssim, ImageRef};
 use crate::report::{EmitterMatch, EmitterMetrics, MaterialMetrics, RerenderMetrics};
@@ -27,17 +28,24 @@ impl Default for IntrinsicOptions {
     }
 }
 
-/// The pixels the material metrics compare: the re-render hit a surface (finite depth) and the
+/// The pixels the material metrics compare: the re-render hit a surface (finite depth), the
 /// pixel is not an emitter — by the dataset's emitter mask (value > 0.5, first channel) where it
-/// has one, else by the re-render's.
-pub fn material_mask(depth: &[f32], gt_emitter: Option<&ImageF32>, pred_emitter: &[bool]) -> Vec<bool> {
+/// has one, else by the re-render's — and the dataset's material mask, where it has one, does not
+/// mark the pixel's material as one GGX cannot fit (value ≤ 0.5: `Frame::material_mask`).
+pub fn material_mask(
+    depth: &[f32],
+    gt_emitter: Option<&ImageF32>,
+    pred_emitter: &[bool],
+    gt_material: Option<&ImageF32>,
+) -> Vec<bool> {
     (0..depth.len())
         .map(|i| {
             let emitter = match gt_emitter {
                 Some(m) => m.data[i * m.channels] > 0.5,
                 None => pred_emitter[i],
             };
-            depth[i].is_finite() && !emitter
+            let ggx = gt_material.is_none_or(|m| m.data[i * m.channels] > 0.5);
+            depth[i].is_finite() && !emitter && ggx
         })
         .collect()
 }
@@ -226,6 +234,7 @@ pub fn intrinsic_metrics_with_progress(
             ("albedo", &f.albedo, 3),
             ("roughness", &f.roughness, 1),
             ("emitter mask", &f.emitter_mask, 1),
+            ("material mask", &f.material_mask, 1),
         ] {
             if let Some(m) = map {
                 check_dims(f, what, m, ch)?;
@@ -249,7 +258,12 @@ pub fn intrinsic_metrics_with_progress(
         if let Some(x) = ssim(pred, gt, None)? {
             s.push(x);
         }
-        let mask = material_mask(&v.depth, f.emitter_mask.as_ref(), &v.emitter_mask);
+        let mask = material_mask(
+            &v.depth,
+            f.emitter_mask.as_ref(),
+            &v.emitter_mask,
+            f.material_mask.as_ref(),
+        );
         if let Some(a) = &f.albedo {
             if a.channels == 3 {
                 acc.add_albedo(&v.kd, &a.data, &mask);
@@ -328,11 +342,20 @@ mod tests {
     fn roughness_l1_and_masks() {
         let depth = [1.0, f32::INFINITY, 2.0, 3.0];
         let pred_emitter = [false, false, true, false];
-        assert_eq!(material_mask(&depth, None, &pred_emitter), [true, false, false, true]);
+        assert_eq!(
+            material_mask(&depth, None, &pred_emitter, None),
+            [true, false, false, true]
+        );
         let gt_mask = ImageF32::from_data(2, 2, 1, vec![0.0, 0.0, 0.0, 1.0]);
         assert_eq!(
-            material_mask(&depth, Some(&gt_mask), &pred_emitter),
+            material_mask(&depth, Some(&gt_mask), &pred_emitter, None),
             [true, false, true, false]
+        );
+        // The dataset's material mask drops the pixels it marks non-GGX (0), whatever else.
+        let ggx = ImageF32::from_data(2, 2, 1, vec![0.0, 1.0, 1.0, 1.0]);
+        assert_eq!(
+            material_mask(&depth, None, &pred_emitter, Some(&ggx)),
+            [false, false, false, true]
         );
         let mut acc = MaterialAccumulator::default();
         acc.add_roughness(

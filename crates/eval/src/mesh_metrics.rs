@@ -1,5 +1,7 @@
-//! Mesh accuracy, completeness, precision, recall and F-score (the paper's Sec. 6 and supp. Sec. D, as the README's `eval` row lists), on points
-//! sampled uniformly by area on both meshes and culled to what the training views can see: the
+//! Mesh accuracy, completeness, precision, recall and F-score (the paper's Sec. 6 and supp. Sec.
+//! D, as the README's `eval` row lists), on points sampled uniformly by area on both meshes (a GT
+//! point cloud, a PLY without faces, gives its points as they are) and culled to what the training
+//! views can see: the
 //! paper's evaluation re-fuses both meshes from the training views, and the equivalent on points is
 //! that a ground-truth point counts where some view's GT depth sees it, and a predicted point counts
 //! unless the GT surface hides it from every view (so floaters in free space still cost precision);
@@ -352,7 +354,9 @@ struct VisibleSamples {
 }
 
 /// Samples `options.num_points` on each mesh and keeps those the views see (all of them without
-/// views), reporting the sampling and culling steps.
+/// views), reporting the sampling and culling steps. A GT without faces is a point cloud (the
+/// release's promised GT): its points are the GT samples as they are, each with face 0 (a point
+/// cloud has no per-face object ids, so the faces are never looked up).
 fn visible_samples(
     pred: &TriangleMesh,
     gt: &TriangleMesh,
@@ -362,10 +366,16 @@ fn visible_samples(
 ) -> Result<VisibleSamples, DataError> {
     let tolerance = options.depth_tolerance.unwrap_or(options.threshold);
     let on_done = |n: u64| progress.inc(n);
+    let gt_is_cloud = gt.num_faces() == 0;
+    let gt_sampled = if gt_is_cloud { 0 } else { options.num_points };
     // The same seed on both meshes: identical meshes give identical samples (distance 0).
-    progress.step(progress::SAMPLING, 2 * options.num_points as u64);
+    progress.step(progress::SAMPLING, (options.num_points + gt_sampled) as u64);
     let (pred_all, _) = sample_reporting(pred, options.num_points, options.seed, &on_done);
-    let (gt_all, gt_faces_all) = sample_reporting(gt, options.num_points, options.seed, &on_done);
+    let (gt_all, gt_faces_all) = if gt_is_cloud {
+        (gt.positions.clone(), vec![0; gt.positions.len()])
+    } else {
+        sample_reporting(gt, options.num_points, options.seed, &on_done)
+    };
     let (pred_keep, gt_keep) = if views.is_empty() {
         (vec![true; pred_all.len()], vec![true; gt_all.len()])
     } else {
@@ -561,6 +571,31 @@ mod tests {
         // Most of the room is seen by the four views, none of it is hidden.
         assert!(m.gt_points > 150_000, "{}", m.gt_points);
         assert_eq!(m.pred_points, m.gt_points);
+    }
+
+    /// A GT point cloud (a mesh without faces) is scored as its points: dense points on the room
+    /// score the room's mesh perfectly, the same points moved by twice the threshold score zero,
+    /// and the points are counted as they are (culled, not resampled).
+    #[test]
+    fn a_gt_point_cloud_is_scored_as_its_points() {
+        let gt = room();
+        let views = room_views(&gt);
+        let (points, _) = sample_surface(&gt, 200_000, 7);
+        let cloud = TriangleMesh {
+            positions: points,
+            ..Default::default()
+        };
+        let m = mesh_metrics(&gt, &cloud, &views, &options()).unwrap();
+        assert!(m.fscore.unwrap() > 0.99, "{m:?}");
+        assert!(m.accuracy.unwrap() < 0.01 && m.completeness.unwrap() < 0.01, "{m:?}");
+        assert!(m.gt_points > 150_000 && m.gt_points <= 200_000, "{}", m.gt_points);
+        let far = TriangleMesh {
+            positions: cloud.positions.iter().map(|p| p.map(|x| x + 0.1)).collect(),
+            ..Default::default()
+        };
+        let m = mesh_metrics(&gt, &far, &[], &options()).unwrap();
+        assert_eq!(m.gt_points, 200_000, "without views every point counts");
+        assert!(m.recall.unwrap() < 0.25, "{m:?}");
     }
 
     #[test]

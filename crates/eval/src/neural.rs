@@ -12,7 +12,7 @@ use crate::report::{
     lpips_too_small_note, no_lpips_note, EvalReport, MeshReport, NovelViewMetrics, ThinObjectsReport, ViewSplitMetrics,
 };
 use i2sdf_data::dataset::ObjectInfo;
-use i2sdf_data::ply::read_ply;
+use i2sdf_data::ply::read_ground_truth;
 use i2sdf_data::{Bounds, DataError, Dataset, Frame, Split};
 use i2sdf_model::images::render_volume_view;
 use i2sdf_model::renderer::RenderSettings;
@@ -275,6 +275,8 @@ pub fn evaluate_with_progress(
     options: &EvalOptions,
     progress: &dyn EvalProgress,
 ) -> Result<(EvalReport, TriangleMesh), DataError> {
+    // The GT first: a bad one is refused before the views are rendered.
+    let gt = dataset.mesh_path.as_ref().map(read_ground_truth).transpose()?;
     let mut report = view_metrics_with_progress(
         scene,
         dataset,
@@ -288,9 +290,8 @@ pub fn evaluate_with_progress(
     }
     progress.step(progress::MESH_EXTRACTION, 0);
     let mesh = extract_mesh(scene, bounds, options.mesh_resolution)?;
-    report.geometry.mesh = match &dataset.mesh_path {
-        Some(gt_path) => {
-            let gt = read_ply(gt_path)?;
+    report.geometry.mesh = match gt {
+        Some(gt) => {
             let views = culling_views(dataset);
             let (mesh_report, thin) =
                 mesh_report_with_progress(&mesh, &gt, &views, &dataset.objects, &options.mesh, progress)?;

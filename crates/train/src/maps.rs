@@ -7,7 +7,9 @@
 //!   where no normal loss lost 0.08 F-score) or none; they supervise stage 1's normal loss;
 //! - depth: without it stage 1 has no depth loss and no error-guided sampling, and takes its
 //!   smoothness and bubble points from the rendered surface (`crate::stage1`);
-//! - HDR: stage 2 fits the LDR images instead (`crate::stage2::targets`).
+//! - HDR: stage 2 fits the LDR images instead (`crate::stage2::targets`);
+//! - material masks (the paper's release marks non-GGX areas): without them stage 2 fits every
+//!   surface pixel.
 //!
 //! Masks found from the images are written into the run (`RUN/emitter_masks/NAME.png`, for the
 //! user to look at) and read back by every later session of it (a resume, stage 2), so the whole
@@ -357,6 +359,16 @@ impl TrainingMaps {
             None => {}
         }
         out.push(line("emitter masks", masks, emitters));
+        // Only datasets that have material masks (the paper's release) get the line: nothing
+        // stands in for a missing one.
+        let material_masks = count(&|f| f.material_mask.is_some());
+        if material_masks > 0 {
+            out.push(line(
+                "material masks",
+                material_masks,
+                "stage 2 does not fit the pixels they mark non-GGX (0)".into(),
+            ));
+        }
         out.push(line(
             "hdr",
             hdr,

@@ -202,6 +202,7 @@ fn gt_views(scene: &NeuralScene) -> Vec<TargetView> {
                 rgb,
                 saturated: vec![0; w * h],
                 emitter_mask: None,
+                material_mask: None,
                 normal: None,
             }
         })

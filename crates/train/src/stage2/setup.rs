@@ -168,7 +168,9 @@ pub(super) fn cluster_new_emitters(
 }
 
 /// Each hit pixel's kind (an emitter by the dataset's mask where it has one, else by F_e; a
-/// pixel marked emitter outside every emitter's box is dropped) and shading point, whose normal
+/// pixel marked emitter outside every emitter's box is dropped; a surface pixel the dataset's
+/// material mask marks non-GGX is dropped too, as no material of the model can reproduce it —
+/// the surface still reflects light onto the others) and shading point, whose normal
 /// is the dataset's normal map where it has one (an input, as in stage 1's normal loss; sharper
 /// than the SDF's gradient at edges), else the SDF's.
 pub(super) fn label_pixels(
@@ -190,6 +192,9 @@ pub(super) fn label_pixels(
             Some(m) => m[p as usize],
             None => cast.emitter_prob[j] > c2.emitter_threshold,
         };
+        if !is_emitter && view.material_mask.as_ref().is_some_and(|m| !m[p as usize]) {
+            continue;
+        }
         let to_cam = -cast.rays[i].dir;
         let given = view
             .normal
@@ -308,5 +313,55 @@ pub(super) fn mean_surface_target(pixels: &[CachedPixel]) -> f32 {
         (sum / n as f64) as f32
     } else {
         1.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stage2::PixelKind;
+
+    /// A surface pixel the dataset's material mask marks non-GGX is not fitted; an emitter pixel
+    /// is, whatever the mask says (emission is not a material).
+    #[test]
+    fn material_masked_surface_pixels_are_dropped() {
+        let hit = |x: f32| LabelledHit {
+            t: 1.0,
+            position: Vec3::new(x, 0.0, 1.0),
+            normal: Vec3::new(0.0, 0.0, -1.0),
+            emitter: None,
+        };
+        let cast = Cast {
+            order: vec![(0, 0), (0, 1), (0, 2)],
+            rays: vec![Ray::new(Vec3::ZERO, Vec3::Z, 0.0, 10.0); 3],
+            hits: vec![Some(hit(0.0)), Some(hit(0.1)), Some(hit(0.2))],
+            hit_idx: vec![0, 1, 2],
+            points: vec![Vec3::ZERO; 3],
+            emitter_prob: vec![0.0; 3],
+        };
+        let emitters = EmitterTable::new(
+            vec![Emitter {
+                centre: [0.2, 0.0, 1.0],
+                extent: [0.1; 3],
+                radius: 0.1,
+                points: 1,
+            }],
+            &[[1.0; 3]],
+        );
+        let view = TargetView {
+            camera: i2sdf_data::fixture::cameras(&Default::default())[0].clone(),
+            rgb: vec![[0.5; 3]; 3],
+            saturated: vec![0; 3],
+            emitter_mask: Some(vec![false, false, true]),
+            material_mask: Some(vec![true, false, false]),
+            normal: None,
+        };
+        let c2 = Stage2Config::default();
+        let pixels = label_pixels(&cast, &[view], &c2, &emitters, 0.05, &|_| {});
+        let kinds: Vec<(u32, PixelKind)> = pixels.iter().map(|p| (p.pixel, p.kind)).collect();
+        assert_eq!(
+            kinds,
+            [(0, PixelKind::Surface { index: 0 }), (2, PixelKind::Emitter(0))]
+        );
     }
 }

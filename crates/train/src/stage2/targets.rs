@@ -1,6 +1,7 @@
 //! Stage 2's targets: the training views in linear radiance in the units of the input images
 //! (docs/results.md, "Stage 2: emitters and materials"), with which channels are saturated, the emitter masks
-//! in force ([`TrainingMaps`]: the dataset's, or found from the images) and the dataset's normals.
+//! in force ([`TrainingMaps`]: the dataset's, or found from the images), the dataset's material
+//! masks and its normals.
 
 use crate::maps::TrainingMaps;
 use i2sdf_data::{Dataset, Radiometry, Split};
@@ -19,6 +20,9 @@ pub struct TargetView {
     pub saturated: Vec<u8>,
     /// The emitter mask in force (`maps.emitter_masks`), if any.
     pub emitter_mask: Option<Vec<bool>>,
+    /// The dataset's material mask, if any: false where the material is not one GGX can fit, so
+    /// the surface pixel is not fitted (`Frame::material_mask`).
+    pub material_mask: Option<Vec<bool>>,
     /// The dataset's world-space normal per pixel, where it has normal maps (zero: none).
     pub normal: Option<Vec<[f32; 3]>>,
 }
@@ -65,6 +69,10 @@ pub fn target_views(dataset: &Dataset, use_hdr: bool, maps: &TrainingMaps) -> Ve
                 saturated,
                 emitter_mask: maps
                     .emitter_mask(index, f)
+                    .map(|m| m.data.iter().map(|&v| v > 0.5).collect()),
+                material_mask: f
+                    .material_mask
+                    .as_ref()
                     .map(|m| m.data.iter().map(|&v| v > 0.5).collect()),
                 normal: f
                     .normal
