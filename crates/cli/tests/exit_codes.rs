@@ -737,3 +737,50 @@ fn a_paper_format_scene_is_evaluated_with_every_figure_filled() {
     std::fs::remove_file(data.join("mesh.ply")).unwrap();
     assert!(metrics("none.json")["geometry"]["mesh"]["fscore"].is_null());
 }
+
+/// A declared exposure that the images contradict: `check` warns naming the key, stage 2
+/// refuses (exit 2, the run untouched) unless `--trust-exposure` is given.
+#[test]
+fn a_contradicted_exposure_is_refused_unless_trusted() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("room");
+    let o = i2sdf(&[
+        "synth",
+        "--out",
+        s(&data),
+        "--width",
+        "24",
+        "--height",
+        "18",
+        "--views",
+        "6",
+        "--spp",
+        "2",
+    ]);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    let json = data.join("transforms.json");
+    let mut t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let truth = t["ldr"]["exposure"].as_f64().unwrap();
+    t["ldr"]["exposure"] = serde_json::json!(truth * 3.0);
+    std::fs::write(&json, serde_json::to_string(&t).unwrap()).unwrap();
+    let o = i2sdf(&["check", "--data", s(&data)]);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    assert!(
+        o.stderr.contains("ldr.exposure") && o.stderr.contains("check the key"),
+        "{}",
+        o.stderr
+    );
+    let run = dir.path().join("run");
+    let mut args = vec!["train", "--quiet", "--data", s(&data), "--out", s(&run)];
+    args.extend_from_slice(&TINY);
+    expect(i2sdf(&args), 0, &[]);
+    let before = tree(&run);
+    let o = train_material(&data, &run, &TINY_STAGE2);
+    expect(o, 2, &["ldr.exposure", "measure", "--trust-exposure"]);
+    assert!(
+        tree_diff(&before, &tree(&run)).is_empty(),
+        "a refused stage 2 changed the run"
+    );
+    let o = train_material(&data, &run, &[&TINY_STAGE2[..], &["--trust-exposure"]].concat());
+    assert_eq!(o.code, 0, "{}", o.stderr);
+}

@@ -124,3 +124,44 @@ pub fn eval_args<'a>(run: &'a Path, data: &'a Path, out: &'a Path, extra: &[&'a 
     args.extend_from_slice(extra);
     args
 }
+
+/// Every file below `dir` (recursively) with its bytes: what "byte-identical" is checked against.
+pub fn tree(dir: &Path) -> std::collections::BTreeMap<String, Vec<u8>> {
+    fn walk(root: &Path, dir: &Path, out: &mut std::collections::BTreeMap<String, Vec<u8>>) {
+        for e in std::fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            let rel = p.strip_prefix(root).unwrap().display().to_string();
+            if p.is_dir() {
+                out.insert(format!("{rel}/"), Vec::new());
+                walk(root, &p, out);
+            } else {
+                out.insert(rel, std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    let mut out = std::collections::BTreeMap::new();
+    walk(dir, dir, &mut out);
+    out
+}
+
+/// What differs between two trees, in words (empty: byte-identical).
+pub fn tree_diff(
+    before: &std::collections::BTreeMap<String, Vec<u8>>,
+    after: &std::collections::BTreeMap<String, Vec<u8>>,
+) -> Vec<String> {
+    let mut out = Vec::new();
+    for (k, v) in before {
+        match after.get(k) {
+            None => out.push(format!("{k} removed")),
+            Some(w) if w != v => out.push(format!("{k} changed")),
+            _ => {}
+        }
+    }
+    out.extend(
+        after
+            .keys()
+            .filter(|k| !before.contains_key(*k))
+            .map(|k| format!("{k} added")),
+    );
+    out
+}
