@@ -363,7 +363,7 @@ fn read_radiometry(root: &Path) -> Result<Radiometry> {
     crate::native::parse_ldr(&path, top)
 }
 
-/// The name of the optional radiometry declaration of a paper-format dataset ([`read_radiometry`]).
+/// The name of the optional radiometry declaration of a paper-format dataset (read by `read_radiometry`).
 pub const RADIOMETRY_FILE: &str = "radiometry.json";
 
 /// [`load`] with the camera archive already open (from a file or from bytes in memory: see

@@ -12,7 +12,7 @@
 //! estimator is unbiased for any material: its proposal (cosine + GGX lobes of five roughnesses
 //! about the frozen normal + a cone towards each emitter) covers every direction f_r·cos can
 //! weigh. The paper's own estimator — N = 16 directions importance-sampled from the current
-//! materials' GGX mixture, traced every iteration — is [`Stage2Estimator::Live`], the reference
+//! materials' GGX mixture, traced every iteration — is [`crate::config::Stage2Estimator::Live`], the reference
 //! the cached fit is checked against.
 //!
 //! Radiometry (docs/results.md, "Stage 2: emitters and materials"): targets are linear radiance in the units of the
