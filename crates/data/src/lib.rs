@@ -24,6 +24,7 @@ pub mod mesh;
 pub mod native;
 pub mod output;
 pub mod paper;
+pub mod paper_write;
 pub mod ply;
 pub mod radiometry;
 pub mod sensor_depth;

@@ -108,6 +108,7 @@ fn synthesize(args: &Args, plan: &mut StagePlan, scene: &Path, train_data: &Path
             no_masks: false,
             no_hdr: false,
             pose_noise: None,
+            format: synth::OutputFormat::Native,
         })?;
     }
     check::run(check::Args {

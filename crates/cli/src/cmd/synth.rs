@@ -1,9 +1,11 @@
 //! `i2sdf synth`: render a procedural room (or a TOML scene description) into a dataset in the
-//! native format, with full ground truth. Argument parsing and progress display only; the work is
-//! in `i2sdf-synth`.
+//! native format, with full ground truth, or in the paper's release format (`--format paper`: the
+//! native dataset is rendered into a hidden scratch folder inside the staged output, loaded, written
+//! out by `i2sdf_data::paper_write` and removed). Argument parsing and progress display only; the
+//! work is in `i2sdf-synth` and `i2sdf-data`.
 
 use anyhow::Context;
-use i2sdf_data::DataError;
+use i2sdf_data::{paper_write, DataError};
 use i2sdf_synth::capture::{self, CaptureOptions, PoseNoise};
 use i2sdf_synth::tracer::Estimator;
 use i2sdf_synth::{generate, DepthNoise, RoomPreset, SceneDesc, SynthOptions};
@@ -84,6 +86,40 @@ pub struct Args {
     /// (true poses in poses_true.json; test poses exact).
     #[arg(long, value_name = "CM,DEG")]
     pub pose_noise: Option<String>,
+    /// The dataset's format: native (transforms.json) or paper (the paper's release:
+    /// cameras_normalize.npz, image/, val/, … with mesh.ply a point cloud sampled on the GT mesh
+    /// and all-ones material masks, as every material of a synthetic room is GGX). The relit test
+    /// views, GT emitters and objects have no place in the paper's format and are not written.
+    #[arg(long, value_enum, default_value = "native")]
+    pub format: OutputFormat,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum OutputFormat {
+    Native,
+    Paper,
+}
+
+/// Points per square metre of the GT surface in a paper-format `mesh.ply` (about 2 cm apart, finer
+/// than the scoring threshold of the mesh metrics).
+const CLOUD_DENSITY: f64 = 2500.0;
+
+/// The capture options the paper's format cannot hold, refused before anything is rendered: its
+/// cameras are pinhole, and its reader takes every pose as exact.
+fn check_paper_capture(capture: &CaptureOptions) -> Result<(), DataError> {
+    if !capture.lens.is_pinhole() {
+        return Err(DataError::invalid(format!(
+            "--format paper: the paper's format has pinhole cameras only, not the {} lens (add --lens none)",
+            capture.lens.model_name()
+        )));
+    }
+    if capture.pose_perturbation().is_some() {
+        return Err(DataError::invalid(
+            "--format paper: the paper's format has no way to declare perturbed poses (leave out --pose-noise, \
+             or give --pose-noise 0,0 with --capture)",
+        ));
+    }
+    Ok(())
 }
 
 /// The capture options of the flags: `--capture`'s phone defaults (or the exact room), then each
@@ -162,6 +198,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         capture,
     };
     opts.validate()?;
+    if args.format == OutputFormat::Paper {
+        check_paper_capture(&opts.capture)?;
+    }
     let inputs: Vec<&std::path::Path> = args.scene.iter().map(PathBuf::as_path).collect();
     let staged = crate::cmd::output_dir(
         "--out",
@@ -170,7 +209,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "a dataset made by synth",
         &made_by_synth,
         &inputs,
-        Some(opts.estimated_bytes()),
+        // The paper format's native scratch copy is on disk beside it until the end.
+        Some(opts.estimated_bytes() * if args.format == OutputFormat::Paper { 2 } else { 1 }),
     )?;
     let bar = crate::progress::Step::new(
         &format!(
@@ -180,13 +220,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         (opts.views * opts.height) as u64,
         "rows",
     );
-    let summary = generate(desc, &opts, staged.path(), &|| bar.inc(1))
+    let native_dir = match args.format {
+        OutputFormat::Native => staged.path().to_path_buf(),
+        OutputFormat::Paper => staged.path().join(NATIVE_SCRATCH),
+    };
+    let summary = generate(desc, &opts, &native_dir, &|| bar.inc(1))
         .with_context(|| format!("synthesizing {}", args.out.display()))?;
     bar.finish();
+    if args.format == OutputFormat::Paper {
+        convert_to_paper(&native_dir, staged.path())?;
+    }
     staged.commit()?;
     println!(
-        "wrote {}: {} train + {} test views, {} triangles, {} emitters, exposure {:.4}, rendered in {:.1} s",
+        "wrote {} ({} format): {} train + {} test views, {} triangles, {} emitters, exposure {:.4}, rendered in {:.1} s",
         args.out.display(),
+        match args.format {
+            OutputFormat::Native => "native",
+            OutputFormat::Paper => "the paper's",
+        },
         summary.train_views,
         summary.test_views,
         summary.triangles,
@@ -197,11 +248,40 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Whether a folder is a dataset `synth` wrote (its transforms.json names the generator), the
-/// only kind `--force` replaces.
+/// The hidden folder of the staged output that a paper-format run renders the native dataset into
+/// (hidden: the staging and `--force` checks ignore it; removed before the commit).
+const NATIVE_SCRATCH: &str = ".native";
+
+/// Loads the native dataset in `native` and writes it into `out` in the paper's format, with the
+/// scene description beside it (provenance, and how `--force` recognizes the folder); then removes
+/// `native`.
+fn convert_to_paper(native: &std::path::Path, out: &std::path::Path) -> anyhow::Result<()> {
+    let dataset = i2sdf_data::load(native)?;
+    let options = paper_write::WriteOptions {
+        point_cloud_density: Some(CLOUD_DENSITY),
+    };
+    let written = paper_write::write(&dataset, out, &options)?;
+    std::fs::copy(native.join("scene.toml"), out.join("scene.toml"))
+        .with_context(|| format!("copying {}", native.join("scene.toml").display()))?;
+    std::fs::remove_dir_all(native).with_context(|| format!("removing {}", native.display()))?;
+    for note in &written.left_out {
+        crate::progress::line(&format!("not in the paper's format: {note}"));
+    }
+    Ok(())
+}
+
+/// Whether a folder is a dataset `synth` wrote, the only kind `--force` replaces: a native one
+/// whose transforms.json names the generator, or a paper-format one (its cameras and scene.toml,
+/// and nothing but the release's entries beside them).
 fn made_by_synth(dir: &std::path::Path) -> bool {
-    std::fs::read_to_string(dir.join("transforms.json"))
+    let native = std::fs::read_to_string(dir.join("transforms.json"))
         .ok()
         .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-        .is_some_and(|v| v["generator"]["name"] == "i2sdf synth")
+        .is_some_and(|v| v["generator"]["name"] == "i2sdf synth");
+    let paper = dir.join("cameras_normalize.npz").is_file()
+        && dir.join("scene.toml").is_file()
+        && crate::cmd::only_entries(dir, |name, _| {
+            name == "scene.toml" || paper_write::RELEASE_ENTRIES.contains(&name)
+        });
+    native || paper
 }
