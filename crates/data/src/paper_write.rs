@@ -33,7 +33,7 @@ use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 use std::path::Path;
 
-/// How [`write`] writes what the release format leaves open.
+/// How [`write()`] writes what the release format leaves open.
 #[derive(Clone, Debug, Default)]
 pub struct WriteOptions {
     /// `Some(d)`: `mesh.ply` is a point cloud of about `d` points per square world unit of the GT
@@ -41,10 +41,10 @@ pub struct WriteOptions {
     pub point_cloud_density: Option<f64>,
 }
 
-/// The most points [`write`] samples for a point cloud (48 MB of PLY at most).
+/// The most points [`write()`] samples for a point cloud (48 MB of PLY at most).
 pub const MAX_CLOUD_POINTS: usize = 4_000_000;
 
-/// The entries [`write`] may create in its folder (the release's layout); it refuses a folder that
+/// The entries [`write()`] may create in its folder (the release's layout); it refuses a folder that
 /// already holds one.
 pub const RELEASE_ENTRIES: [&str; 11] = [
     "cameras_normalize.npz",
@@ -60,7 +60,7 @@ pub const RELEASE_ENTRIES: [&str; 11] = [
     RADIOMETRY_FILE,
 ];
 
-/// What [`write`] wrote, for the caller's summary.
+/// What [`write()`] wrote, for the caller's summary.
 #[derive(Clone, Debug, Default)]
 pub struct Written {
     pub train_views: usize,

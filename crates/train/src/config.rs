@@ -350,6 +350,13 @@ pub struct PoseConfig {
     /// The fraction of stage 1 after which the poses are corrected (the fields first need a
     /// rough scene to align against).
     pub start: f32,
+    /// With depth: every how many iterations the views are aligned to the SDF.
+    pub align_every: u64,
+    /// With depth: Gauss–Newton rounds per alignment (each on fresh depth points, the SDF held).
+    pub align_rounds: u32,
+    /// With depth: the fraction of each Gauss–Newton step taken (the surface moves under the
+    /// poses while both are learned).
+    pub align_damping: f32,
 }
 
 impl Default for PoseConfig {
@@ -365,6 +372,9 @@ impl Default for PoseConfig {
             lr_translation: 5e-5,
             regularization: 1e-3,
             start: 0.5,
+            align_every: 10,
+            align_rounds: 1,
+            align_damping: 0.5,
         }
     }
 }
@@ -509,6 +519,9 @@ impl TrainConfig {
         positive("pose.lr_translation", p.lr_translation, 1.0)?;
         real("pose.regularization", p.regularization, 0.0, 1e4)?;
         real("pose.start", p.start, 0.0, 1.0)?;
+        int("pose.align_every", p.align_every, 1, 1_000_000)?;
+        int("pose.align_rounds", p.align_rounds, 1, 100)?;
+        positive("pose.align_damping", p.align_damping, 1.0)?;
         if p.correction == PoseCorrectionMode::On && !matches!(self.model.backbone, Backbone::HashGrid) {
             return Err(
                 "pose.correction = \"on\" needs the hash-grid backbone (model.backbone = \"hash_grid\")".into(),

@@ -31,7 +31,7 @@ use i2sdf_model::{NeuralScene, SceneGrads};
 use i2sdf_nn::params::ModuleSlot;
 use i2sdf_nn::{Adam, AdamConfig, LrSchedule, Parameters};
 use pdf_map::{PdfMaps, PixelRef};
-use pose_correction::{AlignPoint, PoseCorrection};
+use pose_correction::{surface_offset, AlignPoint, PoseCorrection};
 use rand::Rng;
 use rand_pcg::Pcg64;
 use rays::{train_images, RayBatch, TrainImage};
@@ -116,11 +116,9 @@ impl Parameters for PdfValues {
 /// The largest SDF residual (normalized units, ~7 cm in the default room) a depth point pulls
 /// its pose with: beyond it the point is more likely a flying pixel or an unfitted surface.
 const POSE_RESIDUAL_CLAMP: f32 = 0.02;
-/// Pose alignment: every how many iterations, depth points per view, and the fraction of the
-/// Gauss–Newton step taken (the surface moves under the poses while both are learned).
-const ALIGN_EVERY: u64 = 10;
+/// Pose alignment: depth points per view and Gauss–Newton round (how often, how many rounds and
+/// how much of each step are `pose.align_*`).
 const ALIGN_POINTS: usize = 256;
-const ALIGN_DAMPING: f32 = 0.5;
 
 /// The checkpoint's prefix of the pose corrections, and its metadata key saying they are there.
 pub const POSE_PREFIX: &str = "adam.pose_correction";
@@ -393,62 +391,77 @@ impl Stage1 {
     }
 
     /// One step of the pose corrections, then the images take the new poses. With depth, every
-    /// [`ALIGN_EVERY`] iterations each view is aligned to the SDF like a depth camera to a fused
+    /// `pose.align_every` iterations each view is aligned to the SDF like a depth camera to a fused
     /// surface (point-to-plane Gauss–Newton on [`ALIGN_POINTS`] of its depth points,
     /// [`PoseCorrection::align_view`]). That replaced following the rendering losses' gradient
     /// (with Adam), which is biased and noisy: measured on the 80×60 room it moved exact cameras
     /// ~10 cm forward along their view. Without depth that gradient is all there is
     /// ([`renderer::ray_position_gradients`], the samples' t held fixed).
     fn correct_poses(&mut self, rng: &mut Pcg64) {
-        let Some(poses) = &mut self.poses else { return };
+        let Some(poses) = &self.poses else { return };
         if !poses.active(self.iteration) {
             return;
         }
         if !self.no_depth {
-            if self.iteration % ALIGN_EVERY != 0 {
+            let p = &self.config.pose;
+            let (every, rounds, damping) = (p.align_every, p.align_rounds, p.align_damping);
+            if self.iteration % every != 0 {
                 return;
             }
-            // Depth points of every view on its corrected rays, queried in one batch.
-            let mut xs: Vec<f32> = Vec::new();
-            let mut offsets: Vec<(usize, [f32; 3])> = Vec::new();
-            for (i, im) in self.images.iter().enumerate() {
-                let pixels = im.pixels();
-                let (mut found, mut tries) = (0, 0);
-                while found < ALIGN_POINTS && tries < 8 * ALIGN_POINTS {
-                    tries += 1;
-                    let p = rng.gen_range(0..pixels);
-                    let Some(x) = im.surface_point(p) else { continue };
-                    let (o, _) = im.ray(p);
-                    xs.extend_from_slice(&x);
-                    offsets.push((i, std::array::from_fn(|k| x[k] - o[k])));
-                    found += 1;
-                }
+            for _ in 0..rounds {
+                self.align_views(rng, damping);
+                self.apply_poses();
             }
-            let n = offsets.len();
-            let (mut sdf, mut grad) = (vec![0.0f32; n], vec![0.0f32; 3 * n]);
-            i2sdf_model::query::SceneQuery::new(&self.scene).sdf_gradient(&xs, &mut sdf, &mut grad);
-            let mut per_view: Vec<Vec<AlignPoint>> = vec![Vec::new(); self.images.len()];
-            for (j, &(i, offset)) in offsets.iter().enumerate() {
-                per_view[i].push(AlignPoint {
-                    offset,
-                    sdf: sdf[j],
-                    normal: [grad[3 * j], grad[3 * j + 1], grad[3 * j + 2]],
-                });
-            }
-            for (i, pts) in per_view.iter().enumerate() {
-                poses.align_view(i, pts, POSE_RESIDUAL_CLAMP, ALIGN_DAMPING);
-            }
-            poses.finish_alignment();
         } else {
             let Some(g) = renderer::ray_position_gradients(&self.scene, &self.ws) else {
                 return;
             };
+            let poses = self.poses.as_mut().expect("checked above");
             for (r, g) in g.iter().enumerate() {
                 poses.add_ray_gradient(self.batch.image[r] as usize, self.batch.dir[r], g[0], g[1]);
             }
             poses.step();
+            self.apply_poses();
         }
-        self.apply_poses();
+    }
+
+    /// One Gauss–Newton round of every view against the SDF as it stands: [`ALIGN_POINTS`] depth
+    /// points per view on its corrected rays (queried in one batch), the scene-wide gap between
+    /// them and the zero set, then each view's step ([`PoseCorrection::align_view`]).
+    fn align_views(&mut self, rng: &mut Pcg64, damping: f32) {
+        let Some(poses) = &mut self.poses else { return };
+        let mut xs: Vec<f32> = Vec::new();
+        let mut offsets: Vec<(usize, [f32; 3])> = Vec::new();
+        for (i, im) in self.images.iter().enumerate() {
+            let pixels = im.pixels();
+            let (mut found, mut tries) = (0, 0);
+            while found < ALIGN_POINTS && tries < 8 * ALIGN_POINTS {
+                tries += 1;
+                let p = rng.gen_range(0..pixels);
+                let Some(x) = im.surface_point(p) else { continue };
+                let (o, _) = im.ray(p);
+                xs.extend_from_slice(&x);
+                offsets.push((i, std::array::from_fn(|k| x[k] - o[k])));
+                found += 1;
+            }
+        }
+        let n = offsets.len();
+        let (mut sdf, mut grad) = (vec![0.0f32; n], vec![0.0f32; 3 * n]);
+        i2sdf_model::query::SceneQuery::new(&self.scene).sdf_gradient(&xs, &mut sdf, &mut grad);
+        let mut per_view: Vec<Vec<AlignPoint>> = vec![Vec::new(); self.images.len()];
+        for (j, &(i, offset)) in offsets.iter().enumerate() {
+            per_view[i].push(AlignPoint {
+                offset,
+                sdf: sdf[j],
+                normal: [grad[3 * j], grad[3 * j + 1], grad[3 * j + 2]],
+            });
+        }
+        let all: Vec<AlignPoint> = per_view.iter().flatten().copied().collect();
+        let offset = surface_offset(&all, POSE_RESIDUAL_CLAMP);
+        for (i, pts) in per_view.iter().enumerate() {
+            poses.align_view(i, pts, offset, POSE_RESIDUAL_CLAMP, damping);
+        }
+        poses.finish_alignment();
     }
 
     /// Gives every training image its current pose correction.
