@@ -116,8 +116,8 @@ impl Parameters for PdfValues {
 /// The largest SDF residual (normalized units, ~7 cm in the default room) a depth point pulls
 /// its pose with: beyond it the point is more likely a flying pixel or an unfitted surface.
 const POSE_RESIDUAL_CLAMP: f32 = 0.02;
-/// Pose alignment: depth points per view and Gauss–Newton round (how often, how many rounds and
-/// how much of each step are `pose.align_*`).
+/// Pose alignment: depth points per view in each Gauss–Newton round (how often, how many rounds
+/// and how much of each step are `pose.align_*`).
 const ALIGN_POINTS: usize = 256;
 
 /// The checkpoint's prefix of the pose corrections, and its metadata key saying they are there.
@@ -456,8 +456,7 @@ impl Stage1 {
                 normal: [grad[3 * j], grad[3 * j + 1], grad[3 * j + 2]],
             });
         }
-        let all: Vec<AlignPoint> = per_view.iter().flatten().copied().collect();
-        let offset = surface_offset(&all, POSE_RESIDUAL_CLAMP);
+        let offset = surface_offset(&sdf, POSE_RESIDUAL_CLAMP);
         for (i, pts) in per_view.iter().enumerate() {
             poses.align_view(i, pts, offset, POSE_RESIDUAL_CLAMP, damping);
         }

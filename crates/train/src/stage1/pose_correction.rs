@@ -234,14 +234,14 @@ impl Parameters for PoseCorrection {
     }
 }
 
-/// The scene-wide gap between the views' depth points and the SDF's zero set: the median SDF
-/// value at the depth points within `clamp`. Volume rendering leaves one (its expected depth lies
+/// The scene-wide gap between the views' depth points and the SDF's zero set: the median of the
+/// SDF values `sdf` at every view's depth points, of those within `clamp`. Volume rendering leaves one (its expected depth lies
 /// in front of the zero set, so the depth loss pushes the zero set behind the depth points); left
 /// in the residuals it reads as "move forward", and on the exact 80×60 room the corrections
 /// drifted ~9 cm along the views. The pose errors of the views scatter the residuals both ways,
 /// so the median over every view is the gap. 0 without points.
-pub fn surface_offset(points: &[AlignPoint], clamp: f32) -> f32 {
-    let mut r: Vec<f32> = points.iter().map(|p| p.sdf).filter(|d| d.abs() <= clamp).collect();
+pub fn surface_offset(sdf: &[f32], clamp: f32) -> f32 {
+    let mut r: Vec<f32> = sdf.iter().copied().filter(|d| d.abs() <= clamp).collect();
     if r.is_empty() {
         return 0.0;
     }
@@ -512,7 +512,7 @@ mod tests {
                         }
                     })
                     .collect();
-                let offset = surface_offset(&pts, 0.1);
+                let offset = surface_offset(&pts.iter().map(|p| p.sdf).collect::<Vec<_>>(), 0.1);
                 pc.align_view(0, &pts, offset, 0.1, 1.0);
             }
             // The corrected pose against the truth.
@@ -570,7 +570,7 @@ mod tests {
                     }
                 })
                 .collect();
-            assert!((surface_offset(&pts, 0.1) - (gap - error - tz)).abs() < 1e-5);
+            assert!((surface_offset(&pts.iter().map(|p| p.sdf).collect::<Vec<_>>(), 0.1) - (gap - error - tz)).abs() < 1e-5);
             pc.align_view(0, &pts, gap, 0.1, 1.0);
         }
         assert!((pc.delta[0][5] + error).abs() < 1e-4, "{:?}", pc.delta[0]);
