@@ -236,10 +236,11 @@ impl Parameters for PoseCorrection {
 
 /// The scene-wide gap between the views' depth points and the SDF's zero set: the median of the
 /// SDF values `sdf` at every view's depth points, of those within `clamp`. Volume rendering
-/// leaves one (its expected depth lies in front of the zero set, so the depth loss pushes the zero set behind the depth points); left
-/// in the residuals it reads as "move forward", and on the exact 80×60 room the corrections
-/// drifted ~9 cm along the views. The pose errors of the views scatter the residuals both ways,
-/// so the median over every view is the gap. 0 without points.
+/// leaves one (its expected depth lies in front of the zero set, so the depth loss pushes the
+/// zero set behind the depth points); left in the residuals it reads as "move forward", and on
+/// the exact 80×60 room the corrections drifted ~9 cm along the views. The pose errors of the
+/// views scatter the residuals both ways, so the median over every view is the gap. 0 without
+/// points.
 pub fn surface_offset(sdf: &[f32], clamp: f32) -> f32 {
     let mut r: Vec<f32> = sdf.iter().copied().filter(|d| d.abs() <= clamp).collect();
     if r.is_empty() {
