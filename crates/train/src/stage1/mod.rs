@@ -14,6 +14,7 @@
 
 pub mod losses;
 pub mod pdf_map;
+pub mod photometric;
 pub mod pose_correction;
 pub mod rays;
 pub mod schedule;
@@ -119,6 +120,9 @@ const POSE_RESIDUAL_CLAMP: f32 = 0.02;
 /// Pose alignment: depth points per view in each Gauss–Newton round (how often, how many rounds
 /// and how much of each step are `pose.align_*`).
 const ALIGN_POINTS: usize = 256;
+/// Pixels whose smoothed image changes by less than this per pixel (LDR, largest channel) hold a
+/// pose in no direction; they are not drawn for the photometric rows.
+const PHOTO_MIN_GRADIENT: f32 = 0.01;
 
 /// The checkpoint's prefix of the pose corrections, and its metadata key saying they are there.
 pub const POSE_PREFIX: &str = "adam.pose_correction";
@@ -147,6 +151,8 @@ pub struct Stage1 {
     /// Per training image: its frame's name, index and given pose (for `RUN/poses.json`).
     given_poses: Vec<(String, usize, glam::DMat4)>,
     normalization: i2sdf_data::Normalization,
+    /// The training images' smoothed gradients, made at the first photometric alignment.
+    image_gradients: Option<Vec<photometric::ImageGradient>>,
     /// No training pixel has depth: bubble and smoothness points come from the rendered surface.
     no_depth: bool,
     /// The training data's fingerprint (JSON), kept in every checkpoint so that a resume or a
@@ -203,6 +209,7 @@ impl Stage1 {
             normalization: dataset.normalization,
             dataset: fingerprint,
             no_depth: images.iter().all(|im| im.depth.iter().all(|d| *d <= 0.0)),
+            image_gradients: None,
             images,
             adam,
             specs,
@@ -429,7 +436,9 @@ impl Stage1 {
     /// points per view on its corrected rays (queried in one batch), the scene-wide gap between
     /// them and the zero set, then each view's step ([`PoseCorrection::align_view`]).
     fn align_views(&mut self, rng: &mut Pcg64, damping: f32) {
-        let Some(poses) = &mut self.poses else { return };
+        if self.poses.is_none() {
+            return;
+        }
         let mut xs: Vec<f32> = Vec::new();
         let mut offsets: Vec<(usize, [f32; 3])> = Vec::new();
         for (i, im) in self.images.iter().enumerate() {
@@ -457,10 +466,77 @@ impl Stage1 {
             });
         }
         let offset = surface_offset(&sdf, POSE_RESIDUAL_CLAMP);
+        let photo = self.photometric_rows(rng);
+        let poses = self.poses.as_mut().expect("checked above");
         for (i, pts) in per_view.iter().enumerate() {
-            poses.align_view(i, pts, offset, POSE_RESIDUAL_CLAMP, damping);
+            let rows = photo.get(i).map_or(&[][..], |r| &r[..]);
+            poses.align_view_with(i, pts, rows, offset, POSE_RESIDUAL_CLAMP, damping);
         }
         poses.finish_alignment();
+    }
+
+    /// The photometric rows of every view ([`photometric`]): `pose.photometric_points` pixels a
+    /// view among those with an image gradient, cast into the SDF in one batch, coloured by F_c
+    /// along their rays. Empty when the weight is 0. Pixels whose colour is clipped (lights)
+    /// carry no gradient the fields can match and are left out.
+    fn photometric_rows(&mut self, rng: &mut Pcg64) -> Vec<Vec<photometric::PhotoRow>> {
+        let p = &self.config.pose;
+        if p.photometric_weight <= 0.0 || p.photometric_points == 0 {
+            return Vec::new();
+        }
+        let want = p.photometric_points as usize;
+        if self.image_gradients.is_none() {
+            self.image_gradients = Some(self.images.iter().map(photometric::ImageGradient::of).collect());
+        }
+        let grads = self.image_gradients.as_ref().expect("set above");
+        let (mut origins, mut dirs, mut t_max, mut who) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for (i, im) in self.images.iter().enumerate() {
+            let (mut found, mut tries) = (0, 0);
+            while found < want && tries < 8 * want {
+                tries += 1;
+                let px = rng.gen_range(0..im.pixels());
+                if grads[i].strength(px) < PHOTO_MIN_GRADIENT || im.rgb[px].iter().any(|c| *c >= 0.99) {
+                    continue;
+                }
+                let (o, d) = im.ray(px);
+                origins.push(o);
+                dirs.push(d);
+                t_max.push(renderer::sphere_exit(o, d, 1.0));
+                who.push((i, px));
+                found += 1;
+            }
+        }
+        let n = origins.len();
+        let mut hits = vec![i2sdf_model::raycast::Hit::default(); n];
+        let near = self.settings.near;
+        let cast = i2sdf_model::raycast::CastSettings {
+            near,
+            ..Default::default()
+        };
+        i2sdf_model::raycast::SdfCaster::new(&self.scene, cast).cast(&origins, &dirs, &t_max, &mut hits);
+        let (mut pts, mut hit_dirs, mut keep) = (Vec::new(), Vec::new(), Vec::new());
+        for (k, h) in hits.iter().enumerate() {
+            // A ray that starts inside the SDF's solid (early in training, around a camera)
+            // "hits" at its start: that point is no surface, and its lever |v| ≈ 0 would give
+            // its rows an unbounded Jacobian.
+            if h.hit && h.t > 2.0 * near {
+                pts.extend_from_slice(&h.point);
+                hit_dirs.extend_from_slice(&dirs[k]);
+                keep.push(k);
+            }
+        }
+        let mut rgb = vec![0.0f32; pts.len()];
+        i2sdf_model::query::SceneQuery::new(&self.scene).radiance_at(&pts, &hit_dirs, &mut rgb);
+        let mut rows = vec![Vec::new(); self.images.len()];
+        for (j, &k) in keep.iter().enumerate() {
+            let (i, px) = who[k];
+            let x = [pts[3 * j], pts[3 * j + 1], pts[3 * j + 2]];
+            let c = [rgb[3 * j], rgb[3 * j + 1], rgb[3 * j + 2]];
+            if let Some(r) = photometric::photometric_rows(&self.images[i], &grads[i], px, x, c) {
+                rows[i].extend_from_slice(&r);
+            }
+        }
+        rows
     }
 
     /// Gives every training image its current pose correction.

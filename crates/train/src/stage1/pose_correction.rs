@@ -16,6 +16,7 @@
 //! After each step the rigid motion that best explains all corrections is taken out of them
 //! ([`remove_rigid_motion`]): the dataset's frame stays the frame.
 
+use super::photometric::PhotoRow;
 use crate::config::{PoseConfig, PoseCorrectionMode};
 use i2sdf_data::{Dataset, Normalization};
 use i2sdf_nn::params::Parameters;
@@ -73,6 +74,20 @@ impl PoseCorrection {
         })
     }
 
+    /// A correction of views at `centres`, active from the start (unit tests of the alignment).
+    #[cfg(test)]
+    pub(crate) fn standalone(config: PoseConfig, centres: Vec<[f32; 3]>) -> Self {
+        let n = centres.len();
+        PoseCorrection {
+            delta: vec![[0.0; 6]; n],
+            adam: Adam::new(AdamConfig::default()),
+            grad: vec![0.0; n * 6],
+            config,
+            start: 0,
+            centres,
+        }
+    }
+
     pub fn active(&self, iteration: u64) -> bool {
         iteration >= self.start
     }
@@ -105,6 +120,21 @@ impl PoseCorrection {
     /// the penalty pulls the whole correction towards zero; `damping` scales the step. Returns
     /// the points used.
     pub fn align_view(&mut self, i: usize, points: &[AlignPoint], offset: f32, clamp: f32, damping: f32) -> usize {
+        self.align_view_with(i, points, &[], offset, clamp, damping)
+    }
+
+    /// [`PoseCorrection::align_view`] with photometric rows as well ([`super::photometric`]),
+    /// each weighted by `pose.photometric_weight` and by Huber's rule beyond
+    /// [`PHOTO_HUBER`] (occlusion edges, speculars, the fields' own errors).
+    pub fn align_view_with(
+        &mut self,
+        i: usize,
+        points: &[AlignPoint],
+        photo: &[PhotoRow],
+        offset: f32,
+        clamp: f32,
+        damping: f32,
+    ) -> usize {
         // The gap is one unknown for the whole scene, not one per view: a view that sees mostly
         // one wall cannot tell a per-view gap from a move along the wall's normal, and with it
         // free (as first built) the exact 80×60 room's cameras drifted 8 cm along their views.
@@ -132,17 +162,48 @@ impl PoseCorrection {
             }
             used += 1;
         }
+        let pw = self.config.photometric_weight as f64;
+        let mut mass = used as f64;
+        if pw > 0.0 {
+            for row in photo {
+                if !row.r.is_finite() || row.j.iter().any(|v| !v.is_finite()) {
+                    continue;
+                }
+                let wt = pw
+                    * if row.r.abs() <= PHOTO_HUBER {
+                        1.0
+                    } else {
+                        (PHOTO_HUBER / row.r.abs()) as f64
+                    };
+                let j = row.j.map(f64::from);
+                for r in 0..6 {
+                    b[r] -= wt * j[r] * row.r as f64;
+                    for c in 0..6 {
+                        a[r][c] += wt * j[r] * j[c];
+                    }
+                }
+                used += 1;
+                mass += pw;
+            }
+        }
         if used < 12 {
             return used;
         }
-        let mu = self.config.regularization as f64 * used as f64;
+        // The penalty grows with the data's weight, so its pull is the same share of every view's.
+        let mu = self.config.regularization as f64 * mass;
         for r in 0..6 {
             a[r][r] += mu + 1e-9;
             b[r] -= mu * self.delta[i][r] as f64;
         }
         if let Some(step) = solve(a, b) {
+            // A trust region: a round moves a view by at most MAX_STEP_ROTATION and
+            // MAX_STEP_TRANSLATION (rows from a surface not yet fitted can ask for far more).
+            let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+            let scale = 1.0f64
+                .min(MAX_STEP_ROTATION / norm(&step[..3]).max(1e-30))
+                .min(MAX_STEP_TRANSLATION / norm(&step[3..]).max(1e-30));
             for r in 0..6 {
-                self.delta[i][r] += damping * step[r] as f32;
+                self.delta[i][r] += damping * (scale * step[r]) as f32;
             }
         }
         used
@@ -195,6 +256,14 @@ impl PoseCorrection {
         i2sdf_data::camera::rigid(rot, centre)
     }
 }
+
+/// The largest rotation (radians, ~0.6°) and translation (normalized units, ~3.5 cm in the
+/// default room) one alignment round moves a view by.
+pub const MAX_STEP_ROTATION: f64 = 0.01;
+pub const MAX_STEP_TRANSLATION: f64 = 0.01;
+
+/// Photometric residuals (LDR colour) beyond this count by Huber's rule.
+pub const PHOTO_HUBER: f32 = 0.05;
 
 /// A depth point of a view for [`PoseCorrection::align_view`] (normalized frame).
 #[derive(Clone, Copy, Debug)]
@@ -351,7 +420,7 @@ pub fn rotate(r: &[[f32; 3]; 3], v: [f32; 3]) -> [f32; 3] {
     std::array::from_fn(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2])
 }
 
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+pub(crate) fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     [
         a[1] * b[2] - a[2] * b[1],
         a[2] * b[0] - a[0] * b[2],
@@ -571,7 +640,9 @@ mod tests {
                     }
                 })
                 .collect();
-            assert!((surface_offset(&pts.iter().map(|p| p.sdf).collect::<Vec<_>>(), 0.1) - (gap - error - tz)).abs() < 1e-5);
+            assert!(
+                (surface_offset(&pts.iter().map(|p| p.sdf).collect::<Vec<_>>(), 0.1) - (gap - error - tz)).abs() < 1e-5
+            );
             pc.align_view(0, &pts, gap, 0.1, 1.0);
         }
         assert!((pc.delta[0][5] + error).abs() < 1e-4, "{:?}", pc.delta[0]);
