@@ -239,12 +239,16 @@ pub fn map_to_image(depth: &ImageF32, width: usize, height: usize) -> ImageF32 {
                 let w = 1.0 / d as f64;
                 let at = |uu: isize, vv: isize| -> Option<f64> {
                     let inside = uu >= 0 && vv >= 0 && (uu as usize) < depth.width && (vv as usize) < depth.height;
-                    let z = if inside { depth.pixel(uu as usize, vv as usize)[0] } else { 0.0 };
+                    let z = if inside {
+                        depth.pixel(uu as usize, vv as usize)[0]
+                    } else {
+                        0.0
+                    };
                     (z > 0.0).then(|| 1.0 / z as f64)
                 };
                 let (ui, vi) = (u as isize, v as isize);
-                let gu = transfer_slope(w, at(ui - 1, vi), at(ui + 1, vi));
-                let gv = transfer_slope(w, at(ui, vi - 1), at(ui, vi + 1));
+                let gu = transfer_slope(w, [at(ui - 2, vi), at(ui - 1, vi)], [at(ui + 1, vi), at(ui + 2, vi)]);
+                let gv = transfer_slope(w, [at(ui, vi - 2), at(ui, vi - 1)], [at(ui, vi + 1), at(ui, vi + 2)]);
                 let moved = w + gu * dx / sx + gv * dy / sy;
                 out.data[k] = if moved > 0.0 { (1.0 / moved) as f32 } else { d };
             }
@@ -253,27 +257,43 @@ pub fn map_to_image(depth: &ImageF32, width: usize, height: usize) -> ImageF32 {
     out
 }
 
-/// The slope per sensor pixel of inverse depth `w` at a sample along one grid axis, from its
-/// neighbours' inverse depths: the central difference where both continue the surface, the
-/// one-sided difference towards the one that does (the smoother) at an edge, 0 where neither does
-/// or there is none. A neighbour continues the surface when its step is at most
-/// [`TRANSFER_MAX_STEP`] of `w`; two sides disagree (an edge) when the steeper step is over twice
-/// the other.
-fn transfer_slope(w: f64, prev: Option<f64>, next: Option<f64>) -> f64 {
+/// The slope per sensor pixel of inverse depth `w` at a sample along one grid axis, from the
+/// inverse depths of its two neighbours on each side (`before` = [second, first], `after` =
+/// [first, second]): the central difference where both first neighbours continue the surface and
+/// agree; else the one-sided difference towards a side whose second neighbour confirms it (the
+/// three samples in a line, as on one plane: a one-sided step alone may cross a crease of the
+/// room, where depth is continuous but its slope is not), the smoother if both do; 0 where none
+/// does. A neighbour continues the surface when its step is at most [`TRANSFER_MAX_STEP`] of `w`;
+/// two sides disagree (an edge or a crease) when the steeper step is over twice the other.
+fn transfer_slope(w: f64, before: [Option<f64>; 2], after: [Option<f64>; 2]) -> f64 {
     let ok = |n: Option<f64>| n.filter(|n| (n - w).abs() <= TRANSFER_MAX_STEP * w);
-    match (ok(prev), ok(next)) {
-        (Some(p), Some(n)) => {
-            let (a, b) = ((w - p).abs(), (n - w).abs());
-            if a.max(b) <= (2.0 * a.min(b)).max(1e-3 * w) {
-                0.5 * (n - p)
-            } else if a <= b {
-                w - p
+    let (p, n) = (ok(before[1]), ok(after[0]));
+    if let (Some(p), Some(n)) = (p, n) {
+        let (a, b) = ((w - p).abs(), (n - w).abs());
+        if a.max(b) <= (2.0 * a.min(b)).max(1e-3 * w) {
+            return 0.5 * (n - p);
+        }
+    }
+    // Whether first and second neighbour continue `w` in a line: steps of one sign that agree.
+    let in_line = |first: Option<f64>, second: Option<f64>| -> Option<f64> {
+        let (f, s) = (first?, second?);
+        let (near, far) = (w - f, f - s);
+        let agree = near.abs().max(far.abs()) <= (2.0 * near.abs().min(far.abs())).max(1e-3 * w);
+        (agree && near * far >= 0.0).then_some(near)
+    };
+    // Slopes along +u: w − p behind, n − w ahead (the second step is n₂ − n).
+    let back = in_line(p, before[0]);
+    let ahead = in_line(n, after[1]).map(|near| -near);
+    match (back, ahead) {
+        (Some(a), Some(b)) => {
+            if a.abs() <= b.abs() {
+                a
             } else {
-                n - w
+                b
             }
         }
-        (Some(p), None) => w - p,
-        (None, Some(n)) => n - w,
+        (Some(a), None) => a,
+        (None, Some(b)) => b,
         (None, None) => 0.0,
     }
 }
@@ -364,7 +384,9 @@ mod tests {
     fn a_sample_is_carried_to_its_pixel_centre_along_the_surface() {
         // Inverse depth of a tilted plane in image pixel coordinates (x, y), pixel centres at +½.
         let plane = |x: f64, y: f64| 1.0 / (0.5 + 0.004 * x + 0.011 * y);
-        let coarse = grid(10, 8, |u, v| plane((u as f64 + 0.5) * 4.0, (v as f64 + 0.5) * 4.0) as f32);
+        let coarse = grid(10, 8, |u, v| {
+            plane((u as f64 + 0.5) * 4.0, (v as f64 + 0.5) * 4.0) as f32
+        });
         let out = map_to_image(&coarse, 40, 32);
         for v in 0..8 {
             for u in 0..10 {
@@ -376,17 +398,18 @@ mod tests {
                 assert!((coarse.pixel(u, v)[0] as f64 - want).abs() > 1e-3 * want);
             }
         }
-        // A box twice as near over samples 4..6 × 3..5: its samples and the plane's beside it
+        // A box twice as near over samples 4..7 × 3..6: its samples and the plane's beside it
         // keep what they measured along the axis of the edge, so no depth leaks across it.
         let mut boxed = coarse.clone();
-        for v in 3..5 {
-            for u in 4..6 {
+        for v in 3..6 {
+            for u in 4..7 {
                 boxed.pixel_mut(u, v)[0] *= 0.5;
             }
         }
         let out = map_to_image(&boxed, 40, 32);
         // The box's corner sample (4, 3): its left and upper neighbours are the plane, so its
-        // slopes come from the box alone (its right and lower neighbours): carried along the box.
+        // slopes come from the box alone (its right and lower neighbours, two in a line each):
+        // carried along the box.
         let z = out.pixel(18, 14)[0] as f64;
         let want = 0.5 * plane(18.5, 14.5);
         assert!((z - want).abs() < 1e-5 * want, "{z} vs {want}");
