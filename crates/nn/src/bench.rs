@@ -79,8 +79,63 @@ pub struct SpatialGradientReport {
     pub finite_difference_ms: f64,
 }
 
+/// The processor a bench ran on, and which kernels this build uses on it. Machines of the same
+/// kind have differed in vector width from one day to the next (AVX-512 on one, AVX2 only on
+/// another), which moves every figure; a time is only comparable with a bench of the same CPU.
+#[derive(Clone, Debug, Serialize)]
+pub struct CpuReport {
+    /// `model name` from `/proc/cpuinfo`, where there is one.
+    pub model: Option<String>,
+    /// The vector extensions the processor reports (runtime detection), of those the engine's
+    /// kernels could use.
+    pub features: Vec<&'static str>,
+    /// The MLP products' kernel of this build: `smallgemm-avx512` (compiled for AVX-512F) or
+    /// `matrixmultiply`.
+    pub gemm_kernel: &'static str,
+}
+
+impl CpuReport {
+    pub fn detect() -> Self {
+        let model = std::fs::read_to_string("/proc/cpuinfo").ok().and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split_once(':'))
+                .map(|(_, v)| v.trim().to_string())
+        });
+        CpuReport {
+            model,
+            features: detected_features(),
+            gemm_kernel: if crate::smallgemm::AVAILABLE {
+                "smallgemm-avx512"
+            } else {
+                "matrixmultiply"
+            },
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+fn detected_features() -> Vec<&'static str> {
+    let mut f = Vec::new();
+    macro_rules! probe {
+        ($($name:tt),*) => {
+            $(if std::arch::is_x86_feature_detected!($name) {
+                f.push($name);
+            })*
+        };
+    }
+    probe!("fma", "avx2", "avx512f", "avx512bw", "avx512vl", "avx512bf16", "avx512fp16", "f16c");
+    f
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+fn detected_features() -> Vec<&'static str> {
+    Vec::new()
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct BenchReport {
+    pub cpu: CpuReport,
     pub threads: usize,
     pub load_average: Option<[f64; 3]>,
     pub sgemm_peak_gflops: f64,
@@ -540,6 +595,7 @@ pub fn run(opts: &BenchOptions) -> BenchReport {
     // another job ran would flatter the ratio
     let sgemm_peak = peak_before.max(sgemm_peak_gflops());
     BenchReport {
+        cpu: CpuReport::detect(),
         threads: rayon::current_num_threads(),
         load_average,
         sgemm_peak_gflops: sgemm_peak,
@@ -561,6 +617,13 @@ impl BenchReport {
         let load = self
             .load_average
             .map_or("n/a".to_string(), |l| format!("{:.2} {:.2} {:.2}", l[0], l[1], l[2]));
+        let _ = writeln!(
+            s,
+            "cpu {} [{}], MLP products by {}",
+            self.cpu.model.as_deref().unwrap_or("unknown"),
+            self.cpu.features.join(" "),
+            self.cpu.gemm_kernel
+        );
         let _ = writeln!(s, "threads {}, load average {load}", self.threads);
         let _ = writeln!(
             s,
@@ -636,5 +699,11 @@ mod tests {
         for key in ["iteration_ms", "mlp_gflops", "sgemm_peak_gflops"] {
             assert!(json[key].is_number(), "{key} missing");
         }
+        assert!(json["cpu"]["features"].is_array() && json["cpu"]["gemm_kernel"].is_string());
+        // the kernel named is the one this build compiled in
+        assert_eq!(
+            json["cpu"]["gemm_kernel"] == "smallgemm-avx512",
+            cfg!(all(target_arch = "x86_64", target_feature = "avx512f"))
+        );
     }
 }

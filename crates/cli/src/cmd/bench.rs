@@ -4,7 +4,7 @@ use i2sdf_nn::bench::{run as run_bench, BenchOptions};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Print one JSON object (iteration_ms, mlp_gflops, sgemm_peak_gflops, phases, …) on stdout.
+    /// Print one JSON object (cpu, iteration_ms, mlp_gflops, sgemm_peak_gflops, phases, …) on stdout.
     #[arg(long)]
     pub json: bool,
     /// Rays per iteration of the representative configuration.
