@@ -30,6 +30,8 @@ enum Command {
     Train(cmd::train::Args),
     /// Extract the trained SDF's surface as a mesh (marching cubes, world units, PLY).
     Mesh(cmd::mesh::Args),
+    /// Export the recovered room as a glTF 2.0 scene (.glb/.gltf): surface, GGX materials, emitters, cameras.
+    Export(cmd::export::Args),
     /// Render views with the trained fields: colour, depth, normals, emitter probability.
     Render(cmd::render::Args),
     /// Render edited views of a stage-2 run by path tracing: relight emitters, override materials in regions, insert objects.
@@ -50,6 +52,7 @@ fn main() -> ExitCode {
         Command::Bench(a) => cmd::bench::run(a),
         Command::Train(a) => cmd::train::run(a),
         Command::Mesh(a) => cmd::mesh::run(a),
+        Command::Export(a) => cmd::export::run(a),
         Command::Render(a) => cmd::render::run(a),
         Command::Edit(a) => cmd::edit::run(a),
         Command::Eval(a) => cmd::eval::run(a),

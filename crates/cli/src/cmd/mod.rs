@@ -3,6 +3,7 @@ pub mod check;
 pub mod demo;
 pub mod edit;
 pub mod eval;
+pub mod export;
 pub mod mesh;
 pub mod render;
 pub mod report;
