@@ -128,7 +128,6 @@ pub fn build(run: &OpenedRun, dataset: &Dataset, opts: &ExportOptions) -> Result
             (model, faces, rec.frozen.emitters.len(), Some(loss))
         }
         None => {
-            notes.push("a stage-1 run: the surface carries the radiance field's colour (unlit), no materials or emitters".into());
             let frozen = FrozenScene::new(&run.scene, &empty, dataset.radiometry);
             let surface = RecoveredSurface::extract(&frozen, &dataset.bounds, opts.resolution, None)?;
             let faces = surface.mesh.faces.len();

@@ -338,8 +338,13 @@ impl TrainingMaps {
                         } else {
                             "; no depth: no cross-view check".into()
                         };
+                        let holes = if d.holes_filled > 0 {
+                            format!(", {} px of enclosed speckle filled", d.holes_filled)
+                        } else {
+                            String::new()
+                        };
                         format!(
-                            " ({test}; {} pieces kept, {} dropped as small{views})",
+                            " ({test}; {} pieces kept, {} dropped as small{views}{holes})",
                             d.kept, d.dropped_small
                         )
                     }

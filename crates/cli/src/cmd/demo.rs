@@ -7,13 +7,13 @@
 //! HDR, perturbed training poses) and scores it against the exact room (`scene/`).
 //! Each step reuses the subcommand of the same name; finished steps are skipped on a re-run.
 
-use super::{check, edit, eval, mesh, render, report, synth, train};
+use super::{check, edit, eval, export, mesh, render, report, synth, train};
 use clap::Args as ClapArgs;
 use std::path::{Path, PathBuf};
 
 #[derive(ClapArgs)]
 pub struct Args {
-    /// Output directory: scene/, run/, mesh.ply, render/, metrics.json, edits/, report/.
+    /// Output directory: scene/, run/, mesh.ply, room.glb, render/, metrics.json, edits/, report/.
     #[arg(long, default_value = "out/demo")]
     pub out: PathBuf,
     /// A small room (80×60, 24 views) and a short training on its phone capture (`capture/`,
@@ -201,6 +201,18 @@ fn outputs(args: &Args, plan: &mut StagePlan, scene: &Path, run_dir: &Path) -> a
         resolution,
         force: true,
     })?;
+    // The room for Blender or a game engine (glTF 2.0): seconds, beside the mesh.
+    export::run(export::Args {
+        run: run_dir.to_path_buf(),
+        out: args.out.join("room.glb"),
+        force: true,
+        resolution: edit_resolution,
+        max_faces: i2sdf_export::ExportOptions::default().max_faces,
+        max_error: i2sdf_export::ExportOptions::default().max_error,
+        materials: i2sdf_export::ExportOptions::default().materials,
+        up: "auto".into(),
+        data: Some(scene.to_path_buf()),
+    })?;
     plan.stage(5, "render the test views");
     render::run(render::Args {
         run: run_dir.to_path_buf(),
@@ -274,11 +286,12 @@ fn outputs(args: &Args, plan: &mut StagePlan, scene: &Path, run_dir: &Path) -> a
 
 /// What the demo writes in its folder; a folder holding anything else is not the demo's, and
 /// the demo refuses it rather than write among a user's files.
-const DEMO_ENTRIES: [&str; 8] = [
+const DEMO_ENTRIES: [&str; 9] = [
     "scene",
     "capture",
     "run",
     "mesh.ply",
+    "room.glb",
     "render",
     "metrics.json",
     "edits",
