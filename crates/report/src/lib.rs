@@ -35,6 +35,9 @@ pub struct RunInputs<'a> {
     pub dataset: &'a Dataset,
     /// The `eval` JSON and its file.
     pub metrics: Option<(&'a Path, &'a Value)>,
+    /// The room exported by `i2sdf export` (a .glb or .gltf) and its link from the report's
+    /// final folder ([`relative_to`]), shown in the surface section.
+    pub scene: Option<(&'a Path, String)>,
 }
 
 /// How much rendering the report does.
@@ -129,11 +132,44 @@ pub fn write_report(
         mesh,
         geometry,
     )?;
+    if let Some((scene, href)) = &input.scene {
+        scene_link(&mut page.body, scene, href);
+    }
     page.mark("emitters, mesh preview");
 
     relight_section(&mut page, input, options, recovered.as_ref(), frame, &mut cache)?;
 
     publish(page, input, start)
+}
+
+/// `path` relative to the folder `from` (both made absolute against the working directory), so
+/// that a link from the report survives moving the folders together.
+pub fn relative_to(path: &Path, from: &Path) -> PathBuf {
+    let abs = |p: &Path| i2sdf_data::output::absolute(p);
+    let (path, from) = (abs(path), abs(from));
+    let common = path.components().zip(from.components()).take_while(|(a, b)| a == b).count();
+    let mut rel = PathBuf::new();
+    for _ in from.components().skip(common) {
+        rel.push("..");
+    }
+    for c in path.components().skip(common) {
+        rel.push(c);
+    }
+    rel
+}
+
+/// The link to the exported room, with its size and how to open it.
+fn scene_link(body: &mut String, scene: &Path, href: &str) {
+    let size = std::fs::metadata(scene).map(|m| i2sdf_data::output::human_bytes(m.len())).unwrap_or_default();
+    let _ = write!(
+        body,
+        "<p>The room as a glTF 2.0 scene (<code>i2sdf export</code>: the surface, Kd as vertex colours, \
+         GGX materials, the emitters as emissive materials, the cameras): <a href=\"{}\">{}</a> ({}). \
+         Open it in Blender (File → Import → glTF 2.0) or any glTF viewer.</p>",
+        html::esc(href),
+        html::esc(&scene.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()),
+        size
+    );
 }
 
 /// The page being written: its HTML body and files, and the time each step took.
@@ -632,5 +668,16 @@ mod tests {
             no_emitters_note(None).is_none(),
             "no stage 2: the section says so already"
         );
+    }
+
+    #[test]
+    fn the_scene_link_is_relative_to_the_report_folder() {
+        let rel = |a: &str, b: &str| relative_to(Path::new(a), Path::new(b)).to_string_lossy().into_owned();
+        assert_eq!(rel("/x/demo/room.glb", "/x/demo/report"), "../room.glb");
+        assert_eq!(rel("/x/demo/report/room.glb", "/x/demo/report"), "room.glb");
+        assert_eq!(rel("/y/room.glb", "/x/demo/report"), "../../../y/room.glb");
+        let mut body = String::new();
+        scene_link(&mut body, Path::new("/nonexistent/room.glb"), "../room.glb");
+        assert!(body.contains("href=\"../room.glb\"") && body.contains(">room.glb</a>"), "{body}");
     }
 }

@@ -280,6 +280,7 @@ fn outputs(args: &Args, plan: &mut StagePlan, scene: &Path, run_dir: &Path) -> a
         spp: if args.quick { 16 } else { 64 },
         bounces: if args.quick { 4 } else { 8 },
         mesh_resolution: edit_resolution,
+        scene: Some(args.out.join("room.glb")),
     })?;
     Ok(())
 }

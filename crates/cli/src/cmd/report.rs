@@ -37,6 +37,9 @@ pub struct Args {
     /// Marching-cubes resolution of the surface preview and the edit renderer's mesh.
     #[arg(long, default_value_t = ReportOptions::default().mesh_resolution)]
     pub mesh_resolution: usize,
+    /// The room exported by `i2sdf export` (.glb or .gltf), linked from the report.
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -57,6 +60,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(p) => Some((p.clone(), i2sdf_report::metrics::read_metrics(p)?)),
         None => None,
     };
+    if let Some(scene) = &args.scene {
+        if !scene.is_file() || i2sdf_export::Container::of_path(scene).is_none() {
+            return Err(DataError::file(scene, "--scene: not a .glb or .gltf file (write one with i2sdf export)").into());
+        }
+    }
     let (data, dataset) = super::run_dataset(&args.run, args.data.as_deref())?;
     let mut inputs = vec![data.as_path()];
     if let Some(m) = &args.metrics {
@@ -82,6 +90,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         data: &data,
         dataset: &dataset,
         metrics: metrics.as_ref().map(|(p, v)| (p.as_path(), v)),
+        scene: args.scene.as_deref().map(|p| {
+            let href = i2sdf_report::relative_to(p, &args.out).to_string_lossy().replace('\\', "/");
+            (p, href)
+        }),
     };
     let options = ReportOptions {
         view: args.view,
