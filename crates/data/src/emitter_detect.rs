@@ -20,9 +20,9 @@
 //!
 //! 4. Holes. Enclosed holes in a kept piece of at most [`HOLE_MAX_PIXELS`] pixels whose mean
 //!    LDR luma is at least [`HOLE_MIN_LUMA`] are filled: JPEG's 8×8 blocks and sensor noise pull
-//!    scattered pixels of a saturated panel just under the test. Unfilled, the speckle reaches
-//!    stage 1's emitter field, the panel's surface points come apart into pieces, and stage 2
-//!    splits one light into several (the second room's phone capture: 8 emitters for 2).
+//!    scattered pixels of a saturated panel just under the test (the default room's phone
+//!    capture: 228 enclosed holes in its 40 masks, none after; IoU against the exact room's masks
+//!    0.736 → 0.778, docs/results.md).
 //!
 //! No dilation follows. A one-pixel dilation "to catch the rim" was measured on the built-in
 //! rooms (80×60, 20 views) against their masks, which mark the pixels whose centre sees an
