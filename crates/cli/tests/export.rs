@@ -75,10 +75,14 @@ fn a_stage2_run_exports_a_scene_that_reads_back() {
     // +y up: glTF's axes are the world's, and the surface lies within the scene bounds padded
     // as marching cubes pads them
     let b = &dataset.bounds;
-    let margin = (i2sdf_model::marching_cubes::PAD_FRACTION + 1e-3) * (0..3).map(|i| b.max[i] - b.min[i]).fold(0.0f64, f64::max);
+    let margin =
+        (i2sdf_model::marching_cubes::PAD_FRACTION + 1e-3) * (0..3).map(|i| b.max[i] - b.min[i]).fold(0.0f64, f64::max);
     for p in &r.positions {
         for i in 0..3 {
-            assert!(p[i] as f64 >= b.min[i] - margin && p[i] as f64 <= b.max[i] + margin, "{p:?} outside {b:?}");
+            assert!(
+                p[i] as f64 >= b.min[i] - margin && p[i] as f64 <= b.max[i] + margin,
+                "{p:?} outside {b:?}"
+            );
         }
     }
     // every frame's camera, named by split and frame
@@ -92,7 +96,11 @@ fn a_stage2_run_exports_a_scene_that_reads_back() {
     let m = node.transform().matrix();
     let centre = f.camera.center();
     for i in 0..3 {
-        assert!((m[3][i] as f64 - centre[i]).abs() < 1e-4, "camera centre {:?} vs {centre:?}", m[3]);
+        assert!(
+            (m[3][i] as f64 - centre[i]).abs() < 1e-4,
+            "camera centre {:?} vs {centre:?}",
+            m[3]
+        );
     }
     // materials in range; the emitters' emission is L[k]
     let table = i2sdf_model::EmitterTable::read_json(&t.stage2.join("emitters.json")).unwrap();
@@ -123,7 +131,11 @@ fn a_stage2_run_exports_a_scene_that_reads_back() {
     let o = export(&t.stage2, &gltf, &["--up", "+y"]);
     assert_eq!(o.code, 0, "{}", o.stderr);
     assert_eq!(read(&gltf).faces, r.faces);
-    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2, "wrote only the two files");
+    assert_eq!(
+        std::fs::read_dir(dir.path()).unwrap().count(),
+        2,
+        "wrote only the two files"
+    );
 }
 
 #[test]
@@ -170,10 +182,26 @@ fn bad_export_arguments_are_refused_before_any_work() {
     let o = export(&t.stage2, &unwritable, &[]);
     assert!(!o.stderr.contains("extracting"), "{}", o.stderr);
     expect(o, 1, &["--out", "not_a_directory"]);
-    expect(export(&t.stage2, &dir.path().join("room.obj"), &[]), 2, &["--out", ".glb"]);
-    expect(export(&t.stage2, &dir.path().join("a.glb"), &["--up", "sideways"]), 2, &["--up sideways"]);
-    expect(export(&t.stage2, &dir.path().join("a.glb"), &["--materials", "0"]), 2, &["--materials 0"]);
-    expect(export(&t.stage2, &dir.path().join("a.glb"), &["--max-faces", "3"]), 2, &["--max-faces 3"]);
+    expect(
+        export(&t.stage2, &dir.path().join("room.obj"), &[]),
+        2,
+        &["--out", ".glb"],
+    );
+    expect(
+        export(&t.stage2, &dir.path().join("a.glb"), &["--up", "sideways"]),
+        2,
+        &["--up sideways"],
+    );
+    expect(
+        export(&t.stage2, &dir.path().join("a.glb"), &["--materials", "0"]),
+        2,
+        &["--materials 0"],
+    );
+    expect(
+        export(&t.stage2, &dir.path().join("a.glb"), &["--max-faces", "3"]),
+        2,
+        &["--max-faces 3"],
+    );
     expect(
         export(&dir.path().join("no_run"), &dir.path().join("a.glb"), &[]),
         2,

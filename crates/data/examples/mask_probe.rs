@@ -72,18 +72,31 @@ fn main() {
     let frames: Vec<_> = capture.split(Split::Train).collect();
     let truth: Vec<Vec<bool>> = room
         .split(Split::Train)
-        .map(|f| f.emitter_mask.as_ref().expect("the room's masks").data.iter().map(|v| *v > 0.5).collect())
+        .map(|f| {
+            f.emitter_mask
+                .as_ref()
+                .expect("the room's masks")
+                .data
+                .iter()
+                .map(|v| *v > 0.5)
+                .collect()
+        })
         .collect();
     let (w, h) = (frames[0].camera.width, frames[0].camera.height);
     let found = detect_emitters(&frames);
     println!("{found:?}");
-    let now: Vec<Vec<bool>> = found.masks.iter().map(|m| m.data.iter().map(|v| *v > 0.5).collect()).collect();
+    let now: Vec<Vec<bool>> = found
+        .masks
+        .iter()
+        .map(|m| m.data.iter().map(|v| *v > 0.5).collect())
+        .collect();
     report("detected now", &now, &truth, w, h);
     if let Some(dir) = args.get(2) {
         let old: Vec<Vec<bool>> = frames
             .iter()
             .map(|f| {
-                let m = i2sdf_data::imageio::read_image(&std::path::Path::new(dir).join(format!("{}.png", f.name))).expect("mask");
+                let m = i2sdf_data::imageio::read_image(&std::path::Path::new(dir).join(format!("{}.png", f.name)))
+                    .expect("mask");
                 m.data.chunks_exact(m.channels).map(|c| c[0] > 0.5).collect()
             })
             .collect();

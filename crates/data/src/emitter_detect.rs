@@ -320,7 +320,11 @@ fn fill_holes(mask: &mut ImageF32, rgb: &ImageF32) -> usize {
         if touches_border || hole.len() > HOLE_MAX_PIXELS {
             continue;
         }
-        let luma = hole.iter().map(|&p| luminance(&rgb.data[3 * p..3 * p + 3])).sum::<f32>() / hole.len() as f32;
+        let luma = hole
+            .iter()
+            .map(|&p| luminance(&rgb.data[3 * p..3 * p + 3]))
+            .sum::<f32>()
+            / hole.len() as f32;
         if luma >= HOLE_MIN_LUMA {
             for &p in &hole {
                 mask.data[p] = 1.0;

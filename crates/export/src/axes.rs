@@ -43,9 +43,7 @@ impl UpAxis {
     pub fn parse(s: &str) -> Option<UpAxis> {
         let t = s.trim().to_ascii_lowercase();
         let t = t.strip_prefix('+').unwrap_or(&t);
-        UpAxis::ALL
-            .into_iter()
-            .find(|a| a.name().trim_start_matches('+') == t)
+        UpAxis::ALL.into_iter().find(|a| a.name().trim_start_matches('+') == t)
     }
 
     pub fn vector(self) -> DVec3 {

@@ -35,7 +35,12 @@ fn align4(buf: &mut Vec<u8>, pad: u8) {
 }
 
 /// Appends `bytes` to the buffer as a new view (4-byte aligned) and returns its index.
-fn push_view(root: &mut json::Root, bin: &mut Vec<u8>, bytes: &[u8], target: json::buffer::Target) -> Index<json::buffer::View> {
+fn push_view(
+    root: &mut json::Root,
+    bin: &mut Vec<u8>,
+    bytes: &[u8],
+    target: json::buffer::Target,
+) -> Index<json::buffer::View> {
     align4(bin, 0);
     let offset = bin.len();
     bin.extend_from_slice(bytes);
@@ -164,7 +169,13 @@ pub fn document(model: &SceneModel) -> (json::Root, Vec<u8>) {
     for p in model.primitives.iter().filter(|p| !p.faces.is_empty()) {
         let idx: Vec<u8> = p.faces.iter().flatten().flat_map(|i| i.to_le_bytes()).collect();
         let view = push_view(&mut root, &mut bin, &idx, Target::ElementArrayBuffer);
-        let indices = root.push(accessor(view, p.faces.len() * 3, ComponentType::U32, Type::Scalar, None));
+        let indices = root.push(accessor(
+            view,
+            p.faces.len() * 3,
+            ComponentType::U32,
+            Type::Scalar,
+            None,
+        ));
         let mut attributes = std::collections::BTreeMap::new();
         attributes.insert(Valid(json::mesh::Semantic::Positions), pos);
         attributes.insert(Valid(json::mesh::Semantic::Normals), nrm);
@@ -324,7 +335,10 @@ mod tests {
             let bytes = encode(&model, container);
             if container == Container::Glb {
                 assert_eq!(&bytes[..4], b"glTF");
-                assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize, bytes.len());
+                assert_eq!(
+                    u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize,
+                    bytes.len()
+                );
             }
             let (doc, buffers, _) = gltf::import_slice(&bytes).expect("a valid glTF");
             let mesh = doc.meshes().next().unwrap();
@@ -351,5 +365,4 @@ mod tests {
             assert!(doc.extensions_used().any(|e| e == "KHR_materials_emissive_strength"));
         }
     }
-
 }

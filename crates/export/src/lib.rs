@@ -56,7 +56,8 @@ impl Default for ExportOptions {
 impl ExportOptions {
     /// Every value in range, named by its flag.
     pub fn check(&self) -> Result<(), DataError> {
-        let bad = |flag: &str, v: String, range: &str| Err(DataError::invalid(format!("{flag} {v}: must be in {range}")));
+        let bad =
+            |flag: &str, v: String, range: &str| Err(DataError::invalid(format!("{flag} {v}: must be in {range}")));
         if !(16..=2048).contains(&self.resolution) {
             return bad("--resolution", self.resolution.to_string(), "[16, 2048]");
         }
@@ -107,7 +108,11 @@ pub struct ExportSummary {
 }
 
 /// The exported scene of `run` (its stage 2 where it has one) over `dataset`'s bounds and cameras.
-pub fn build(run: &OpenedRun, dataset: &Dataset, opts: &ExportOptions) -> Result<(SceneModel, ExportSummary), DataError> {
+pub fn build(
+    run: &OpenedRun,
+    dataset: &Dataset,
+    opts: &ExportOptions,
+) -> Result<(SceneModel, ExportSummary), DataError> {
     opts.check()?;
     let cameras: Vec<_> = dataset.frames.iter().collect();
     let (up, up_angle) = match opts.up {
@@ -151,7 +156,10 @@ pub fn build(run: &OpenedRun, dataset: &Dataset, opts: &ExportOptions) -> Result
         if !c.lens.is_pinhole() {
             distorted += 1;
         }
-        if (c.cx - c.width as f64 / 2.0).abs() > 0.5 || (c.cy - c.height as f64 / 2.0).abs() > 0.5 || (c.fx - c.fy).abs() > 1e-3 * c.fy {
+        if (c.cx - c.width as f64 / 2.0).abs() > 0.5
+            || (c.cy - c.height as f64 / 2.0).abs() > 0.5
+            || (c.fx - c.fy).abs() > 1e-3 * c.fy
+        {
             off_centre += 1;
         }
         model.cameras.push(CameraDesc {
@@ -258,7 +266,10 @@ fn material_scene(rec: &RecoveredScene, opts: &ExportOptions) -> Result<(SceneMo
         out
     };
     let brdf = eval(&vertices, &normals);
-    let colors: Vec<[f32; 3]> = brdf.iter().map(|b| b.kd.clamp(Vec3::ZERO, Vec3::ONE).to_array()).collect();
+    let colors: Vec<[f32; 3]> = brdf
+        .iter()
+        .map(|b| b.kd.clamp(Vec3::ZERO, Vec3::ONE).to_array())
+        .collect();
 
     // ordinary faces: (Ks, ρ) per face, clustered
     let surface_faces = &groups[0];
@@ -364,7 +375,9 @@ fn radiance_scene(frozen: &FrozenScene, surface: &RecoveredSurface, opts: &Expor
             faces: groups.into_iter().flatten().collect(),
             material: 0,
         }],
-        materials: vec![MaterialDesc::Radiance { name: "radiance".into() }],
+        materials: vec![MaterialDesc::Radiance {
+            name: "radiance".into(),
+        }],
         cameras: Vec::new(),
         extras: serde_json::Value::Null,
     }

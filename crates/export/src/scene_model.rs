@@ -20,7 +20,9 @@ pub enum MaterialDesc {
 impl MaterialDesc {
     pub fn name(&self) -> &str {
         match self {
-            MaterialDesc::Ggx { name, .. } | MaterialDesc::Emitter { name, .. } | MaterialDesc::Radiance { name } => name,
+            MaterialDesc::Ggx { name, .. } | MaterialDesc::Emitter { name, .. } | MaterialDesc::Radiance { name } => {
+                name
+            }
         }
     }
 }

@@ -11,7 +11,12 @@ const MIN_GROUP_FACES: usize = 64;
 /// Simplifies each group of `faces` (indices into `positions`) towards `budget` faces in all,
 /// shared out by the groups' sizes, without moving the surface by more than `max_error` (world
 /// units). Vertices are only removed, never moved: the result indexes the same `positions`.
-pub fn simplify_groups(positions: &[[f32; 3]], groups: &[Vec<[u32; 3]>], budget: usize, max_error: f32) -> Vec<Vec<[u32; 3]>> {
+pub fn simplify_groups(
+    positions: &[[f32; 3]],
+    groups: &[Vec<[u32; 3]>],
+    budget: usize,
+    max_error: f32,
+) -> Vec<Vec<[u32; 3]>> {
     let total: usize = groups.iter().map(Vec::len).sum();
     if total <= budget || positions.is_empty() {
         return groups.to_vec();
@@ -116,7 +121,12 @@ mod tests {
         }
         // the border between the groups (x = 0.5) keeps every vertex on both sides
         let on_border = |g: &Vec<[u32; 3]>| {
-            let mut s: Vec<u32> = g.iter().flatten().copied().filter(|&v| p[v as usize][0] == 0.5).collect();
+            let mut s: Vec<u32> = g
+                .iter()
+                .flatten()
+                .copied()
+                .filter(|&v| p[v as usize][0] == 0.5)
+                .collect();
             s.sort();
             s.dedup();
             s

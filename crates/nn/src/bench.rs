@@ -124,7 +124,16 @@ fn detected_features() -> Vec<&'static str> {
             })*
         };
     }
-    probe!("fma", "avx2", "avx512f", "avx512bw", "avx512vl", "avx512bf16", "avx512fp16", "f16c");
+    probe!(
+        "fma",
+        "avx2",
+        "avx512f",
+        "avx512bw",
+        "avx512vl",
+        "avx512bf16",
+        "avx512fp16",
+        "f16c"
+    );
     f
 }
 

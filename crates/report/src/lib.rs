@@ -147,7 +147,11 @@ pub fn write_report(
 pub fn relative_to(path: &Path, from: &Path) -> PathBuf {
     let abs = |p: &Path| i2sdf_data::output::absolute(p);
     let (path, from) = (abs(path), abs(from));
-    let common = path.components().zip(from.components()).take_while(|(a, b)| a == b).count();
+    let common = path
+        .components()
+        .zip(from.components())
+        .take_while(|(a, b)| a == b)
+        .count();
     let mut rel = PathBuf::new();
     for _ in from.components().skip(common) {
         rel.push("..");
@@ -160,14 +164,21 @@ pub fn relative_to(path: &Path, from: &Path) -> PathBuf {
 
 /// The link to the exported room, with its size and how to open it.
 fn scene_link(body: &mut String, scene: &Path, href: &str) {
-    let size = std::fs::metadata(scene).map(|m| i2sdf_data::output::human_bytes(m.len())).unwrap_or_default();
+    let size = std::fs::metadata(scene)
+        .map(|m| i2sdf_data::output::human_bytes(m.len()))
+        .unwrap_or_default();
     let _ = write!(
         body,
         "<p>The room as a glTF 2.0 scene (<code>i2sdf export</code>: the surface, Kd as vertex colours, \
          GGX materials, the emitters as emissive materials, the cameras): <a href=\"{}\">{}</a> ({}). \
          Open it in Blender (File → Import → glTF 2.0) or any glTF viewer.</p>",
         html::esc(href),
-        html::esc(&scene.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()),
+        html::esc(
+            &scene
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default()
+        ),
         size
     );
 }
@@ -678,6 +689,9 @@ mod tests {
         assert_eq!(rel("/y/room.glb", "/x/demo/report"), "../../../y/room.glb");
         let mut body = String::new();
         scene_link(&mut body, Path::new("/nonexistent/room.glb"), "../room.glb");
-        assert!(body.contains("href=\"../room.glb\"") && body.contains(">room.glb</a>"), "{body}");
+        assert!(
+            body.contains("href=\"../room.glb\"") && body.contains(">room.glb</a>"),
+            "{body}"
+        );
     }
 }

@@ -44,9 +44,10 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let up = match args.up.as_str() {
         "auto" => None,
-        s => Some(UpAxis::parse(s).ok_or_else(|| {
-            DataError::invalid(format!("--up {s}: expected auto, +x, -x, +y, -y, +z or -z"))
-        })?),
+        s => Some(
+            UpAxis::parse(s)
+                .ok_or_else(|| DataError::invalid(format!("--up {s}: expected auto, +x, -x, +y, -y, +z or -z")))?,
+        ),
     };
     let opts = ExportOptions {
         resolution: args.resolution,

@@ -62,7 +62,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     if let Some(scene) = &args.scene {
         if !scene.is_file() || i2sdf_export::Container::of_path(scene).is_none() {
-            return Err(DataError::file(scene, "--scene: not a .glb or .gltf file (write one with i2sdf export)").into());
+            return Err(
+                DataError::file(scene, "--scene: not a .glb or .gltf file (write one with i2sdf export)").into(),
+            );
         }
     }
     let (data, dataset) = super::run_dataset(&args.run, args.data.as_deref())?;
@@ -91,7 +93,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         dataset: &dataset,
         metrics: metrics.as_ref().map(|(p, v)| (p.as_path(), v)),
         scene: args.scene.as_deref().map(|p| {
-            let href = i2sdf_report::relative_to(p, &args.out).to_string_lossy().replace('\\', "/");
+            let href = i2sdf_report::relative_to(p, &args.out)
+                .to_string_lossy()
+                .replace('\\', "/");
             (p, href)
         }),
     };
