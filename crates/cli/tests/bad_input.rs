@@ -11,32 +11,7 @@
 
 mod common;
 use common::*;
-use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
-
-/// The fixture dataset, a tiny stage-1 run and a copy of it with a tiny stage 2, shared by the
-/// rows (one training for the whole file).
-struct Trained {
-    _dir: tempfile::TempDir,
-    data: PathBuf,
-    stage1: PathBuf,
-    stage2: PathBuf,
-}
-
-fn trained() -> &'static Trained {
-    static RUN: OnceLock<Trained> = OnceLock::new();
-    RUN.get_or_init(|| {
-        let (dir, data, stage1) = tiny_stage1();
-        let stage2 = dir.path().join("run2");
-        tiny_stage2(&data, &stage1, &stage2);
-        Trained {
-            _dir: dir,
-            data,
-            stage1,
-            stage2,
-        }
-    })
-}
+use std::path::Path;
 
 /// One row of the table, as run.
 struct Row {
@@ -316,7 +291,7 @@ const STAGE2_FILES: &[(&str, &str, &[&str])] = &[
 
 #[test]
 fn bad_input_table() {
-    let t = trained();
+    let t = trained_stages();
     let dir = tempfile::tempdir().unwrap();
     let root = dir.path();
     write_assets(root);
@@ -445,7 +420,7 @@ fn bad_input_table() {
 /// to before (every file hashed by its bytes), except for what a row is meant to write.
 #[test]
 fn nothing_a_user_has_is_overwritten() {
-    let t = trained();
+    let t = trained_stages();
     let dir = tempfile::tempdir().unwrap();
     let root = dir.path();
     // A dataset of the user's own, a stage-1 run and a stage-2 run, each a copy (so the shared
@@ -593,7 +568,7 @@ fn nothing_a_user_has_is_overwritten() {
 /// without emitters says so.
 #[test]
 fn outputs_go_only_where_asked_and_runs_travel() {
-    let t = trained();
+    let t = trained_stages();
     let dir = tempfile::tempdir().unwrap();
     let root = dir.path();
     let synth = |views: &str, force: bool| {
@@ -723,7 +698,7 @@ fn outputs_go_only_where_asked_and_runs_travel() {
 fn paper_release_bad_input_table() {
     use i2sdf_data::fixture::{FixtureOptions, PaperOptions};
     use i2sdf_data::imageio::{self, ImageF32};
-    let t = trained();
+    let t = trained_stages();
     let dir = tempfile::tempdir().unwrap();
     let root = dir.path();
     let full = PaperOptions {

@@ -5,30 +5,7 @@
 mod common;
 
 use common::*;
-use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
-
-struct Trained {
-    _dir: tempfile::TempDir,
-    data: PathBuf,
-    stage1: PathBuf,
-    stage2: PathBuf,
-}
-
-fn trained() -> &'static Trained {
-    static RUN: OnceLock<Trained> = OnceLock::new();
-    RUN.get_or_init(|| {
-        let (dir, data, stage1) = tiny_stage1();
-        let stage2 = dir.path().join("stage2");
-        tiny_stage2(&data, &stage1, &stage2);
-        Trained {
-            _dir: dir,
-            data,
-            stage1,
-            stage2,
-        }
-    })
-}
+use std::path::Path;
 
 fn export(run: &Path, out: &Path, extra: &[&str]) -> Outcome {
     let mut args = vec!["export", "--run", s(run), "--out", s(out), "--resolution", "48"];
@@ -64,7 +41,7 @@ fn read(path: &Path) -> Read {
 
 #[test]
 fn a_stage2_run_exports_a_scene_that_reads_back() {
-    let t = trained();
+    let t = trained_stages();
     let dir = tempfile::tempdir().unwrap();
     let dataset = i2sdf_data::load(&t.data).unwrap();
     let glb = dir.path().join("room.glb");
@@ -140,7 +117,7 @@ fn a_stage2_run_exports_a_scene_that_reads_back() {
 
 #[test]
 fn the_up_axis_turns_the_room_into_gltf_axes() {
-    let t = trained();
+    let t = trained_stages();
     let dir = tempfile::tempdir().unwrap();
     let (y, z) = (dir.path().join("y.glb"), dir.path().join("z.glb"));
     for (out, up) in [(&y, "+y"), (&z, "+z")] {
@@ -160,7 +137,7 @@ fn the_up_axis_turns_the_room_into_gltf_axes() {
 
 #[test]
 fn a_stage1_run_exports_its_radiance_unlit_and_says_so() {
-    let t = trained();
+    let t = trained_stages();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("geometry.glb");
     let o = export(&t.stage1, &out, &[]);
@@ -174,7 +151,7 @@ fn a_stage1_run_exports_its_radiance_unlit_and_says_so() {
 
 #[test]
 fn bad_export_arguments_are_refused_before_any_work() {
-    let t = trained();
+    let t = trained_stages();
     let dir = tempfile::tempdir().unwrap();
     // an --out that cannot be created fails (exit 1, as every command's) before the surface is
     // extracted

@@ -165,3 +165,28 @@ pub fn tree_diff(
     );
     out
 }
+
+/// The fixture dataset, a tiny stage-1 run and a copy of it with a tiny stage 2, made once per
+/// test file and shared by its tests.
+pub struct Trained {
+    pub _dir: tempfile::TempDir,
+    pub data: PathBuf,
+    pub stage1: PathBuf,
+    pub stage2: PathBuf,
+}
+
+/// [`Trained`], built on first use (the stage-2 copy is `DIR/run2`).
+pub fn trained_stages() -> &'static Trained {
+    static RUN: std::sync::OnceLock<Trained> = std::sync::OnceLock::new();
+    RUN.get_or_init(|| {
+        let (dir, data, stage1) = tiny_stage1();
+        let stage2 = dir.path().join("run2");
+        tiny_stage2(&data, &stage1, &stage2);
+        Trained {
+            _dir: dir,
+            data,
+            stage1,
+            stage2,
+        }
+    })
+}
