@@ -8,40 +8,8 @@
 //! true pixel. With MASKS_DIR (a run's `emitter_masks/`, written by an earlier version) the same
 //! figures for those masks.
 
-use i2sdf_data::emitter_detect::detect_emitters;
+use i2sdf_data::emitter_detect::{detect_emitters, enclosed_holes};
 use i2sdf_data::{load, Split};
-
-fn holes(mask: &[bool], w: usize, h: usize) -> usize {
-    // 4-connected pieces of the complement that touch no border
-    let mut seen = vec![false; mask.len()];
-    let mut count = 0;
-    for s in 0..mask.len() {
-        if mask[s] || seen[s] {
-            continue;
-        }
-        seen[s] = true;
-        let mut stack = vec![s];
-        let mut border = false;
-        while let Some(p) = stack.pop() {
-            let (x, y) = (p % w, p / w);
-            border |= x == 0 || y == 0 || x + 1 == w || y + 1 == h;
-            let n = [
-                (x > 0).then(|| p - 1),
-                (x + 1 < w).then(|| p + 1),
-                (y > 0).then(|| p - w),
-                (y + 1 < h).then(|| p + w),
-            ];
-            for q in n.into_iter().flatten() {
-                if !mask[q] && !seen[q] {
-                    seen[q] = true;
-                    stack.push(q);
-                }
-            }
-        }
-        count += (!border) as usize;
-    }
-    count
-}
 
 fn report(name: &str, found: &[Vec<bool>], truth: &[Vec<bool>], w: usize, h: usize) {
     let (mut inter, mut union, mut f, mut t, mut hole) = (0, 0, 0, 0, 0);
@@ -52,7 +20,7 @@ fn report(name: &str, found: &[Vec<bool>], truth: &[Vec<bool>], w: usize, h: usi
             f += x as usize;
             t += y as usize;
         }
-        hole += holes(a, w, h);
+        hole += enclosed_holes(a, w, h).len();
     }
     println!(
         "{name}: IoU {:.3}, found / true pixels {:.3} ({f} / {t}), enclosed holes {hole}",

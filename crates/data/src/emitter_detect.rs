@@ -277,17 +277,14 @@ fn detect_view(frames: &[&Frame], bright: &[Vec<bool>], a: usize, multi_view: bo
     (mask, [candidates, small, inconsistent, kept, filled])
 }
 
-/// Fills the enclosed holes of `mask` (4-connected pieces of its complement that touch no image
-/// border) of at most [`HOLE_MAX_PIXELS`] pixels and mean luma of `rgb` ≥ [`HOLE_MIN_LUMA`];
-/// returns the pixels filled.
-fn fill_holes(mask: &mut ImageF32, rgb: &ImageF32) -> usize {
-    let (w, h) = (mask.width, mask.height);
-    let outside: Vec<bool> = mask.data.iter().map(|v| *v < 0.5).collect();
-    let mut seen = vec![false; outside.len()];
-    let mut filled = 0;
+/// The enclosed holes of a mask (`inside[p]`: the pixel is in it): the 4-connected pieces of its
+/// complement that touch no image border, each as pixel indices.
+pub fn enclosed_holes(inside: &[bool], w: usize, h: usize) -> Vec<Vec<usize>> {
+    let mut seen = vec![false; inside.len()];
+    let mut holes = Vec::new();
     let mut stack = Vec::new();
-    for start in 0..outside.len() {
-        if !outside[start] || seen[start] {
+    for start in 0..inside.len() {
+        if inside[start] || seen[start] {
             continue;
         }
         seen[start] = true;
@@ -298,26 +295,33 @@ fn fill_holes(mask: &mut ImageF32, rgb: &ImageF32) -> usize {
             hole.push(p);
             let (x, y) = (p % w, p / w);
             touches_border |= x == 0 || y == 0 || x + 1 == w || y + 1 == h;
-            let mut visit = |q: usize| {
-                if outside[q] && !seen[q] {
+            let neighbours = [
+                (x > 0).then(|| p - 1),
+                (x + 1 < w).then(|| p + 1),
+                (y > 0).then(|| p - w),
+                (y + 1 < h).then(|| p + w),
+            ];
+            for q in neighbours.into_iter().flatten() {
+                if !inside[q] && !seen[q] {
                     seen[q] = true;
                     stack.push(q);
                 }
-            };
-            if x > 0 {
-                visit(p - 1);
-            }
-            if x + 1 < w {
-                visit(p + 1);
-            }
-            if y > 0 {
-                visit(p - w);
-            }
-            if y + 1 < h {
-                visit(p + w);
             }
         }
-        if touches_border || hole.len() > HOLE_MAX_PIXELS {
+        if !touches_border {
+            holes.push(hole);
+        }
+    }
+    holes
+}
+
+/// Fills the enclosed holes of `mask` of at most [`HOLE_MAX_PIXELS`] pixels and mean luma of
+/// `rgb` ≥ [`HOLE_MIN_LUMA`]; returns the pixels filled.
+fn fill_holes(mask: &mut ImageF32, rgb: &ImageF32) -> usize {
+    let inside: Vec<bool> = mask.data.iter().map(|v| *v >= 0.5).collect();
+    let mut filled = 0;
+    for hole in enclosed_holes(&inside, mask.width, mask.height) {
+        if hole.len() > HOLE_MAX_PIXELS {
             continue;
         }
         let luma = hole
