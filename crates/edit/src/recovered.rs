@@ -1,5 +1,5 @@
 //! What stage 2 recovered, as the edit renderer's base: the frozen SDF's surface as a labelled
-//! triangle mesh ([`RecoveredSurface`]), the material fields for materials, and each K-means
+//! triangle mesh ([`RecoveredSurface`]), the material fields for materials, and each stage-2
 //! emitter as an area light over its own triangles with L\[k\].
 //!
 //! Why a mesh and not stage 2's baked cast (BVH hit refined onto the SDF by a Newton step): a

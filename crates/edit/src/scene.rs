@@ -1,6 +1,6 @@
 //! The edited scene as the shared path tracer sees it: base geometry ∪ inserts
 //! ([`UnionGeometry`]), base material with overrides ∪ insert materials ([`EditedMaterial`]), and
-//! one light set — the base's emitters (for the frozen SDF: one cone light per K-means cluster
+//! one light set — the base's emitters (for the frozen SDF: one cone light per emitter cluster
 //! with L\[k\]), then every emitting insert (a [`SphereLight`] for spheres, an [`AreaLight`] for
 //! boxes and meshes). Relighting is per emitter: the integrator keeps each emitter's share of a
 //! pixel apart ([`i2sdf_render::ViewRender::hdr`]), so the relit image is Σ_k g_k ⊙ L_k with the

@@ -1,5 +1,5 @@
 //! The K emitters of stage 2 (paper Sec. "Emitter Semantic Field"): the emitter field F_e marks
-//! surface points as emitting; the train crate clusters those points by K-means into K emitters;
+//! surface points as emitting; the train crate clusters those points into K emitters;
 //! each has a learnable HDR RGB emission L\[k\]. This module stores the clusters and L\[·\], answers
 //! index(x) of eq:radiance, and reads and writes `RUN/emitters.json`.
 //!
@@ -22,7 +22,7 @@ pub const MIN_EMISSION: f32 = 1e-8;
 /// One emitter cluster, in world units.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Emitter {
-    /// Centre of the cluster (the K-means centroid).
+    /// Centre of the cluster (the centroid of its points).
     pub centre: [f64; 3],
     /// Edge lengths of the axis-aligned box of the cluster's points.
     pub extent: [f64; 3],

@@ -1,4 +1,4 @@
-//! An emitter known only by a bounding sphere: stage 2's K-means clusters of emitter points on the
+//! An emitter known only by a bounding sphere: stage 2's clusters of emitter points on the
 //! neural SDF (paper Sec. 4.2), whose surface is the SDF itself and has no tessellation to sample.
 //! Like [`crate::SphereLight`] it is sampled by solid angle, uniformly in the cone that the sphere
 //! subtends (pbrt-v3 §14.2.2), and the ray then finds the emitting surface: the integrator maps

@@ -3,7 +3,7 @@
 //! the one Monte Carlo integrator of the house with its interfaces: geometry (batched ray
 //! queries; a triangle BVH here, the SDF tracer of stage 2 elsewhere), materials (batched BRDF
 //! parameters; constant and textured here, neural fields elsewhere) and lights (area and
-//! spherical emitters here, K-means emitter clusters elsewhere). The synthetic ground-truth
+//! spherical emitters here, stage 2's emitter clusters elsewhere). The synthetic ground-truth
 //! renderer (`i2sdf-synth`), stage 2's Monte Carlo shading and the edit renderer all shade with
 //! one model through one estimator.
 //!

@@ -4,7 +4,7 @@
 //! radiance. Emitters are one-sided and reflect nothing; paths end on them.
 //!
 //! The [`LightSet`] maps a hit to its emitter through the geometry's surface label, so that any
-//! geometry can carry emitters: a room's emitting shapes, or stage 2's K-means clusters of emitter
+//! geometry can carry emitters: a room's emitting shapes, or stage 2's clusters of emitter
 //! surface points (paper Sec. 4.2: the SDF tracer labels a hit with its cluster).
 
 use crate::geometry::Hit;

@@ -17,7 +17,7 @@
 //! `cargo run --release -p i2sdf-train --example neighbour_bench [-- [--dump FILE | --compare FILE] [REPS]]`
 
 use glam::Vec3;
-use i2sdf_train::stage2::kmeans::components;
+use i2sdf_train::stage2::emitter_clusters::components;
 use i2sdf_train::stage2::shading::{pool_diffuse, DiffuseSums, ShadingPoint};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;

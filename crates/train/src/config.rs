@@ -172,14 +172,22 @@ pub struct Stage2Config {
     /// Fraction of the iterations after which the roughness prior acts: glossy surfaces must
     /// first have found their Ks (the prior would hold a still-small Ks's ρ high).
     pub rho_prior_from: f32,
-    /// Number of emitters K (0 = automatic: the smallest K whose clusters are connected).
+    /// Number of emitters K, found by K-means as in the paper (0 = automatic: one emitter per
+    /// connected piece of marked points that passes the tests below; `stage2::emitter_clusters`).
     pub emitters: usize,
-    /// Largest K of the automatic choice.
+    /// At most this many emitters of the automatic choice (the largest pieces).
     pub max_emitters: usize,
-    /// Link distance of the connectedness test, in normalized units.
+    /// Marked points closer than this are one piece, in normalized units (at least three times
+    /// their median spacing).
     pub emitter_link: f32,
     /// Connected pieces of emitter points with less than this fraction of them are dropped.
     pub emitter_min_fraction: f32,
+    /// Pieces marked in fewer training views than this are dropped (a hole of the SDF one view
+    /// looked through, not a light).
+    pub emitter_min_views: usize,
+    /// Pieces whose pixels the emitter masks mark less often than this are dropped (F_e above ½
+    /// on a highlight or reflection that only some views see).
+    pub emitter_mask_agreement: f32,
     /// F_e above this marks an emitter.
     pub emitter_threshold: f32,
     /// Fit to the dataset's HDR images (× its exposure) where it has them, instead of the LDR ones.
@@ -218,6 +226,8 @@ impl Default for Stage2Config {
             max_emitters: 16,
             emitter_link: 0.05,
             emitter_min_fraction: 0.01,
+            emitter_min_views: 2,
+            emitter_mask_agreement: 0.75,
             emitter_threshold: 0.5,
             use_hdr: true,
         }
@@ -519,6 +529,8 @@ impl TrainConfig {
         int("stage2.max_emitters", s2.max_emitters, 1, 64)?;
         positive("stage2.emitter_link", s2.emitter_link, 2.0)?;
         real("stage2.emitter_min_fraction", s2.emitter_min_fraction, 0.0, 0.5)?;
+        int("stage2.emitter_min_views", s2.emitter_min_views, 1, 1_000_000)?;
+        real("stage2.emitter_mask_agreement", s2.emitter_mask_agreement, 0.0, 1.0)?;
         real("stage2.emitter_threshold", s2.emitter_threshold, 0.0, 1.0)?;
         if s2.cache_pixels as u64 * s2.cache_samples as u64 > 1 << 27 {
             return Err(format!(

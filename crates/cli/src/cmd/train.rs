@@ -227,9 +227,14 @@ fn run_materials(
     let stage2_resume = args.resume || args.stage == Stage::All;
     let bar = stage_bar("stage 2", args.quiet);
     let quiet = args.quiet;
+    // Stage 2's setup says what it does and finds (the emitters, the pieces that are not, the
+    // clipped lights' L) once each: kept as lines above the bar. Only the tracing counter, a
+    // line per 8192 pixels, is the bar's passing message.
     let progress = |what: &str| {
         if quiet {
             eprintln!("stage 2: {what}");
+        } else if !what.starts_with("tracing ") {
+            crate::progress::line(&format!("stage 2: {what}"));
         }
         bar.set_message(what.to_string());
         bar.tick();

@@ -1,5 +1,5 @@
 //! Stage 2 (paper Sec. "Training", "Training of material and emission fields"): with F_d, F_c
-//! and F_e frozen, fit the material fields (Kd, Ks, ρ) and the emissions L\[k\] of the K-means
+//! and F_e frozen, fit the material fields (Kd, Ks, ρ) and the emissions L\[k\] of the
 //! emitters so that the Monte Carlo re-render of eq:render reproduces the training pixels:
 //! L₂ = L_render + λ_mat L_mat (eq:material).
 //!
@@ -24,7 +24,7 @@
 use crate::config::TrainConfig;
 use crate::driver::{StepOutcome, TrainStage};
 pub mod emission_from_shading;
-pub mod kmeans;
+pub mod emitter_clusters;
 pub mod losses;
 mod mixture;
 mod setup;
@@ -208,7 +208,7 @@ impl Stage2 {
             }
             None => None,
         };
-        // 2. Emitters: K-means on the surface points F_e marks (or a resumed run's).
+        // 2. Emitters: the surface points F_e marks, clustered (or a resumed run's).
         let fresh = given.is_none();
         let (material, emitters, chosen_k) = match given {
             Some((m, e)) => {

@@ -4,7 +4,7 @@
 
 use super::{normalized, pixel_rng, refresh_selection, CachedPixel, PixelKind};
 use crate::config::Stage2Config;
-use crate::stage2::kmeans::{cluster_emitters, ClusterSettings};
+use crate::stage2::emitter_clusters::{cluster_emitters, ClusterSettings, MarkedPoints};
 use crate::stage2::shading::{trace_incident, DiffuseSums, ShadingPoint};
 use crate::stage2::surface_cache::{ShadingCache, SpecularBake};
 use crate::stage2::targets::TargetView;
@@ -123,26 +123,44 @@ pub(super) fn cluster_new_emitters(
     let marked: Vec<usize> = (0..cast.hit_idx.len())
         .filter(|&j| cast.emitter_prob[j] > c2.emitter_threshold)
         .collect();
-    let points: Vec<[f64; 3]> = if has_masks {
-        marked
-            .iter()
-            .map(|&j| normalized(scene, cast.points[j]).map(|v| v as f64))
-            .collect()
-    } else {
-        Vec::new()
-    };
-    progress(&format!("clustering {} emitter points", points.len()));
+    let mut points = MarkedPoints::default();
+    if has_masks {
+        for &j in &marked {
+            let (v, p) = cast.order[cast.hit_idx[j]];
+            let mask = views[v as usize].emitter_mask.as_ref().expect("has_masks");
+            points
+                .positions
+                .push(normalized(scene, cast.points[j]).map(|x| x as f64));
+            points.views.push(v);
+            points.in_mask.push(mask[p as usize]);
+        }
+    }
+    progress(&format!("clustering {} emitter points", points.positions.len()));
     let settings = ClusterSettings {
         k: (c2.emitters > 0).then_some(c2.emitters),
         max_k: c2.max_emitters,
         link: c2.emitter_link as f64,
         min_fraction: c2.emitter_min_fraction as f64,
+        min_views: c2.emitter_min_views,
+        mask_agreement: c2.emitter_mask_agreement as f64,
         restarts: 4,
         iterations: 100,
     };
-    let (clusters, k) = cluster_emitters(&points, &settings, rng);
+    let found = cluster_emitters(&points, &settings, rng);
+    let clusters = found.clusters;
+    let k = found.k;
     let norm = &scene.normalization;
     let to_world = |c: [f64; 3]| norm.to_world(DVec3::from_array(c)).to_array();
+    for piece in &found.left_out {
+        let w = to_world(piece.centre);
+        progress(&format!(
+            "not an emitter: the piece at ({:.2}, {:.2}, {:.2}) m, {}",
+            w[0],
+            w[1],
+            w[2],
+            piece.describe(&settings)
+        ));
+    }
     let s = norm.scale;
     let list: Vec<Emitter> = clusters
         .iter()
