@@ -19,6 +19,7 @@ pub mod mc_band;
 pub mod mc_tables;
 pub mod memory;
 pub mod observed;
+pub mod occupancy;
 pub mod opened_run;
 pub mod poses;
 pub mod query;

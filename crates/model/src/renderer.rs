@@ -9,8 +9,8 @@
 use crate::scene::{NeuralScene, SceneGrads};
 use crate::volume::{
     composite_batch, composite_batch_backward, error_bounded_samples_into, laplace_density_backward,
-    laplace_density_batch, CompositeGrads, CompositeOutputs, ErrorBoundedSamplerConfig, PackedSamples, RayBatchRef,
-    RaySampleSet, SamplerScratch,
+    laplace_density_batch, CompositeGrads, CompositeOutputs, ErrorBoundedSamplerConfig, OccupiedStretches,
+    PackedSamples, RayBatchRef, RaySampleSet, SamplerScratch,
 };
 use i2sdf_nn::sdf::SdfInferWorkspace;
 use i2sdf_nn::{MlpWorkspace, SdfWorkspace};
@@ -27,6 +27,9 @@ pub struct RenderSettings {
     pub near: f32,
     /// Rays end where they leave the sphere of this radius (the scene is inside the unit sphere).
     pub bound_radius: f32,
+    /// Empty-space skipping: where set, the sampler spends its evaluations in the grid's
+    /// occupied cells only and ends each ray at its first solid cell ([`crate::occupancy`]).
+    pub occupancy: Option<std::sync::Arc<crate::occupancy::OccupancyGrid>>,
 }
 
 impl Default for RenderSettings {
@@ -42,6 +45,7 @@ impl Default for RenderSettings {
             },
             near: 0.01,
             bound_radius: 1.0,
+            occupancy: None,
         }
     }
 }
@@ -162,7 +166,28 @@ pub fn sample<R: Rng + ?Sized>(
         .enumerate()
         .for_each(|(c, chunk)| {
             let r = (c * per).min(rays)..((c + 1) * per).min(rays);
-            let SamplerChunk { sdf_ws, scratch, set } = chunk;
+            let SamplerChunk {
+                sdf_ws,
+                scratch,
+                set,
+                offsets,
+                stretches,
+                one,
+            } = chunk;
+            let occupied = settings.occupancy.as_ref().map(|grid| {
+                offsets.clear();
+                offsets.push(0);
+                stretches.clear();
+                for i in r.clone() {
+                    grid.intervals(origins[i], dirs[i], near[i], far[i], one);
+                    stretches.extend_from_slice(one);
+                    offsets.push(stretches.len() as u32);
+                }
+                OccupiedStretches {
+                    offsets,
+                    intervals: stretches,
+                }
+            });
             // Distances only, through the inference path (nothing kept for a backward).
             let sdf_eval = |pts: &[[f32; 3]], out: &mut [f32]| {
                 scene.sdf.infer(pts.as_flattened(), sdf_ws, out, None, None);
@@ -173,6 +198,7 @@ pub fn sample<R: Rng + ?Sized>(
                 directions: &dirs[r.clone()],
                 near: &near[r.clone()],
                 far: &far[r],
+                occupied,
             };
             error_bounded_samples_into(
                 &settings.sampler,
@@ -211,6 +237,10 @@ struct SamplerChunk {
     sdf_ws: SdfInferWorkspace,
     scratch: SamplerScratch,
     set: RaySampleSet,
+    /// The chunk's rays' occupied stretches (with an occupancy grid), and one ray's.
+    offsets: Vec<u32>,
+    stretches: Vec<[f32; 2]>,
+    one: Vec<[f32; 2]>,
 }
 
 /// The differentiable part of [`forward`], at the samples already in `ws.samples`.

@@ -488,21 +488,31 @@ fn interval_distance_bound(a: f32, d0: f32, d1: f32) -> f32 {
 }
 
 /// Per-interval error bound of the opacity at β (VolSDF Theorem 1 / `get_error_bound`), written to
-/// `bound[i]` for the intervals; returns the maximum. With E_i = Σ_{j≤i} e^{−d*_j/β} δ_j² / (4β²)
+/// `bound[i]` for the intervals; returns the maximum. `open[i]` is 1 for an interval the density
+/// lives in and 0 for one across cells the occupancy grid found free ([`crate::occupancy`]). With E_i = Σ_{j≤i} e^{−d*_j/β} δ_j² / (4β²)
 /// and T_i = exp(−Σ_{j<i} δ_j σ_j), bound_i = (e^{E_i} − 1) T_i, e^{E_i} capped at 1e6 as VolSDF.
 ///
 /// Three passes so that the exponentials (four per interval, evaluated for every bisection step:
 /// with libm's scalar `expf` they were half the sampler's time) run as vectorized `exp_fast`:
 /// the per-interval terms, their prefix sums, the bounds. `tau` is scratch of the same length.
-fn opacity_error_bound(z: &[f32], sdf: &[f32], d_star: &[f32], beta: f32, tau: &mut [f32], bound: &mut [f32]) -> f32 {
+fn opacity_error_bound(
+    z: &[f32],
+    sdf: &[f32],
+    d_star: &[f32],
+    open: &[f32],
+    beta: f32,
+    tau: &mut [f32],
+    bound: &mut [f32],
+) -> f32 {
     let m = z.len() - 1;
     // Every slice cut to the m intervals, so that the loops carry no bounds checks and vectorize.
-    let (z0, z1, sdf, d_star) = (&z[..m], &z[1..=m], &sdf[..m], &d_star[..m]);
+    let (z0, z1, sdf, d_star, open) = (&z[..m], &z[1..=m], &sdf[..m], &d_star[..m], &open[..m]);
     let (tau, bound) = (&mut tau[..m], &mut bound[..m]);
     let inv_beta = 1.0 / beta;
     let c = 0.25 * inv_beta * inv_beta;
     for i in 0..m {
-        let delta = z1[i] - z0[i];
+        // An interval across free space (open 0) has no density: no optical depth, no error.
+        let delta = (z1[i] - z0[i]) * open[i];
         let e = exp_fast(-sdf[i].abs() * inv_beta);
         // laplace_density, branch-free.
         let sigma = if sdf[i] >= 0.0 { 0.5 * e } else { 1.0 - 0.5 * e } * inv_beta;
@@ -528,19 +538,20 @@ fn opacity_error_bound(z: &[f32], sdf: &[f32], d_star: &[f32], beta: f32, tau: &
 }
 
 /// The volume-rendering weights of a ray's intervals at β (the Laplace density of the left end
-/// over each interval), plus VolSDF's floor of 1e-5 that keeps every interval reachable, written
-/// to `weights` (one per interval); `tau` is scratch. Vectorized like [`opacity_error_bound`].
-fn interval_weights(z: &[f32], sdf: &[f32], beta: f32, tau: &mut Vec<f32>, weights: &mut Vec<f32>) {
+/// over each interval; none over an interval across free space, `open[i]` 0), plus VolSDF's
+/// floor of 1e-5 that keeps every interval reachable, written to `weights` (one per interval);
+/// `tau` is scratch. Vectorized like [`opacity_error_bound`].
+fn interval_weights(z: &[f32], sdf: &[f32], open: &[f32], beta: f32, tau: &mut Vec<f32>, weights: &mut Vec<f32>) {
     let m = z.len() - 1;
     tau.resize(m, 0.0);
     weights.resize(m, 0.0);
-    let (z0, z1, sdf) = (&z[..m], &z[1..=m], &sdf[..m]);
+    let (z0, z1, sdf, open) = (&z[..m], &z[1..=m], &sdf[..m], &open[..m]);
     let (tau, weights) = (&mut tau[..m], &mut weights[..m]);
     let inv_beta = 1.0 / beta;
     for i in 0..m {
         let e = exp_fast(-sdf[i].abs() * inv_beta);
         let sigma = if sdf[i] >= 0.0 { 0.5 * e } else { 1.0 - 0.5 * e } * inv_beta;
-        tau[i] = sigma * (z1[i] - z0[i]);
+        tau[i] = sigma * (z1[i] - z0[i]) * open[i];
     }
     // `weights[i]` holds −Σ_{j<i} τ_j for the next pass.
     let mut integral = 0.0f32;
@@ -565,6 +576,33 @@ struct RayState {
     converged: bool,
     /// New sample positions awaiting SDF values, sorted.
     pending: Vec<f32>,
+    /// The ray's stretches through occupied cells (sorted, disjoint), where it has an occupancy
+    /// grid; empty: the whole [near, far] is open.
+    occupied: Vec<[f32; 2]>,
+}
+
+impl RayState {
+    /// Per interval of `z`, 1 when the density lives in it (no occupancy, or both ends in the
+    /// same occupied stretch) and 0 across free space; into `open`.
+    fn open_intervals(&self, open: &mut Vec<f32>) {
+        let m = self.z.len().saturating_sub(1);
+        open.clear();
+        if self.occupied.is_empty() {
+            open.resize(m, 1.0);
+            return;
+        }
+        let stretch = |t: f32| {
+            let i = self.occupied.partition_point(|iv| iv[1] < t);
+            (i < self.occupied.len() && self.occupied[i][0] <= t).then_some(i)
+        };
+        let Some(&first) = self.z.first() else { return };
+        let mut left = stretch(first);
+        for i in 0..m {
+            let right = stretch(self.z[i + 1]);
+            open.push(if left.is_some() && left == right { 1.0 } else { 0.0 });
+            left = right;
+        }
+    }
 }
 
 /// Buffers of [`error_bounded_samples_into`], kept by the caller between batches: after the first
@@ -581,6 +619,7 @@ pub struct SamplerScratch {
 #[derive(Default)]
 struct RayScratch {
     d_star: Vec<f32>,
+    open: Vec<f32>,
     bound: Vec<f32>,
     tau: Vec<f32>,
     weights: Vec<f32>,
@@ -624,6 +663,7 @@ where
         directions,
         near,
         far,
+        occupied: None,
     };
     error_bounded_samples_into(config, &rays, beta, sdf, rng, &mut SamplerScratch::default(), &mut set);
     set
@@ -636,6 +676,19 @@ pub struct RayBatchRef<'a> {
     pub directions: &'a [[f32; 3]],
     pub near: &'a [f32],
     pub far: &'a [f32],
+    /// Each ray's stretches through occupied cells ([`crate::occupancy::OccupancyGrid::intervals`]):
+    /// ray r's are `intervals[offsets[r]..offsets[r + 1]]`. The sampler then spends its
+    /// evaluations there, gives free space no density, and ends the ray where the last stretch
+    /// ends (the grid's cut at a solid cell). A ray with no stretch is sampled over all of
+    /// [near, far]. `None`: no grid.
+    pub occupied: Option<OccupiedStretches<'a>>,
+}
+
+/// The occupied stretches of a batch of rays (see [`RayBatchRef::occupied`]).
+#[derive(Clone, Copy)]
+pub struct OccupiedStretches<'a> {
+    pub offsets: &'a [u32],
+    pub intervals: &'a [[f32; 2]],
 }
 
 /// [`error_bounded_samples`] into `set` (overwritten), with the caller's buffers.
@@ -686,6 +739,28 @@ pub fn error_bounded_samples_into<F, R>(
     write_final_samples(config, rays, rng, states, evaluations, ray, set);
 }
 
+/// `n` samples spread evenly over the total length of the occupied `stretches` (stratified with
+/// an RNG), plus both ends of each stretch, sorted, into `out`.
+fn stretch_samples<R: Rng + ?Sized>(stretches: &[[f32; 2]], n: usize, mut rng: Option<&mut R>, out: &mut Vec<f32>) {
+    out.clear();
+    let total: f32 = stretches.iter().map(|iv| iv[1] - iv[0]).sum();
+    for iv in stretches {
+        out.push(iv[0]);
+        out.push(iv[1]);
+    }
+    let (mut k, mut before) = (0usize, 0.0f32);
+    for i in 0..n {
+        let jitter = rng.as_deref_mut().map_or(0.5, |r| r.gen::<f32>());
+        let u = (i as f32 + jitter) / n as f32 * total;
+        while k + 1 < stretches.len() && before + (stretches[k][1] - stretches[k][0]) < u {
+            before += stretches[k][1] - stretches[k][0];
+            k += 1;
+        }
+        out.push((stretches[k][0] + (u - before)).clamp(stretches[k][0], stretches[k][1]));
+    }
+    out.sort_unstable_by(f32::total_cmp);
+}
+
 /// Starts every ray of the batch: `num_samples_eval` uniform samples (stratified with an RNG)
 /// pending, and the β+ of Lemma 2.
 fn init_ray_states<R: Rng + ?Sized>(
@@ -701,9 +776,19 @@ fn init_ray_states<R: Rng + ?Sized>(
         state.z.clear();
         state.sdf.clear();
         state.pending.clear();
-        state.pending.resize(n_eval, 0.0);
-        uniform_samples(rays.near[r], rays.far[r], rng.as_deref_mut(), &mut state.pending);
-        // Lemma 2: this β+ bounds the opacity error by ε whatever the SDF.
+        state.occupied.clear();
+        if let Some(occ) = &rays.occupied {
+            let (a, b) = (occ.offsets[r] as usize, occ.offsets[r + 1] as usize);
+            state.occupied.extend_from_slice(&occ.intervals[a..b]);
+        }
+        if state.occupied.is_empty() {
+            state.pending.resize(n_eval, 0.0);
+            uniform_samples(rays.near[r], rays.far[r], rng.as_deref_mut(), &mut state.pending);
+        } else {
+            stretch_samples(&state.occupied, n_eval, rng.as_deref_mut(), &mut state.pending);
+        }
+        // Lemma 2: this β+ bounds the opacity error by ε whatever the SDF (free space, between
+        // stretches, has no density and adds nothing).
         let sum_sq: f32 = state.pending.windows(2).map(|w| (w[1] - w[0]).powi(2)).sum();
         state.beta_plus = (sum_sq / (4.0 * (1.0 + config.eps).ln())).sqrt().max(beta);
         state.done = false;
@@ -742,6 +827,7 @@ fn refine_ray<R: Rng + ?Sized>(
     s.d_star.extend(
         (0..m - 1).map(|i| interval_distance_bound(state.z[i + 1] - state.z[i], state.sdf[i], state.sdf[i + 1])),
     );
+    state.open_intervals(&mut s.open);
     s.bound.resize(m - 1, 0.0);
     s.tau.resize(m - 1, 0.0);
     state.beta_plus = bisect_beta_plus(config, beta, state, s);
@@ -755,10 +841,15 @@ fn refine_ray<R: Rng + ?Sized>(
         &state.z,
         &state.sdf,
         &s.d_star,
+        &s.open,
         state.beta_plus,
         &mut s.tau,
         &mut s.bound,
     );
+    // Nothing upsampled across free space (its bound is the error accumulated before it).
+    for (b, o) in s.bound.iter_mut().zip(&s.open) {
+        *b *= o;
+    }
     s.u.resize(config.num_samples_upsample.max(1), 0.0);
     sample_unit_values::<R>(None, &mut s.u);
     s.new_t.resize(s.u.len(), 0.0);
@@ -770,13 +861,13 @@ fn refine_ray<R: Rng + ?Sized>(
 /// d* in `s.d_star`) is ≤ ε: the model's β when its own bound already is.
 fn bisect_beta_plus(config: &ErrorBoundedSamplerConfig, beta: f32, state: &RayState, s: &mut RayScratch) -> f32 {
     let (z, sdf) = (&state.z, &state.sdf);
-    if opacity_error_bound(z, sdf, &s.d_star, beta, &mut s.tau, &mut s.bound) <= config.eps {
+    if opacity_error_bound(z, sdf, &s.d_star, &s.open, beta, &mut s.tau, &mut s.bound) <= config.eps {
         return beta;
     }
     let (mut lo, mut hi) = (beta, state.beta_plus);
     for _ in 0..config.beta_iters {
         let mid = 0.5 * (lo + hi);
-        if opacity_error_bound(z, sdf, &s.d_star, mid, &mut s.tau, &mut s.bound) <= config.eps {
+        if opacity_error_bound(z, sdf, &s.d_star, &s.open, mid, &mut s.tau, &mut s.bound) <= config.eps {
             hi = mid;
         } else {
             lo = mid;
@@ -811,10 +902,24 @@ fn write_final_samples<R: Rng + ?Sized>(
     set.delta.clear();
     set.delta.resize(set.t.len(), 0.0);
     deltas_from_t(&set.ray_offsets, &set.t, config.last_delta, &mut set.delta);
+    // Free space has no density: a sample's interval stops where its occupied stretch does (and
+    // a sample outside every stretch has none). The last sample keeps its `last_delta`.
+    for (r, state) in states.iter().enumerate().filter(|(_, st)| !st.occupied.is_empty()) {
+        let (a, b) = (set.ray_offsets[r] as usize, set.ray_offsets[r + 1] as usize);
+        for i in a..b.saturating_sub(1) {
+            let t = set.t[i];
+            let k = state.occupied.partition_point(|iv| iv[1] < t);
+            set.delta[i] = match state.occupied.get(k) {
+                Some(iv) if iv[0] <= t => set.delta[i].min(iv[1] - t),
+                _ => 0.0,
+            };
+        }
+    }
 }
 
 /// One ray's final samples into `s.ray_t`, sorted: `num_samples` drawn by inverse CDF from the
-/// rendering weights at its reached β, its near and far, and `num_samples_extra` of its evaluated
+/// rendering weights at its reached β, its near and far (the ends of its occupied stretches where
+/// it has them), and `num_samples_extra` of its evaluated
 /// samples (evenly spaced without an RNG, a random subset with one).
 fn final_ray_samples<R: Rng + ?Sized>(
     config: &ErrorBoundedSamplerConfig,
@@ -825,14 +930,31 @@ fn final_ray_samples<R: Rng + ?Sized>(
     s: &mut RayScratch,
 ) {
     let m = state.z.len();
-    interval_weights(&state.z, &state.sdf, state.beta_plus, &mut s.tau, &mut s.weights);
+    state.open_intervals(&mut s.open);
+    interval_weights(
+        &state.z,
+        &state.sdf,
+        &s.open,
+        state.beta_plus,
+        &mut s.tau,
+        &mut s.weights,
+    );
     s.u.resize(config.num_samples, 0.0);
     sample_unit_values(rng.as_deref_mut(), &mut s.u);
     let ray_t = &mut s.ray_t;
     ray_t.resize(config.num_samples, 0.0);
     sample_piecewise_constant(&state.z, &s.weights, &s.u, ray_t);
-    ray_t.push(near);
-    ray_t.push(far);
+    // With an occupancy grid the ray lives from its first stretch to the end of its last (the cut).
+    match (state.occupied.first(), state.occupied.last()) {
+        (Some(first), Some(last)) => {
+            ray_t.push(first[0]);
+            ray_t.push(last[1]);
+        }
+        _ => {
+            ray_t.push(near);
+            ray_t.push(far);
+        }
+    }
     let extra = config.num_samples_extra.min(m);
     match rng {
         Some(rng) => {

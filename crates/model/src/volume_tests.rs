@@ -373,8 +373,13 @@ fn render<F: Fn([f32; 3]) -> f32>(
             channels[s] = p[0];
         }
     }
+    // `last_delta` < 0: the set's own deltas (an occupancy grid's truncated ones).
     let mut delta = vec![0.0; set.t.len()];
-    deltas_from_t(&set.ray_offsets, &set.t, last_delta, &mut delta);
+    if last_delta < 0.0 {
+        delta.copy_from_slice(&set.delta);
+    } else {
+        deltas_from_t(&set.ray_offsets, &set.t, last_delta, &mut delta);
+    }
     let samples = PackedSamples {
         ray_offsets: &set.ray_offsets,
         t: &set.t,
@@ -587,6 +592,95 @@ fn inverted_sphere_room_from_inside() {
     assert!(set.sdf_evaluations < dirs.len() * 128 * 5, "{}", set.sdf_evaluations);
 }
 
+/// With an occupancy grid (issue 26's empty-space skipping) the sampler finds the same surfaces
+/// as without, against a dense reference, for fewer SDF evaluations: a room (free inside a
+/// sphere of radius 2.5) with a ball in it, seen from inside, at a sharp and a blurry β.
+#[test]
+fn occupancy_grid_keeps_the_render_and_saves_evaluations() {
+    use crate::occupancy::OccupancyGrid;
+    let len = |q: [f32; 3]| (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
+    let room = move |p: [f32; 3]| (2.5 - len(p)).min(len([p[0], p[1], p[2] - 1.2]) - 0.4);
+    let mut dirs = directions(40, 1.5);
+    dirs.extend(directions(24, 3.0).iter().map(|d| [d[0], -d[2], d[1]]));
+    let origins = vec![[0.1f32, -0.2, -0.5]; dirs.len()];
+    let (near, far) = (vec![0.05f32; dirs.len()], vec![5.0f32; dirs.len()]);
+    for beta in [0.005f32, 0.05] {
+        let config = ErrorBoundedSamplerConfig::default();
+        let grid = OccupancyGrid::build(48, 3.0, 15.0 * beta, batched(room));
+        let (mut offsets, mut stretches, mut one) = (vec![0u32], Vec::new(), Vec::new());
+        for (o, d) in origins.iter().zip(&dirs) {
+            grid.intervals(*o, *d, near[0], far[0], &mut one);
+            stretches.extend_from_slice(&one);
+            offsets.push(stretches.len() as u32);
+        }
+        let mut sets = Vec::new();
+        for occupied in [
+            None,
+            Some(OccupiedStretches {
+                offsets: &offsets,
+                intervals: &stretches,
+            }),
+        ] {
+            let batch = RayBatchRef {
+                origins: &origins,
+                directions: &dirs,
+                near: &near,
+                far: &far,
+                occupied,
+            };
+            let mut set = RaySampleSet::default();
+            let mut r = rng(3);
+            error_bounded_samples_into(
+                &config,
+                &batch,
+                beta,
+                batched(room),
+                Some(&mut r),
+                &mut SamplerScratch::default(),
+                &mut set,
+            );
+            sets.push(set);
+        }
+        let dense = RaySampleSet {
+            ray_offsets: (0..=dirs.len() as u32).map(|i| i * 20000).collect(),
+            t: (0..dirs.len())
+                .flat_map(|_| (0..20000).map(|i| 0.05 + 4.95 * i as f32 / 19999.0))
+                .collect(),
+            ..Default::default()
+        };
+        let (ref_depth, ref_opacity, ref_x) = render(&dense, &origins, &dirs, room, beta, 1e10);
+        for (name, set) in ["dense sampler", "occupancy"].iter().zip(&sets) {
+            let (depth, opacity, x) = render(set, &origins, &dirs, room, beta, -1.0);
+            for i in 0..dirs.len() {
+                assert!(
+                    (opacity[i] - ref_opacity[i]).abs() < 0.02,
+                    "{name} β {beta} ray {i}: opacity {} vs {}",
+                    opacity[i],
+                    ref_opacity[i]
+                );
+                assert!(
+                    (depth[i] - ref_depth[i]).abs() < 0.05,
+                    "{name} β {beta} ray {i}: depth {} vs {}",
+                    depth[i],
+                    ref_depth[i]
+                );
+                assert!(
+                    (x[i] - ref_x[i]).abs() < 0.02,
+                    "{name} β {beta} ray {i}: x {} vs {}",
+                    x[i],
+                    ref_x[i]
+                );
+            }
+        }
+        assert!(
+            (sets[1].sdf_evaluations as f64) < 0.8 * sets[0].sdf_evaluations as f64,
+            "β {beta}: {} evaluations with the grid, {} without",
+            sets[1].sdf_evaluations,
+            sets[0].sdf_evaluations
+        );
+    }
+}
+
 /// The vectorized bound against VolSDF's loop written out in f64 (std `exp`), on random rays
 /// whose SDF crosses zero, at β from sharp to blurry.
 #[test]
@@ -603,7 +697,7 @@ fn opacity_error_bound_matches_its_scalar_definition() {
             .collect();
         let beta = [0.002f32, 0.01, 0.05, 0.3][case % 4];
         let (mut tau, mut bound) = (vec![0.0; m - 1], vec![0.0; m - 1]);
-        let max = opacity_error_bound(&z, &sdf, &d_star, beta, &mut tau, &mut bound);
+        let max = opacity_error_bound(&z, &sdf, &d_star, &vec![1.0; d_star.len()], beta, &mut tau, &mut bound);
         let (mut integral, mut error, mut want_max) = (0.0f64, 0.0f64, 0.0f64);
         for i in 0..m - 1 {
             let delta = (z[i + 1] - z[i]) as f64;
@@ -631,7 +725,7 @@ fn interval_weights_match_their_definition() {
     let z: Vec<f32> = (0..80).map(|i| i as f32 * 0.03 + r.gen_range(0.0..0.01f32)).collect();
     let sdf: Vec<f32> = z.iter().map(|t| 1.2 - t).collect();
     let (mut tau, mut w) = (Vec::new(), Vec::new());
-    interval_weights(&z, &sdf, 0.02, &mut tau, &mut w);
+    interval_weights(&z, &sdf, &vec![1.0; z.len() - 1], 0.02, &mut tau, &mut w);
     let mut t = 1.0f64;
     for i in 0..z.len() - 1 {
         let tau = laplace_density(sdf[i] as f64, 0.02) * (z[i + 1] - z[i]) as f64;
@@ -677,6 +771,7 @@ fn reused_sampler_scratch_gives_the_fresh_result() {
             directions: &dirs,
             near: &near,
             far: &far,
+            occupied: None,
         };
         let mut r1 = seed.map(rng);
         error_bounded_samples_into(

@@ -4,8 +4,9 @@
 //! samples lose against a dense reference (4096 uniform samples per ray): opacity, depth and
 //! colour.
 //!
-//! `cargo run --release -p i2sdf-train --example sampler_bench -- RUN DATA [rays] [reps] [--time-only] [upsample=N coarse=N rounds=N eps=X]`
+//! `cargo run --release -p i2sdf-train --example sampler_bench -- RUN DATA [rays] [reps] [--time-only] [upsample=N coarse=N rounds=N eps=X] [occupancy=RES [margin=K]]`
 
+use i2sdf_model::occupancy::OccupancyGrid;
 use i2sdf_model::renderer::{self, sphere_exit, RenderWorkspace};
 use i2sdf_model::volume::deltas_from_t;
 use i2sdf_model::{NeuralScene, RunDir};
@@ -41,10 +42,25 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "coarse" => s.num_samples_eval = a.1.parse()?,
             "rounds" => s.max_total_iters = a.1.parse()?,
             "eps" => s.eps = a.1.parse()?,
+            "occupancy" | "margin" => {}
             k => return Err(format!("unknown override {k}").into()),
         }
     }
     let (scene, _) = NeuralScene::load(&run.checkpoint_path())?;
+    // `occupancy=RES [margin=K]`: empty-space skipping with a RES³ grid, margin K·β (default 15).
+    let value = |key: &str| args.iter().find_map(|a| a.strip_prefix(key).map(str::to_string));
+    if let Some(res) = value("occupancy=") {
+        let margin: f32 = value("margin=").map_or(Ok(15.0), |m| m.parse())?;
+        let t = Instant::now();
+        let grid = OccupancyGrid::for_scene(&scene, res.parse()?, settings.bound_radius, margin);
+        println!(
+            "occupancy {res}³, margin {:.4} ({margin} β, at least a cell): built in {:.0} ms, {:.1} % of the cells occupied",
+            grid.margin(),
+            t.elapsed().as_secs_f64() * 1e3,
+            100.0 * grid.occupied_fraction()
+        );
+        settings.occupancy = Some(std::sync::Arc::new(grid));
+    }
     let images = train_images(&dataset, &TrainingMaps::prepare(&dataset, &config)?);
     let mut rng = Pcg64::seed_from_u64(7);
     let (mut origins, mut dirs) = (Vec::new(), Vec::new());

@@ -296,6 +296,15 @@ pub struct SamplingConfig {
     pub upsample: Option<usize>,
     /// Target bound on the opacity error (VolSDF ε).
     pub epsilon: f32,
+    /// Empty-space skipping (`i2sdf_model::occupancy`): an occupancy grid of this many cells a
+    /// side over the scene's cube, so that the sampler evaluates the SDF in occupied cells only
+    /// and ends each ray at its first solid cell (0: off, every ray sampled over its whole span).
+    pub occupancy_resolution: usize,
+    /// Iterations between rebuilds of the occupancy grid from the SDF being trained.
+    pub occupancy_every: u64,
+    /// A cell is free or solid when |SDF| at its centre exceeds its half-diagonal plus this many
+    /// β (at least one cell): the Laplace density left out in free space is at most e^{−this}/2β.
+    pub occupancy_margin: f32,
 }
 
 impl Default for SamplingConfig {
@@ -307,6 +316,9 @@ impl Default for SamplingConfig {
             // mean depth and 45 dB colour against a dense reference (issue 12).
             upsample: Some(16),
             epsilon: 0.1,
+            occupancy_resolution: 0,
+            occupancy_every: 16,
+            occupancy_margin: 4.0,
         }
     }
 }
@@ -467,6 +479,11 @@ impl TrainConfig {
             int("sampling.upsample", u, 1, 1024)?;
         }
         positive("sampling.epsilon", s.epsilon, 10.0)?;
+        if s.occupancy_resolution != 0 {
+            int("sampling.occupancy_resolution", s.occupancy_resolution, 8, 512)?;
+        }
+        int("sampling.occupancy_every", s.occupancy_every as usize, 1, 1_000_000)?;
+        real("sampling.occupancy_margin", s.occupancy_margin, 0.0, 100.0)?;
         let l = &self.loss;
         for (key, v) in [
             ("loss.rgb", l.rgb),
@@ -720,6 +737,11 @@ mod tests {
             ("train.checkpoint_every=0", "train.checkpoint_every"),
             ("sampling.samples=1", "sampling.samples"),
             ("sampling.upsample=0", "sampling.upsample"),
+            ("sampling.occupancy_resolution=4", "sampling.occupancy_resolution"),
+            ("sampling.occupancy_every=0", "sampling.occupancy_every"),
+            ("sampling.occupancy_margin=-1", "sampling.occupancy_margin"),
+            ("stage2.emitter_min_views=0", "stage2.emitter_min_views"),
+            ("stage2.emitter_mask_agreement=1.5", "stage2.emitter_mask_agreement"),
             ("schedule.smooth_bubble=2", "smooth_bubble"),
             ("adaptive.p_min=nan", "adaptive.p_min"),
             ("schedule.warmup_fraction=nan", "warmup_fraction"),

@@ -9,6 +9,7 @@ use super::pdf_map::PixelRef;
 use super::schedule::{LossWeights, Phase};
 use super::{Stage1, StepStats};
 use crate::driver::StepOutcome;
+use i2sdf_model::occupancy::OccupancyGrid;
 use i2sdf_model::renderer::{self, RayGrads};
 use rand::Rng;
 use rand_pcg::Pcg64;
@@ -49,6 +50,7 @@ impl Stage1 {
         let (phase, w) = self.enter_phase();
         self.batch.sample_uniform(&self.images, self.config.train.rays, rng);
         let t0 = std::time::Instant::now();
+        self.refresh_occupancy();
         let rendered = self.rendered_surfaces(&w, rng);
         let counts = self.draw_extra_points(&w, rendered.as_deref(), rng);
         if rendered.is_none() {
@@ -150,6 +152,24 @@ impl Stage1 {
                 SURFACE_OPACITY,
             )
         })
+    }
+
+    /// With `sampling.occupancy_resolution` set, rebuilds the occupancy grid from the SDF every
+    /// `sampling.occupancy_every` iterations (and at the first step of a process, resumed or not).
+    fn refresh_occupancy(&mut self) {
+        let s = &self.config.sampling;
+        if s.occupancy_resolution == 0 {
+            return;
+        }
+        if self.settings.occupancy.is_none() || self.iteration % s.occupancy_every == 0 {
+            let grid = OccupancyGrid::for_scene(
+                &self.scene,
+                s.occupancy_resolution,
+                self.settings.bound_radius,
+                s.occupancy_margin,
+            );
+            self.settings.occupancy = Some(std::sync::Arc::new(grid));
+        }
     }
 
     /// Places the batch's samples along its rays (the error-bounded sampler).
