@@ -234,6 +234,18 @@ impl RunDir {
         ]
     }
 
+    /// `RUN/snapshots/KEY-SECONDSs/`: a snapshot of stage `key` at that wall time, itself a run
+    /// directory (`train.snapshot_seconds`).
+    pub fn snapshot(&self, key: &str, seconds: f32) -> RunDir {
+        // Whole seconds zero-padded, so that the folders sort by time.
+        let at = if seconds.fract() == 0.0 {
+            format!("{:05}", seconds as u64)
+        } else {
+            format!("{seconds}")
+        };
+        RunDir::new(&self.root.join("snapshots").join(format!("{key}-{at}s")))
+    }
+
     pub fn create(&self) -> Result<(), DataError> {
         std::fs::create_dir_all(&self.root)
             .map_err(|e| DataError::io(&self.root, format!("cannot create the run directory: {e}")))

@@ -257,6 +257,10 @@ pub struct TrainLoop {
     pub seed: u64,
     /// Write a checkpoint every this many iterations (and at the end).
     pub checkpoint_every: u64,
+    /// Stage 1's snapshots for a time-to-quality curve: at each of these seconds of the stage's
+    /// wall time (summed over resumed sessions), the fields as they are then go to
+    /// `RUN/snapshots/stage1-SECONDSs/`, a run directory `eval --run` scores. Increasing.
+    pub snapshot_seconds: Vec<f32>,
     /// Log losses every this many iterations.
     pub log_every: u64,
     /// Worker threads (0 = all cores).
@@ -277,6 +281,7 @@ impl Default for TrainLoop {
             lr_warmup: 100,
             seed: 0,
             checkpoint_every: 500,
+            snapshot_seconds: Vec::new(),
             log_every: 10,
             threads: 0,
         }
@@ -470,6 +475,14 @@ impl TrainConfig {
         positive("train.lr_final_fraction", t.lr_final_fraction, 1.0)?;
         int("train.lr_warmup", t.lr_warmup, 0, 100_000_000)?;
         int("train.checkpoint_every", t.checkpoint_every, 1, 100_000_000)?;
+        for (i, &sec) in t.snapshot_seconds.iter().enumerate() {
+            if !(sec > 0.0 && sec < 1e7) || (i > 0 && sec <= t.snapshot_seconds[i - 1]) {
+                return Err(format!(
+                    "train.snapshot_seconds = {:?}: increasing seconds in (0, 1e7)",
+                    t.snapshot_seconds
+                ));
+            }
+        }
         int("train.log_every", t.log_every, 1, 100_000_000)?;
         int("train.threads", t.threads, 0, 1024)?;
         let s = &self.sampling;
@@ -735,6 +748,8 @@ mod tests {
             ("train.lr_mlp=0", "train.lr_mlp"),
             ("train.lr_warmup=-1", "train.lr_warmup"),
             ("train.checkpoint_every=0", "train.checkpoint_every"),
+            ("train.snapshot_seconds=[60, 30]", "train.snapshot_seconds"),
+            ("train.snapshot_seconds=[0]", "train.snapshot_seconds"),
             ("sampling.samples=1", "sampling.samples"),
             ("sampling.upsample=0", "sampling.upsample"),
             ("sampling.occupancy_resolution=4", "sampling.occupancy_resolution"),

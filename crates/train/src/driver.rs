@@ -130,11 +130,14 @@ pub enum Event<'a, T> {
     },
 }
 
-/// How often the driver checkpoints and logs.
+/// How often the driver checkpoints and logs, and when it writes snapshots.
 #[derive(Clone, Copy, Debug)]
-pub struct DriveOptions {
+pub struct DriveOptions<'a> {
     pub checkpoint_every: u64,
     pub log_every: u64,
+    /// Wall times (seconds of the stage, increasing) at which the stage's fields are written to
+    /// [`RunDir::snapshot`], a run directory of its own.
+    pub snapshot_seconds: &'a [f32],
 }
 
 /// Runs `trainer` to its total into `run`: logs every `log_every` steps (and every skipped one),
@@ -144,7 +147,7 @@ pub fn drive<S: TrainStage>(
     run: &RunDir,
     info: &mut RunInfo,
     trainer: &mut Trainer<S>,
-    options: DriveOptions,
+    options: DriveOptions<'_>,
     mut on_event: impl FnMut(Event<S::Stats>),
 ) -> Result<(), DataError> {
     let key = trainer.stage.key();
@@ -157,6 +160,10 @@ pub fn drive<S: TrainStage>(
     let session_start = Instant::now();
     let every = options.checkpoint_every.max(1);
     let log_every = options.log_every.max(1);
+    // Snapshots already written by an earlier session are not written again.
+    let mut next_snapshot = options
+        .snapshot_seconds
+        .partition_point(|&s| (s as f64) <= base_seconds);
     while !trainer.done() {
         if let Some(what) = trainer.stage.pending_pause() {
             on_event(Event::Pause(what));
@@ -180,6 +187,19 @@ pub fn drive<S: TrainStage>(
             finite: out.finite,
         });
         let now = trainer.stage.iteration();
+        let elapsed = base_seconds + session_start.elapsed().as_secs_f64();
+        while let Some(&at) = options.snapshot_seconds.get(next_snapshot) {
+            if at as f64 > elapsed {
+                break;
+            }
+            let snap = run.snapshot(key, at);
+            write_snapshot(run, &snap, info, trainer, elapsed)?;
+            on_event(Event::Note(format!(
+                "snapshot at {at} s (iteration {now}): {}",
+                snap.root.display()
+            )));
+            next_snapshot += 1;
+        }
         if now % every == 0 || trainer.done() {
             trainer.save(&run.stage_checkpoint_path(key))?;
             let progress = info.stage_mut(key)?;
@@ -201,6 +221,40 @@ pub fn drive<S: TrainStage>(
         run.write_info(info)?;
     }
     Ok(())
+}
+
+/// A snapshot of the stage as it is: its checkpoint, the run's configuration, and a `run.json`
+/// that records the stage finished at this iteration and wall time (what it is, to a command
+/// that opens it), each written atomically. A stage 2 snapshot takes stage 1's checkpoint and
+/// the emitters with it.
+fn write_snapshot<S: TrainStage>(
+    run: &RunDir,
+    snap: &RunDir,
+    info: &RunInfo,
+    trainer: &Trainer<S>,
+    elapsed: f64,
+) -> Result<(), DataError> {
+    let key = trainer.stage.key();
+    snap.create()?;
+    trainer.save(&snap.stage_checkpoint_path(key))?;
+    snap.write_config_toml(&run.read_config_toml()?)?;
+    if key == "stage2" {
+        for (from, to) in [
+            (run.checkpoint_path(), snap.checkpoint_path()),
+            (run.emitters_path(), snap.emitters_path()),
+        ] {
+            if from.is_file() {
+                let bytes = std::fs::read(&from).map_err(|e| DataError::io(&from, format!("cannot read: {e}")))?;
+                i2sdf_data::imageio::write_bytes_atomic(&to, &bytes)?;
+            }
+        }
+    }
+    let mut snap_info = info.clone();
+    let progress = snap_info.stage_mut(key)?;
+    progress.iterations = trainer.stage.iteration();
+    progress.seconds = elapsed;
+    progress.done = true;
+    snap.write_info(&snap_info)
 }
 
 #[cfg(test)]
@@ -292,6 +346,7 @@ mod tests {
     const OPTIONS: DriveOptions = DriveOptions {
         checkpoint_every: 10,
         log_every: 5,
+        snapshot_seconds: &[],
     };
 
     /// Checkpoints, log, progress in run.json, events; a run stopped and resumed ends bit for bit
@@ -338,6 +393,47 @@ mod tests {
 
     /// Non-finite steps are skipped and logged; a streak of them stops the run as diverged (not
     /// the input's fault), and non-finite parameters are never checkpointed.
+    /// Snapshots at given wall times are run directories of their own (checkpoint, config, a
+    /// run.json of the stage finished there); a resumed session does not write them again.
+    #[test]
+    fn snapshots_at_wall_times() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::new(dir.path());
+        run.create().unwrap();
+        run.write_config_toml("[train]\niterations = 20\n").unwrap();
+        let mut info = RunInfo::default();
+        let times = [1e-9f32, 2e-9, 1e6];
+        let options = DriveOptions {
+            snapshot_seconds: &times,
+            ..OPTIONS
+        };
+        let mut t = Trainer::new(toy(20));
+        let mut notes = Vec::new();
+        drive(&run, &mut info, &mut t, options, |e| {
+            if let Event::Note(n) = e {
+                notes.push(n)
+            }
+        })
+        .unwrap();
+        assert_eq!(notes.len(), 2, "{notes:?}");
+        for at in [1e-9f32, 2e-9] {
+            let snap = run.snapshot("stage2", at);
+            let snap_info = snap.read_info().unwrap();
+            let p = snap_info.stage("stage2").unwrap();
+            assert_eq!((p.iterations, p.done), (1, true), "the first step passes both times");
+            assert!(snap.stage2_checkpoint_path().is_file());
+            assert_eq!(snap.read_config_toml().unwrap(), run.read_config_toml().unwrap());
+        }
+        assert!(!run.snapshot("stage2", 1e6).root.exists());
+        assert!(run.snapshot("stage2", 60.0).root.ends_with("snapshots/stage2-00060s"));
+        assert_eq!(std::fs::read_dir(run.root.join("snapshots")).unwrap().count(), 2);
+        // Resumed: the times already passed are not written again.
+        std::fs::remove_dir_all(run.snapshot("stage2", 1e-9).root).unwrap();
+        let mut more = Trainer::new(resume(&run.stage2_checkpoint_path(), 25));
+        drive(&run, &mut info, &mut more, options, |_| {}).unwrap();
+        assert!(!run.snapshot("stage2", 1e-9).root.exists());
+    }
+
     #[test]
     fn a_diverging_stage_stops_and_keeps_the_last_checkpoint() {
         let dir = tempfile::tempdir().unwrap();

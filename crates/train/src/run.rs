@@ -145,9 +145,11 @@ pub fn train_geometry(
     for line in maps.describe(dataset) {
         on_event(Event::Note(line.to_string()));
     }
+    let snapshots = config.train.snapshot_seconds.clone();
     let options = DriveOptions {
         checkpoint_every: config.train.checkpoint_every,
         log_every: config.train.log_every,
+        snapshot_seconds: &snapshots,
     };
     let stage = if resume && run.checkpoint_path().is_file() {
         Stage1::resume(dataset, config, &maps, &run.checkpoint_path())?
@@ -239,9 +241,11 @@ pub fn train_materials(
     let (scene, _) = i2sdf_model::NeuralScene::load(&run.checkpoint_path())?;
     let views = target_views(dataset, config.stage2.use_hdr, &maps);
     let rm = radiometry(dataset);
+    // Snapshots are stage 1's (`train.snapshot_seconds`); stage 2 has its own wall time.
     let options = DriveOptions {
         checkpoint_every: config.train.checkpoint_every,
         log_every: config.train.log_every,
+        snapshot_seconds: &[],
     };
     let built = Instant::now();
     let stage = if resume && ckpt.is_file() {
