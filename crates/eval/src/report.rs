@@ -34,14 +34,15 @@ pub struct EvalReport {
     pub notes: Vec<String>,
 }
 
-/// What a run whose stage 2 found no emitters means for its figures. Stage 2 clusters the
-/// surface points of the training pixels whose emitter probability F_e is above
+/// What a run whose stage 2 found no emitters means for its figures. Stage 2 makes emitters of
+/// the surface points of the training pixels whose emitter probability F_e is above
 /// `stage2.emitter_threshold`; with none (F_e not trained enough, or a dataset without emitter
 /// masks) it finds no emitters, and everything downstream is lit by nothing but the radiance field.
 pub fn zero_emitter_note() -> String {
     "stage 2 found no emitters: no training pixel's emitter probability (F_e) was above \
-     stage2.emitter_threshold (or the dataset has no emitter masks), so there was nothing to \
-     cluster. The re-render therefore has only the radiance field's indirect light (no light \
+     stage2.emitter_threshold (or the dataset has no emitter masks), or every connected piece of \
+     the marked points failed stage 2's tests (stage2.emitter_min_views, \
+     stage2.emitter_mask_agreement), so there was no light. The re-render therefore has only the radiance field's indirect light (no light \
      from any emitter), and every relit image would be black when path traced and unchanged \
      when composited differentially: the relight figures are null, not meaningful. Train stage 1 \
      longer (the emitter field needs a converged surface) or lower stage2.emitter_threshold."

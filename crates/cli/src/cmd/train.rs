@@ -269,7 +269,7 @@ fn run_materials(
     let (surface, emitter) = stage.counts();
     if stage.fields.emitters.is_empty() {
         crate::progress::line(&format!(
-            "warning: stage 2 found no emitters: no training pixel's emitter probability passed stage2.emitter_threshold = {} (F_e learns from the emitter masks said above: are there any?). The re-render has no direct light, relight ops have nothing to change, and relit renders in edit, eval and the report are black",
+            "warning: stage 2 found no emitters: no training pixel's emitter probability passed stage2.emitter_threshold = {} (F_e learns from the emitter masks said above: are there any?), or every piece of marked points was left out (the `not an emitter` lines above say why). The re-render has no direct light, relight ops have nothing to change, and relit renders in edit, eval and the report are black",
             run_threshold(run)
         ));
     }
