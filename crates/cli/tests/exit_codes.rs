@@ -346,10 +346,8 @@ fn failed_writes_exit_1_and_leave_nothing_half_written() {
 
 /// A copy of the tiny run with a tiny stage 2, for the commands that need one. The fixture's
 /// views see no emitter, so at the default threshold stage 2 finds none and every relight would
-/// be refused; at threshold 0 the (untrained) emitter field marks surfaces everywhere, and with
-/// neither the masks' agreement (they mark nothing) nor a second view asked for (each of the four
-/// views sees its own wall), the pieces become emitters: meaningless
-/// as lights, but they carry relight ops through edit and eval.
+/// be refused; [`tiny_stage2_any_emitters`] makes emitters of the untrained emitter field's
+/// marks instead.
 fn trained_stage2() -> &'static (tempfile::TempDir, PathBuf) {
     static RUN: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
     RUN.get_or_init(|| {
@@ -357,22 +355,7 @@ fn trained_stage2() -> &'static (tempfile::TempDir, PathBuf) {
         let dir = tempfile::tempdir().unwrap();
         let copy = dir.path().join("run2");
         copy_stage1(run, &copy);
-        let o = train_material(
-            data,
-            &copy,
-            &[
-                &TINY_STAGE2[..],
-                &[
-                    "--set",
-                    "stage2.emitter_threshold=0",
-                    "--set",
-                    "stage2.emitter_mask_agreement=0",
-                    "--set",
-                    "stage2.emitter_min_views=1",
-                ],
-            ]
-            .concat(),
-        );
+        let o = train_material(data, &copy, &tiny_stage2_any_emitters());
         assert_eq!(o.code, 0, "{}", o.stderr);
         (dir, copy)
     })

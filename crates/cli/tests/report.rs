@@ -197,26 +197,10 @@ fn relit_captions_are_evals_per_frame_figures() {
         "[[op]]\nkind = \"relight\"\nat = [0, 0, 0]\nscale = 2\n",
     )
     .unwrap();
-    // Stage 2 at emitter threshold 0, no mask agreement and no second view asked for, so that it
-    // has emitters to relight.
+    // Stage 2 with emitters to relight.
     let run = dir.path().join("run");
     copy_stage1(stage1, &run);
-    let o = train_material(
-        &data,
-        &run,
-        &[
-            &TINY_STAGE2[..],
-            &[
-                "--set",
-                "stage2.emitter_threshold=0",
-                "--set",
-                "stage2.emitter_mask_agreement=0",
-                "--set",
-                "stage2.emitter_min_views=1",
-            ],
-        ]
-        .concat(),
-    );
+    let o = train_material(&data, &run, &tiny_stage2_any_emitters());
     assert_eq!(o.code, 0, "{}", o.stderr);
 
     let metrics = dir.path().join("metrics.json");

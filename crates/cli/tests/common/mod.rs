@@ -63,6 +63,22 @@ pub const TINY_STAGE2: [&str; 10] = [
     "material.hash_log2_table=10",
 ];
 
+/// [`TINY_STAGE2`] made to make emitters of whatever F_e marks: threshold 0, and neither the
+/// masks' agreement (the fixture's mark nothing) nor a second view (each of its four views sees
+/// its own wall) asked for. Meaningless as lights, but they carry relight ops through edit, eval
+/// and the report.
+pub fn tiny_stage2_any_emitters() -> Vec<&'static str> {
+    let any = [
+        "--set",
+        "stage2.emitter_threshold=0",
+        "--set",
+        "stage2.emitter_mask_agreement=0",
+        "--set",
+        "stage2.emitter_min_views=1",
+    ];
+    [&TINY_STAGE2[..], &any[..]].concat()
+}
+
 /// `i2sdf train --quiet --stage material` of `data` into `out`.
 pub fn train_material(data: &Path, out: &Path, extra: &[&str]) -> Outcome {
     let mut args = vec![
