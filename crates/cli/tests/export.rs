@@ -1,6 +1,6 @@
 //! `i2sdf export` end to end on tiny runs of the fixture: the files read back through the `gltf`
-//! crate (counts, bounds, materials in range, cameras), the axis conversion, a stage-1 run, and
-//! bad input refused before any work.
+//! crate (counts, bounds, materials and textures in range, lights, cameras), the axis
+//! conversion, a stage-1 run, and bad input refused before any work.
 
 mod common;
 
@@ -9,31 +9,44 @@ use std::path::Path;
 
 fn export(run: &Path, out: &Path, extra: &[&str]) -> Outcome {
     let mut args = vec!["export", "--run", s(run), "--out", s(out), "--resolution", "48"];
+    if !extra.contains(&"--texture-size") {
+        // a small atlas: the fixture's surface is coarse
+        args.extend_from_slice(&["--texture-size", "256"]);
+    }
     args.extend_from_slice(extra);
     i2sdf(&args)
 }
 
 struct Read {
     doc: gltf::Document,
+    images: Vec<gltf::image::Data>,
     positions: Vec<[f32; 3]>,
     faces: usize,
 }
 
+/// The file through the `gltf` crate; every vertex colour finite and ≥ 0, every texture
+/// coordinate in [0, 1].
 fn read(path: &Path) -> Read {
-    let (doc, buffers, _) = gltf::import(path).expect("a valid glTF");
+    let (doc, buffers, images) = gltf::import(path).expect("a valid glTF");
     let mut positions = None;
     let mut faces = 0;
     for mesh in doc.meshes() {
         for prim in mesh.primitives() {
             let r = prim.reader(|b| Some(&buffers[b.index()]));
             positions.get_or_insert_with(|| r.read_positions().unwrap().collect::<Vec<_>>());
-            let colours: Vec<[f32; 3]> = r.read_colors(0).unwrap().into_rgb_f32().collect();
-            assert!(colours.iter().flatten().all(|c| c.is_finite() && *c >= 0.0));
+            if let Some(c) = r.read_colors(0) {
+                let colours: Vec<[f32; 3]> = c.into_rgb_f32().collect();
+                assert!(colours.iter().flatten().all(|c| c.is_finite() && *c >= 0.0));
+            }
+            if let Some(t) = r.read_tex_coords(0) {
+                assert!(t.into_f32().flatten().all(|c| (0.0..=1.0).contains(&c)));
+            }
             faces += r.read_indices().unwrap().into_u32().count() / 3;
         }
     }
     Read {
         doc,
+        images,
         positions: positions.expect("a mesh"),
         faces,
     }
@@ -45,8 +58,13 @@ fn a_stage2_run_exports_a_scene_that_reads_back() {
     let dir = tempfile::tempdir().unwrap();
     let dataset = i2sdf_data::load(&t.data).unwrap();
     let glb = dir.path().join("room.glb");
-    let o = export(&t.stage2, &glb, &["--up", "+y"]);
+    let o = export(&t.stage2, &glb, &["--up", "+y", "--lights"]);
     assert_eq!(o.code, 0, "{}", o.stderr);
+    assert!(
+        o.stdout.contains("textures against the material fields"),
+        "{}",
+        o.stdout
+    );
     let r = read(&glb);
     assert!(r.faces > 100, "{} faces", r.faces);
     // +y up: glTF's axes are the world's, and the surface lies within the scene bounds padded
@@ -85,13 +103,21 @@ fn a_stage2_run_exports_a_scene_that_reads_back() {
     for m in r.doc.materials() {
         let pbr = m.pbr_metallic_roughness();
         assert!((0.0..=1.0).contains(&pbr.roughness_factor()));
-        assert_eq!(pbr.metallic_factor(), 0.0);
         if let Some(strength) = m.emissive_strength() {
+            assert_eq!(pbr.metallic_factor(), 0.0);
             emissive.push(m.emissive_factor().map(|c| c * strength));
         } else {
+            // the baked material: Kd, roughness (G), metallic (B = 0) and F90 (A) in textures
+            let base = pbr.base_color_texture().expect("a base colour texture");
+            let img = &r.images[base.texture().source().index()];
+            assert_eq!((img.width, img.height), (256, 256));
+            let mr = &r.images[pbr.metallic_roughness_texture().unwrap().texture().source().index()];
+            assert_eq!(mr.format, gltf::image::Format::R8G8B8A8);
+            assert!(mr.pixels.chunks(4).all(|p| p[2] == 0), "metallic 0 everywhere");
             let spec = m.specular().expect("KHR_materials_specular");
             assert!((0.0..=1.0).contains(&spec.specular_factor()));
-            assert!(spec.specular_color_factor().iter().all(|c| c.is_finite() && *c >= 0.0));
+            assert!(spec.specular_color_factor().iter().all(|c| c.is_finite() && *c >= 1.0));
+            assert!(spec.specular_color_texture().is_some() && spec.specular_texture().is_some());
         }
     }
     let with_faces = emissive.len();
@@ -103,11 +129,23 @@ fn a_stage2_run_exports_a_scene_that_reads_back() {
         });
         assert!(found, "emission {l:?} is no L[k]");
     }
-    // the same scene as .gltf (buffer embedded): one file, the same faces
+    // one light per emitter with faces
+    assert_eq!(r.doc.lights().map_or(0, |l| l.count()), with_faces);
+    // the same scene as .gltf (buffer embedded): one file, the same faces; and with vertex
+    // colours instead of textures
     let gltf = dir.path().join("room.gltf");
-    let o = export(&t.stage2, &gltf, &["--up", "+y"]);
+    let o = export(&t.stage2, &gltf, &["--up", "+y", "--texture-size", "0"]);
     assert_eq!(o.code, 0, "{}", o.stderr);
-    assert_eq!(read(&gltf).faces, r.faces);
+    assert!(
+        o.stdout.contains("vertex colours against the material fields"),
+        "{}",
+        o.stdout
+    );
+    let v = read(&gltf);
+    assert_eq!(v.faces, r.faces);
+    assert!(v.images.is_empty());
+    let prim = v.doc.meshes().next().unwrap().primitives().next().unwrap();
+    assert!(prim.get(&gltf::Semantic::Colors(0)).is_some());
     assert_eq!(
         std::fs::read_dir(dir.path()).unwrap().count(),
         2,
@@ -178,6 +216,11 @@ fn bad_export_arguments_are_refused_before_any_work() {
         export(&t.stage2, &dir.path().join("a.glb"), &["--max-faces", "3"]),
         2,
         &["--max-faces 3"],
+    );
+    expect(
+        export(&t.stage2, &dir.path().join("a.glb"), &["--texture-size", "32"]),
+        2,
+        &["--texture-size 32"],
     );
     expect(
         export(&dir.path().join("no_run"), &dir.path().join("a.glb"), &[]),

@@ -169,8 +169,17 @@ pub fn auto_exposure(renders: &[(&ViewSpec, &ViewRender)]) -> f32 {
     (0.18 / (sum / n as f64).exp()) as f32
 }
 
-/// The relit test conditions: the first emitter 2× brighter and warmer, and the last one off
-/// (halved instead when the scene has a single emitter, which would otherwise go black).
+/// The relit test conditions:
+/// - `brighter_warmer`: the first emitter 2× brighter and warmer;
+/// - `light_off`: the last one off (`light_dim`, halved, when the scene has a single emitter,
+///   which would otherwise go black);
+/// - with two emitters or more, `small_light_alone`: the most powerful emitter off and the least
+///   powerful 3× brighter, so that the room is lit by its small light — what stage 2 recovered of
+///   a small emitter (its extent, its emission, the light it throws) then decides the image;
+/// - and `small_light_cool`: the least powerful emitter 2× brighter and cool blue, the others
+///   as they are (its colour and its place must be right for the change to come out right).
+///
+/// Power is the emitter's luminance × area.
 pub fn default_relight_specs(scene: &RenderScene) -> Vec<(String, EditSpec)> {
     let centre = |k: usize| {
         let (lo, hi) = scene.emitters[k].bounds;
@@ -188,7 +197,39 @@ pub fn default_relight_specs(scene: &RenderScene) -> Vec<(String, EditSpec)> {
     let second = EditSpec {
         ops: vec![EditOp::relight(centre(last), scale, [1.0; 3])],
     };
-    vec![("brighter_warmer".to_string(), first), (name.to_string(), second)]
+    let mut specs = vec![("brighter_warmer".to_string(), first), (name.to_string(), second)];
+    if last > 0 {
+        let power: Vec<f64> = scene.emitters.iter().map(|e| emitter_power(scene, e)).collect();
+        let by_power = |a: &usize, b: &usize| power[*a].total_cmp(&power[*b]);
+        let largest = (0..power.len()).max_by(by_power).expect("emitters");
+        let smallest = (0..power.len()).min_by(by_power).expect("emitters");
+        specs.push((
+            "small_light_alone".to_string(),
+            EditSpec {
+                ops: vec![
+                    EditOp::relight(centre(largest), 0.0, [1.0; 3]),
+                    EditOp::relight(centre(smallest), 3.0, [1.0; 3]),
+                ],
+            },
+        ));
+        specs.push((
+            "small_light_cool".to_string(),
+            EditSpec {
+                ops: vec![EditOp::relight(centre(smallest), 2.0, [0.5, 0.7, 1.0])],
+            },
+        ));
+    }
+    specs
+}
+
+/// An emitter's luminance × the area of its shape's triangles.
+fn emitter_power(scene: &RenderScene, e: &crate::tracer::Emitter) -> f64 {
+    let area: f64 = (0..scene.mesh.mesh.num_faces())
+        .filter(|&f| scene.mesh.shape_of[f] == e.shape)
+        .map(|f| scene.mesh.mesh.face_area(f))
+        .sum();
+    let l = e.emission;
+    (0.2126 * l.x + 0.7152 * l.y + 0.0722 * l.z) as f64 * area
 }
 
 /// What a finished dataset looks like, for the caller's summary.

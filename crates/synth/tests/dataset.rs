@@ -34,8 +34,16 @@ fn generated_scene_loads_with_every_annotation() {
             assert!((Vec3::from_slice(px).length() - 1.0).abs() < 1e-4);
         }
     }
-    // Two relit conditions, each covering every test view.
-    assert_eq!(ds.relight.len(), 2);
+    // Four relit conditions (the room has two emitters), each covering every test view.
+    let names: Vec<String> = ds
+        .relight
+        .iter()
+        .map(|r| r.spec.file_stem().unwrap().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(
+        names,
+        ["brighter_warmer", "light_off", "small_light_alone", "small_light_cool"]
+    );
     for set in &ds.relight {
         assert_eq!(set.frames.len(), 2);
     }
@@ -46,6 +54,19 @@ fn generated_scene_loads_with_every_annotation() {
     let off = ds.relight[1].frames[0].hdr.as_ref().unwrap();
     let sum = |img: &i2sdf_data::ImageF32| img.data.iter().map(|v| *v as f64).sum::<f64>();
     assert!(sum(off) < sum(orig), "turning a light off darkens the view");
+    // the small light alone (the large one off) lights the room less than both did; the cool
+    // small light makes the view bluer
+    let alone = ds.relight[2].frames[0].hdr.as_ref().unwrap();
+    assert!(sum(alone) < sum(orig));
+    let cool = ds.relight[3].frames[0].hdr.as_ref().unwrap();
+    let blue_over_red = |img: &i2sdf_data::ImageF32| {
+        let (r, b) = img
+            .data
+            .chunks(3)
+            .fold((0.0f64, 0.0f64), |(r, b), p| (r + p[0] as f64, b + p[2] as f64));
+        b / r
+    };
+    assert!(blue_over_red(cool) > blue_over_red(orig));
 
     // Depth noise: written depth = clean depth + N(μ(z), σ(z)).
     let w = common::read_written(tmp.path());

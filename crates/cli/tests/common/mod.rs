@@ -8,6 +8,7 @@ use std::process::Command;
 
 pub struct Outcome {
     pub code: i32,
+    pub stdout: String,
     pub stderr: String,
 }
 
@@ -16,6 +17,7 @@ pub fn i2sdf(args: &[&str]) -> Outcome {
     let out = Command::new(env!("CARGO_BIN_EXE_i2sdf")).args(args).output().unwrap();
     Outcome {
         code: out.status.code().unwrap_or(-1),
+        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
         stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
     }
 }
