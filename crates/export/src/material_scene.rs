@@ -280,7 +280,7 @@ pub fn material_scene(
             .collect::<Vec<_>>();
         (model_vertices, model_normals) = (v, n);
         colors = Vec::new();
-        uvs = uv_atlas.uv.clone();
+        uvs = uv_atlas.uv;
         textures = Some(baked);
     } else {
         let brdf = field_at(&nm, &vertices, &normals);

@@ -228,8 +228,7 @@ fn emitter_power(scene: &RenderScene, e: &crate::tracer::Emitter) -> f64 {
         .filter(|&f| scene.mesh.shape_of[f] == e.shape)
         .map(|f| scene.mesh.mesh.face_area(f))
         .sum();
-    let l = e.emission;
-    (0.2126 * l.x + 0.7152 * l.y + 0.0722 * l.z) as f64 * area
+    luminance(e.emission) as f64 * area
 }
 
 /// What a finished dataset looks like, for the caller's summary.
