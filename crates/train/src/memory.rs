@@ -24,7 +24,7 @@ use crate::config::TrainConfig;
 use i2sdf_model::marching_cubes::MESH_VERTICES_PER_FACE_CELL;
 use i2sdf_model::material_field::MaterialBackbone;
 pub use i2sdf_model::memory::{gib, MachineMemory};
-use i2sdf_model::Backbone;
+use i2sdf_nn::sdf::SdfEncodingConfig;
 use serde::Serialize;
 
 /// Bytes of the process before any data: code, rayon's thread stacks, allocator slack (the
@@ -199,49 +199,74 @@ pub fn estimate(shape: &DatasetShape, config: &TrainConfig) -> TrainingMemory {
     }
 }
 
-/// The stage-1 fields: (parameters, SDF encoding width).
-fn stage1_fields(config: &TrainConfig) -> (f64, usize) {
+/// The stage-1 networks as the model builds them (the MLP backbone fixes its own widths: the
+/// `model.sdf_hidden`-style keys are the hash grid's).
+struct Stage1Shapes {
+    /// Parameters of every field (tables and MLPs).
+    params: f64,
+    /// Width of the SDF's input encoding.
+    enc: usize,
+    /// Floats per hidden layer × layers, of F_d, F_c and F_e.
+    sdf_units: usize,
+    color_units: usize,
+    emitter_units: usize,
+    /// Inputs of F_c and of F_e.
+    radiance_in: usize,
+    emitter_in: usize,
+}
+
+fn stage1_shapes(config: &TrainConfig) -> Stage1Shapes {
     let m = &config.model;
-    let (grid, enc) = match m.backbone {
-        Backbone::HashGrid => (
-            hash_grid_entries(
-                m.hash_levels,
-                m.hash_log2_table,
-                m.hash_base_resolution,
-                m.hash_finest_resolution,
-            ) * m.hash_features as f64,
-            m.hash_levels * m.hash_features,
+    let sdf = m.sdf_network();
+    let (grid, enc) = match &sdf.encoding {
+        SdfEncodingConfig::HashGrid(g) => (
+            hash_grid_entries(g.levels, g.log2_table_size, g.base_resolution, g.finest_resolution)
+                * g.features_per_level as f64,
+            g.levels * g.features_per_level,
         ),
-        // The paper's MLP backbone: a positional encoding (6 bands) and no table.
-        Backbone::Mlp => (0.0, 3 + 36),
+        // Positional encoding: xyz and a sine and cosine per axis and band; no table.
+        SdfEncodingConfig::Frequency { frequencies } => (0.0, 3 + 6 * frequencies),
     };
-    let dirs = (m.sh_degree + 1).pow(2);
-    let mlps = mlp_params(3 + enc, m.sdf_hidden, m.sdf_layers, 1 + m.feature_dim)
-        + mlp_params(6 + m.feature_dim + dirs, m.color_hidden, m.color_layers, 3)
-        + mlp_params(3 + m.feature_dim, m.emitter_hidden, m.emitter_layers, 1);
-    (grid + mlps, enc)
+    let (color, emitter) = (m.radiance_mlp(), m.emitter_mlp());
+    let mlps = mlp_params(3 + enc, sdf.hidden_dim, sdf.hidden_layers, 1 + sdf.feature_dim)
+        + mlp_params(color.input_dim, color.hidden_dim, color.hidden_layers, color.output_dim)
+        + mlp_params(
+            emitter.input_dim,
+            emitter.hidden_dim,
+            emitter.hidden_layers,
+            emitter.output_dim,
+        );
+    Stage1Shapes {
+        params: grid + mlps,
+        enc,
+        sdf_units: sdf.hidden_dim * sdf.hidden_layers,
+        color_units: color.hidden_dim * color.hidden_layers,
+        emitter_units: emitter.hidden_dim * emitter.hidden_layers,
+        radiance_in: color.input_dim,
+        emitter_in: emitter.input_dim,
+    }
 }
 
 fn stage1(shape: &DatasetShape, config: &TrainConfig) -> StageMemory {
     let mut s = StageMemory::default();
-    let (t, m) = (&config.train, &config.model);
+    let t = &config.train;
     s.add("process", PROCESS_BYTES);
     s.add("dataset", shape.bytes);
     s.add("training rays", shape.train_pixels as f64 * (48.0 + 6.0));
-    let (params, enc) = stage1_fields(config);
-    s.add("fields + Adam", params * 4.0 * 4.0);
+    let f = stage1_shapes(config);
+    let enc = f.enc;
+    s.add("fields + Adam", f.params * 4.0 * 4.0);
     // Points of one step: the ray samples, the eikonal and bubble points, the smoothness pairs
     // (two points per depth pixel of the batch, at most one per ray).
     let samples = (t.rays * config.sampling.samples) as f64;
     let points = samples + (t.eikonal_points + t.bubble_points) as f64 + 2.0 * t.rays as f64;
     // SdfWorkspace per point: x, the encoding, its xyz Jacobian, the double-backward buffers
     // (3 + 8 × encoding floats) and forward + backward activations with their xyz derivatives.
-    let sdf_point = 3.0 + 6.0 * enc as f64 + 4.0 * (m.sdf_hidden * m.sdf_layers) as f64;
+    let sdf_point = 3.0 + 6.0 * enc as f64 + 4.0 * f.sdf_units as f64;
     // Per ray sample: F_c's and F_e's inputs, activations and their gradients; σ, weights, dirs.
-    let dirs = (m.sh_degree + 1).pow(2);
-    let radiance_in = (6 + m.feature_dim + dirs) as f64;
-    let per_sample = 2.0 * (radiance_in + 2.0 * (m.color_hidden * m.color_layers) as f64)
-        + 2.0 * ((3 + m.feature_dim) as f64 + 2.0 * (m.emitter_hidden * m.emitter_layers) as f64)
+    let radiance_in = f.radiance_in as f64;
+    let per_sample = 2.0 * (radiance_in + 2.0 * f.color_units as f64)
+        + 2.0 * (f.emitter_in as f64 + 2.0 * f.emitter_units as f64)
         + 16.0;
     // The coarse pass and the error-bounded upsampling keep every candidate t and its SDF.
     let sampler = (t.rays * (config.sampling.coarse + config.sampling.samples) * 4) as f64;
@@ -250,17 +275,18 @@ fn stage1(shape: &DatasetShape, config: &TrainConfig) -> StageMemory {
         4.0 * (points * sdf_point + samples * per_sample + sampler),
     );
     if config.adaptive.enabled {
-        // The PDF maps' initial depth errors are rendered in chunks of 4096 rays with a
-        // workspace of their own (forward only, with the SDF's Jacobian), beside the training
-        // one: on the default room this is the peak (measured 0.52 GB of 0.92).
-        let rays = 4096.min(shape.train_pixels / shape.train_views.max(1)).max(1);
+        // The PDF maps' initial depth errors are rendered in chunks (4096 rays at the defaults)
+        // with a workspace of their own (forward only, with the SDF's Jacobian), beside the
+        // training one: on the default room this is the peak (measured 0.52 GB of 0.92).
+        let chunk = crate::stage1::pdf_init_chunk_rays(config);
+        let rays = chunk.min(shape.train_pixels / shape.train_views.max(1)).max(1);
         let forward = 3.0
             + 6.0 * enc as f64
-            + 2.0 * (m.sdf_hidden * m.sdf_layers) as f64
+            + 2.0 * f.sdf_units as f64
             + radiance_in
-            + 2.0 * (m.color_hidden * m.color_layers) as f64
-            + (3 + m.feature_dim) as f64
-            + 2.0 * (m.emitter_hidden * m.emitter_layers) as f64
+            + 2.0 * f.color_units as f64
+            + f.emitter_in as f64
+            + 2.0 * f.emitter_units as f64
             + 16.0;
         s.add("PDF-map pass", 4.0 * (rays * config.sampling.samples) as f64 * forward);
     }
@@ -274,7 +300,7 @@ fn stage2(shape: &DatasetShape, config: &TrainConfig) -> StageMemory {
     s.add("dataset", shape.bytes);
     // The target views: colour, saturation and emitter flags, the dataset's normals.
     s.add("targets", shape.train_pixels as f64 * (12.0 + 2.0 + 12.0));
-    let (stage1_params, _) = stage1_fields(config);
+    let stage1_params = stage1_shapes(config).params;
     s.add("frozen stage-1 fields", stage1_params * 4.0);
     let (grid, enc) = match mat.backbone {
         MaterialBackbone::HashGrid => (
@@ -286,7 +312,7 @@ fn stage2(shape: &DatasetShape, config: &TrainConfig) -> StageMemory {
             ) * 2.0,
             mat.hash_levels * 2,
         ),
-        MaterialBackbone::FeatureMlp => (0.0, config.model.feature_dim),
+        MaterialBackbone::FeatureMlp => (0.0, config.model.feature_size()),
     };
     let material = grid + mlp_params(3 + enc, mat.hidden_dim, mat.hidden_layers, 7);
     s.add("material field + Adam", material * 4.0 * 4.0);

@@ -160,6 +160,15 @@ pub struct Stage1 {
     dataset: String,
 }
 
+/// Rays per chunk of the PDF maps' initial render ([`Stage1::init_pdf`]): 4096 with the default
+/// networks, fewer for wider SDF networks so that the chunk's workspace stays near the default's
+/// (~0.5 GB): the paper's 8 × 256 backbone renders 256 at a time (4096 took ~7 GB beside a
+/// training workspace of ~11 GB). Each ray's render is independent of the chunk it is in.
+pub fn pdf_init_chunk_rays(config: &TrainConfig) -> usize {
+    let sdf = config.model.sdf_network();
+    (4096 * 128 / (sdf.hidden_dim * sdf.hidden_layers).max(1)).clamp(64, 4096)
+}
+
 impl Stage1 {
     /// A fresh stage 1 on `dataset` with the maps in force `maps` (`TrainingMaps::prepare` of the
     /// dataset and `config`, or a run's own: `TrainingMaps::for_run`).
@@ -356,8 +365,9 @@ impl Stage1 {
         pdf
     }
 
-    /// Error maps at the end of warm-up (paper Sec. 4.1.2): each training image's depth error,
-    /// rendered on a grid of stride s (≤ ~200k rays in all) and spread over the s×s block.
+    /// Error maps at the end of warm-up (paper Sec. 4.1.2): each training image's depth rendered
+    /// on a grid of stride s (≤ ~200k rays in all), and every pixel's error against its own depth
+    /// from that render ([`pdf_map::grid_errors`]; an edge is a jump above P_min).
     pub fn init_pdf(&mut self) {
         let mut pdf = self.empty_pdf();
         let c = &self.config.adaptive;
@@ -372,20 +382,13 @@ impl Stage1 {
                         pixels.push(j * im.width + i);
                     }
                 }
-                let mut err = vec![0.0f32; im.pixels()];
-                for chunk in pixels.chunks(4096) {
+                let mut rendered = Vec::with_capacity(pixels.len());
+                for chunk in pixels.chunks(pdf_init_chunk_rays(&self.config)) {
                     let (origins, dirs): (Vec<[f32; 3]>, Vec<[f32; 3]>) = chunk.iter().map(|&p| im.ray(p)).unzip();
                     renderer::forward::<Pcg64>(&self.scene, &self.settings, &origins, &dirs, &[], &mut ws, None);
-                    for (q, &p) in chunk.iter().enumerate() {
-                        let e = (ws.out.depth[q] - im.depth[p]).abs();
-                        let (pi, pj) = (p % im.width, p / im.width);
-                        for j in pj..(pj + stride).min(im.height) {
-                            for i in pi..(pi + stride).min(im.width) {
-                                err[j * im.width + i] = e;
-                            }
-                        }
-                    }
+                    rendered.extend_from_slice(&ws.out.depth[..chunk.len()]);
                 }
+                let err = pdf_map::grid_errors(im.width, im.height, stride, &rendered, &im.depth, c.p_min);
                 pdf.set_image(k, &err);
             }
         } else {

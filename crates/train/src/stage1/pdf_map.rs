@@ -190,6 +190,59 @@ impl PdfMaps {
     }
 }
 
+/// Every pixel's initial error from a depth render on a grid of stride `s` (the grid pixels
+/// (a·s, b·s), `rendered` row-major over ⌈w/s⌉ × ⌈h/s⌉) and the pixel's own depth `gt` (≤ 0: none).
+///
+/// Rendering every pixel of a paper-sized scene (61 M rays) at the end of warm-up would cost more
+/// than the whole stage, while copying a grid sample's error over its s×s block (what this
+/// replaced) prunes any object thinner than s pixels that the grid misses: exactly what the maps
+/// are for. Here the rendered depth, which is smooth wherever the SDF is, is interpolated and
+/// each pixel's own depth compared with it: a missing pole keeps its error at every one of its
+/// pixels. Where the grid's four corners straddle a rendered depth edge (they differ by more than
+/// `edge`), interpolating across it would invent errors along every edge the SDF already has, so
+/// the pixel takes the smallest error of the interpolation and of each corner's depth: a pixel on
+/// either side of the edge matches its side, one of an object the SDF lacks matches neither.
+pub fn grid_errors(width: usize, height: usize, s: usize, rendered: &[f32], gt: &[f32], edge: f32) -> Vec<f32> {
+    assert!(s >= 1, "grid_errors: stride ≥ 1");
+    let (gw, gh) = (width.div_ceil(s), height.div_ceil(s));
+    assert_eq!(
+        rendered.len(),
+        gw * gh,
+        "grid_errors: one rendered depth per grid pixel"
+    );
+    assert_eq!(gt.len(), width * height, "grid_errors: one depth per pixel");
+    let mut out = vec![0.0f32; width * height];
+    for j in 0..height {
+        let (b0, b1) = (j / s, (j / s + 1).min(gh - 1));
+        let fy = if b1 > b0 { (j - b0 * s) as f32 / s as f32 } else { 0.0 };
+        for i in 0..width {
+            let d = gt[j * width + i];
+            if d <= 0.0 || !d.is_finite() {
+                continue;
+            }
+            let (a0, a1) = (i / s, (i / s + 1).min(gw - 1));
+            let fx = if a1 > a0 { (i - a0 * s) as f32 / s as f32 } else { 0.0 };
+            let c = [
+                rendered[b0 * gw + a0],
+                rendered[b0 * gw + a1],
+                rendered[b1 * gw + a0],
+                rendered[b1 * gw + a1],
+            ];
+            let top = c[0] + fx * (c[1] - c[0]);
+            let bottom = c[2] + fx * (c[3] - c[2]);
+            let mut e = (top + fy * (bottom - top) - d).abs();
+            let (lo, hi) = c.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
+                (lo.min(v), hi.max(v))
+            });
+            if hi - lo > edge {
+                e = c.iter().fold(e, |e, &v| e.min((v - d).abs()));
+            }
+            out[j * width + i] = e;
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -276,5 +329,38 @@ mod tests {
         let mut out = Vec::new();
         m.sample(100, &mut rng, &mut out);
         assert!(out.iter().all(|p| p.pixel == 9));
+    }
+
+    #[test]
+    fn grid_errors_keep_an_object_thinner_than_the_stride() {
+        // A tilted wall the SDF has, a step edge it has too (flat on both sides: a corner's depth
+        // is only exact there), and a one-pixel pole it lacks, rendered on a stride-4 grid that
+        // never lands on the pole.
+        let (w, h, s) = (23, 13, 4);
+        let wall = |i: usize, _j: usize| if i < 11 { 2.0 + 0.01 * i.min(8) as f32 } else { 3.5 };
+        let mut gt: Vec<f32> = (0..w * h).map(|p| wall(p % w, p / w)).collect();
+        for j in 0..h {
+            gt[j * w + 6] = 1.2; // the pole, column 6
+        }
+        gt[0] = 0.0; // no depth: no error
+        let (gw, gh) = (w.div_ceil(s), h.div_ceil(s));
+        let rendered: Vec<f32> = (0..gw * gh).map(|g| wall((g % gw) * s, (g / gw) * s)).collect();
+        let e = grid_errors(w, h, s, &rendered, &gt, 0.05);
+        for j in 0..h {
+            for i in 0..w {
+                let v = e[j * w + i];
+                if i == 6 {
+                    assert!(v > 0.7, "pole pixel ({i},{j}) error {v}");
+                } else {
+                    // The wall is linear within each cell; either side of the edge matches a corner.
+                    assert!(v < 1e-4, "pixel ({i},{j}) error {v}");
+                }
+            }
+        }
+        // Copying the grid sample's error over its block, as before, loses the pole.
+        assert!(rendered.iter().all(|&r| r > 1.9));
+        // Stride 1 is the exact error.
+        let exact = grid_errors(w, h, 1, &gt.iter().map(|d| d + 0.3).collect::<Vec<_>>(), &gt, 0.05);
+        assert!(exact.iter().skip(1).all(|&v| (v - 0.3).abs() < 1e-5));
     }
 }
