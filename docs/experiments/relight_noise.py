@@ -23,10 +23,13 @@ def load(p):
 
 
 def psnr(mse):
-    return 10.0 * np.log10(1.0 / mse)
+    # The estimate of the bias can come out at or under 0 where noise is all the error.
+    return float("inf") if mse <= 0.0 else 10.0 * np.log10(1.0 / mse)
 
 
 def main():
+    if len(sys.argv) != 4:
+        sys.exit(__doc__)
     a_dir, b_dir, truth_dir = map(Path, sys.argv[1:4])
     rows = []
     for a_path in sorted(a_dir.glob("*.png")):
