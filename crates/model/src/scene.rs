@@ -231,6 +231,14 @@ impl NeuralScene {
         self.sdf.feature_dim()
     }
 
+    /// Operand precision of the stage-1 networks' products (SDF, radiance, emitter): stage 1 sets
+    /// it from `train.matmul_precision`; a scene as built or loaded runs f32.
+    pub fn set_matmul_precision(&mut self, p: i2sdf_nn::linalg::MatmulPrecision) {
+        self.sdf.mlp.precision = p;
+        self.radiance.precision = p;
+        self.emitter.precision = p;
+    }
+
     /// Assembles F_c's input rows [z, enc(v), ∇d] for `n` points (`dirs`: unit view directions
     /// from the camera, `[n×3]`; `gradients`: ∇d, `[n×3]`, the raw SDF gradient as VolSDF feeds it).
     pub fn radiance_input(&self, features: &[f32], dirs: &[f32], gradients: &[f32], out: &mut Vec<f32>) {

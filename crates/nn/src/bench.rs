@@ -72,6 +72,13 @@ pub struct ConfigReport {
     pub cpu_ms_per_iteration: Option<f64>,
 }
 
+/// The representative iteration at one half precision.
+#[derive(Clone, Debug, Serialize)]
+pub struct HalfPrecisionReport {
+    pub precision: &'static str,
+    pub iteration: ConfigReport,
+}
+
 /// Analytic vs numerical (central differences, 6 extra points) `∇d` with its backward.
 #[derive(Clone, Debug, Serialize)]
 pub struct SpatialGradientReport {
@@ -153,6 +160,12 @@ pub struct BenchReport {
     pub mlp_gflops: f64,
     pub mlp_fraction_of_peak: f64,
     pub representative: ConfigReport,
+    /// The same iteration with the products in half precision on AMX tiles (`bf16`, `bf16x3`),
+    /// where the CPU has them; the f32 fields above stay the figure comparable across versions.
+    pub half_precision: Vec<HalfPrecisionReport>,
+    /// Best bf16 rate of the AMX kernel on a 1024³ product over all threads (GFLOP/s), where the
+    /// CPU has AMX: the peak the half-precision MLP phases are a share of.
+    pub amx_bf16_peak_gflops: Option<f64>,
     pub paper: Option<ConfigReport>,
     pub spatial_gradient: Option<SpatialGradientReport>,
 }
@@ -205,6 +218,42 @@ fn sgemm_rate(small_kernel: bool) -> f64 {
                 unsafe { crate::smallgemm::gemm(m, n, n, ap.as_ptr(), n, 1, b.as_ptr(), n, false, cp.as_mut_ptr(), n) }
             } else {
                 matrixmultiply_gemm(m, n, ap, &b, cp);
+            }
+        });
+        best = best.min(t.elapsed().as_secs_f64());
+    }
+    2.0 * (n as f64).powi(3) / best / 1e9
+}
+
+/// The AMX kernel's bf16 rate on a 1024³ product, rows split over the rayon threads (best of 6).
+fn amx_bf16_rate() -> f64 {
+    use rayon::prelude::*;
+    let n = 1024;
+    let a: Vec<f32> = (0..n * n).map(|i| ((i % 97) as f32) * 0.01).collect();
+    let b: Vec<f32> = (0..n * n).map(|i| ((i % 89) as f32) * 0.01).collect();
+    let mut c = vec![0f32; n * n];
+    let rows = n.div_ceil(rayon::current_num_threads().max(1));
+    let mut best = f64::MAX;
+    for _ in 0..6 {
+        let t = Instant::now();
+        c.par_chunks_mut(rows * n).enumerate().for_each(|(p, cp)| {
+            let m = cp.len() / n;
+            // SAFETY: called only where AMX is available; A [m×n], B [n×n], C [m×n] in bounds.
+            unsafe {
+                crate::amx::gemm(
+                    m,
+                    n,
+                    n,
+                    a[p * rows * n..].as_ptr(),
+                    n,
+                    1,
+                    b.as_ptr(),
+                    n,
+                    false,
+                    cp.as_mut_ptr(),
+                    n,
+                    false,
+                )
             }
         });
         best = best.min(t.elapsed().as_secs_f64());
@@ -283,6 +332,11 @@ struct Pipeline {
 }
 
 impl Pipeline {
+    fn set_precision(&mut self, p: crate::linalg::MatmulPrecision) {
+        self.sdf.mlp.precision = p;
+        self.radiance.precision = p;
+    }
+
     fn new(
         sdf_config: SdfNetworkConfig,
         radiance_hidden: (usize, usize),
@@ -585,6 +639,19 @@ pub fn run(opts: &BenchOptions) -> BenchReport {
         1,
     );
     let representative = rep.run(opts.iterations);
+    let mut half_precision = Vec::new();
+    let amx_bf16_peak_gflops = crate::amx::available().then(|| {
+        use crate::linalg::MatmulPrecision;
+        for p in [MatmulPrecision::Bf16, MatmulPrecision::Bf16x3] {
+            rep.set_precision(p);
+            half_precision.push(HalfPrecisionReport {
+                precision: p.name(),
+                iteration: rep.run(opts.iterations),
+            });
+        }
+        rep.set_precision(MatmulPrecision::F32);
+        amx_bf16_rate()
+    });
     let spatial_gradient = opts.compare_finite_differences.then(|| rep.compare_spatial_gradients());
     drop(rep);
     let paper = (opts.paper_points > 0).then(|| {
@@ -613,6 +680,8 @@ pub fn run(opts: &BenchOptions) -> BenchReport {
         mlp_gflops: representative.mlp_gflops,
         mlp_fraction_of_peak: representative.mlp_gflops / sgemm_peak,
         representative,
+        half_precision,
+        amx_bf16_peak_gflops,
         paper,
         spatial_gradient,
     }
@@ -672,8 +741,14 @@ impl BenchReport {
             "representative iteration (hash grid 16×2×2^19, SDF 35→64→64→16, radiance 34→64→64→3)",
             &self.representative,
         );
+        for h in &self.half_precision {
+            cfg(&format!("the same with {} products (AMX)", h.precision), &h.iteration);
+        }
         if let Some(p) = &self.paper {
             cfg("paper backbone (PE 6, SDF 8×256 skip 4, radiance 4×256)", p);
+        }
+        if let Some(p) = self.amx_bf16_peak_gflops {
+            let _ = writeln!(s, "AMX bf16 peak (1024³, all threads): {p:.1} GFLOP/s");
         }
         if let Some(g) = &self.spatial_gradient {
             let _ = writeln!(

@@ -12,7 +12,7 @@
 //! the task's own), each product on the engine's GEMM ([`crate::linalg::gemm_a_b`]). Weights come
 //! in PyTorch's `[out][in][kh][kw]` order ([`Conv2d::from_oihw`]) and are reordered once.
 
-use crate::linalg::gemm_a_b;
+use crate::linalg::{gemm_a_b, MatmulPrecision};
 use rayon::prelude::*;
 
 /// An interleaved `height × width × channels` f32 feature map (HWC, row-major).
@@ -158,7 +158,19 @@ impl Conv2d {
                     let p = first + i;
                     self.im2col_row(x, p / wo, p % wo, col);
                 }
-                gemm_a_b(n, row, cout, cols, row, &self.weight, cout, 0.0, o, cout);
+                gemm_a_b(
+                    n,
+                    row,
+                    cout,
+                    cols,
+                    row,
+                    &self.weight,
+                    cout,
+                    0.0,
+                    o,
+                    cout,
+                    MatmulPrecision::F32,
+                );
                 for px in o.chunks_exact_mut(cout) {
                     for (v, b) in px.iter_mut().zip(&self.bias) {
                         *v += b;

@@ -78,6 +78,7 @@ pub mod activation;
 #[cfg(all(target_arch = "x86_64", target_feature = "avx512f"))]
 mod activation_simd;
 pub mod adam;
+pub mod amx;
 pub mod bench;
 pub mod conv2d;
 pub mod encoding;

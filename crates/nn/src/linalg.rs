@@ -16,6 +16,54 @@ fn small_gemm_for(k: usize, n: usize) -> bool {
     use_small_gemm() && (k <= 128 || n <= 128)
 }
 
+/// Operand precision of a network's matrix products ([`crate::Mlp::precision`], set by stage 1 from
+/// `train.matmul_precision`). Sums are f32 in every mode; the half-precision modes run on AMX tiles
+/// ([`crate::amx`]) where the CPU has them and fall back to f32 elsewhere
+/// ([`effective_precision`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MatmulPrecision {
+    /// f32 operands (AVX-512 or matrixmultiply kernels).
+    #[default]
+    F32,
+    /// bf16 operands, each rounded once (8-bit mantissa).
+    Bf16,
+    /// Each operand split into two bf16 parts, three tile products (~16-bit mantissa).
+    Bf16x3,
+}
+
+impl MatmulPrecision {
+    pub fn name(self) -> &'static str {
+        match self {
+            MatmulPrecision::F32 => "f32",
+            MatmulPrecision::Bf16 => "bf16",
+            MatmulPrecision::Bf16x3 => "bf16x3",
+        }
+    }
+}
+
+/// The precision a product asked for `p` runs at: `p`, or f32 where the CPU has no AMX.
+pub fn effective_precision(p: MatmulPrecision) -> MatmulPrecision {
+    match p {
+        MatmulPrecision::Bf16 | MatmulPrecision::Bf16x3 if crate::amx::available() => p,
+        _ => MatmulPrecision::F32,
+    }
+}
+
+/// `Some(split)` when an `m×k×n` product runs on AMX tiles: half precision is set and the CPU has
+/// them, and the output is at least one tile (16 × 16) — narrower outputs (the radiance MLP's
+/// three colours) keep the f32 kernels, where a tile would be mostly padding.
+fn amx_for(m: usize, n: usize, precision: MatmulPrecision) -> Option<bool> {
+    if m < 16 || n < 16 || precision == MatmulPrecision::F32 {
+        return None;
+    }
+    match effective_precision(precision) {
+        MatmulPrecision::F32 => None,
+        MatmulPrecision::Bf16 => Some(false),
+        MatmulPrecision::Bf16x3 => Some(true),
+    }
+}
+
 fn use_small_gemm() -> bool {
     use std::sync::OnceLock;
     static CHOICE: OnceLock<bool> = OnceLock::new();
@@ -43,13 +91,15 @@ pub fn gemm_a_bt(
     beta: f32,
     c: &mut [f32],
     ldc: usize,
+    precision: MatmulPrecision,
 ) {
     if m == 0 || n == 0 {
         return;
     }
     assert!(a.len() >= (m - 1) * lda + k && b.len() >= (n - 1) * ldb + k);
     assert!(c.len() >= (m - 1) * ldc + n);
-    if small_gemm_for(k, n) && (beta == 0.0 || beta == 1.0) {
+    let amx = amx_for(m, n, precision).filter(|_| beta == 0.0 || beta == 1.0);
+    if (amx.is_some() || small_gemm_for(k, n)) && (beta == 0.0 || beta == 1.0) {
         TRANSPOSED.with_borrow_mut(|bt| {
             if bt.len() < k * n {
                 bt.resize(k * n, 0.0);
@@ -59,7 +109,26 @@ pub fn gemm_a_bt(
                     bt[p * n + j] = b[j * ldb + p];
                 }
             }
-            // SAFETY: bounds asserted above; Bᵀ is [k×n] in `bt`.
+            // SAFETY: bounds asserted above; Bᵀ is [k×n] in `bt`; AMX only where available.
+            if let Some(split) = amx {
+                unsafe {
+                    crate::amx::gemm(
+                        m,
+                        k,
+                        n,
+                        a.as_ptr(),
+                        lda,
+                        1,
+                        bt.as_ptr(),
+                        n,
+                        beta == 1.0,
+                        c.as_mut_ptr(),
+                        ldc,
+                        split,
+                    )
+                };
+                return;
+            }
             unsafe {
                 crate::smallgemm::gemm(
                     m,
@@ -113,12 +182,33 @@ pub fn gemm_a_b(
     beta: f32,
     c: &mut [f32],
     ldc: usize,
+    precision: MatmulPrecision,
 ) {
     if m == 0 || n == 0 {
         return;
     }
     assert!(a.len() >= (m - 1) * lda + k && b.len() >= (k.max(1) - 1) * ldb + n);
     assert!(c.len() >= (m - 1) * ldc + n);
+    if let Some(split) = amx_for(m, n, precision).filter(|_| beta == 0.0 || beta == 1.0) {
+        // SAFETY: bounds asserted above; AMX only where available.
+        unsafe {
+            crate::amx::gemm(
+                m,
+                k,
+                n,
+                a.as_ptr(),
+                lda,
+                1,
+                b.as_ptr(),
+                ldb,
+                beta == 1.0,
+                c.as_mut_ptr(),
+                ldc,
+                split,
+            )
+        };
+        return;
+    }
     if small_gemm_for(k, n) && (beta == 0.0 || beta == 1.0) {
         // SAFETY: bounds asserted above.
         unsafe {
@@ -173,12 +263,33 @@ pub fn gemm_at_b_acc(
     ldb: usize,
     c: &mut [f32],
     ldc: usize,
+    precision: MatmulPrecision,
 ) {
     if m == 0 || n == 0 || k == 0 {
         return;
     }
     assert!(a.len() >= (k - 1) * lda + m && b.len() >= (k - 1) * ldb + n);
     assert!(c.len() >= (m - 1) * ldc + n);
+    if let Some(split) = amx_for(m, n, precision) {
+        // SAFETY: bounds asserted above; A(r, p) = a[p·lda + r]; AMX only where available.
+        unsafe {
+            crate::amx::gemm(
+                m,
+                k,
+                n,
+                a.as_ptr(),
+                1,
+                lda,
+                b.as_ptr(),
+                ldb,
+                true,
+                c.as_mut_ptr(),
+                ldc,
+                split,
+            )
+        };
+        return;
+    }
     if small_gemm_for(m, n) {
         // SAFETY: bounds asserted above; A(r, p) = a[p·lda + r].
         unsafe { crate::smallgemm::gemm(m, k, n, a.as_ptr(), 1, lda, b.as_ptr(), ldb, true, c.as_mut_ptr(), ldc) };
@@ -250,14 +361,14 @@ mod tests {
         let bt: Vec<f32> = (0..n * k).map(|i| (i as f32 * 0.91).cos()).collect();
         let bn: Vec<f32> = (0..k * n).map(|i| (i as f32 * 0.53).sin()).collect();
         let mut c = vec![1.0f32; m * n];
-        gemm_a_bt(m, k, n, &a, k, &bt, k, 1.0, &mut c, n);
+        gemm_a_bt(m, k, n, &a, k, &bt, k, 1.0, &mut c, n, MatmulPrecision::F32);
         for i in 0..m {
             for j in 0..n {
                 let want: f32 = 1.0 + (0..k).map(|p| a[i * k + p] * bt[j * k + p]).sum::<f32>();
                 assert!((c[i * n + j] - want).abs() < 1e-5);
             }
         }
-        gemm_a_b(m, k, n, &a, k, &bn, n, 0.0, &mut c, n);
+        gemm_a_b(m, k, n, &a, k, &bn, n, 0.0, &mut c, n, MatmulPrecision::F32);
         for i in 0..m {
             for j in 0..n {
                 let want: f32 = (0..k).map(|p| a[i * k + p] * bn[p * n + j]).sum();
@@ -267,7 +378,7 @@ mod tests {
         // Aᵀ·B with A [m×k] seen as [k'=m × m'=k]
         let mut g = vec![0.5f32; k * n];
         let b2: Vec<f32> = (0..m * n).map(|i| i as f32 * 0.1).collect();
-        gemm_at_b_acc(k, m, n, &a, k, &b2, n, &mut g, n);
+        gemm_at_b_acc(k, m, n, &a, k, &b2, n, &mut g, n, MatmulPrecision::F32);
         for i in 0..k {
             for j in 0..n {
                 let want: f32 = 0.5 + (0..m).map(|p| a[p * k + i] * b2[p * n + j]).sum::<f32>();

@@ -16,7 +16,7 @@
 //!   products per layer, against 12 for forward-mode tangents in 3 directions.
 
 use crate::activation::Activation;
-use crate::linalg::{gemm_a_b, gemm_a_bt, gemm_at_b_acc};
+use crate::linalg::{gemm_a_b, gemm_a_bt, gemm_at_b_acc, MatmulPrecision};
 use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 
@@ -72,6 +72,9 @@ pub struct Mlp {
     pub config: MlpConfig,
     pub layers: Vec<Layer>,
     pub params: Vec<f32>,
+    /// Operand precision of this network's products (f32 unless a caller sets it: stage 1 does,
+    /// from `train.matmul_precision`); not part of the network's state, never saved.
+    pub precision: MatmulPrecision,
     act_width: usize,
     max_in: usize,
     max_out: usize,
@@ -137,6 +140,7 @@ impl Mlp {
             config,
             layers,
             params: vec![0.0; offset],
+            precision: MatmulPrecision::F32,
             act_width: act_offset,
             max_in,
             max_out,
@@ -255,7 +259,7 @@ impl Mlp {
         match transposed {
             Some(t) => {
                 let off: usize = self.layers[..l].iter().map(|l| l.in_dim * l.out_dim).sum();
-                gemm_a_b(n, i, o, a, i, &t[off..off + i * o], o, beta, c, o)
+                gemm_a_b(n, i, o, a, i, &t[off..off + i * o], o, beta, c, o, self.precision)
             }
             None => gemm_a_bt(
                 n,
@@ -268,6 +272,7 @@ impl Mlp {
                 beta,
                 c,
                 o,
+                self.precision,
             ),
         }
     }
@@ -290,14 +295,14 @@ impl Mlp {
         if i * o.div_ceil(16) < o * i.div_ceil(16) {
             let wt = &mut wt[..i * o];
             wt.fill(0.0);
-            gemm_at_b_acc(i, n, o, input, i, zbar, o, wt, o);
+            gemm_at_b_acc(i, n, o, input, i, zbar, o, wt, o, self.precision);
             for (r, gw_row) in grad_w.chunks_exact_mut(i).enumerate() {
                 for (c, g) in gw_row.iter_mut().enumerate() {
                     *g += wt[c * o + r];
                 }
             }
         } else {
-            gemm_at_b_acc(o, n, i, zbar, o, input, i, grad_w, i);
+            gemm_at_b_acc(o, n, i, zbar, o, input, i, grad_w, i, self.precision);
         }
     }
 
@@ -333,12 +338,16 @@ impl Mlp {
             let (done, rest) = acts.split_at_mut(n * layer.act_offset);
             let out = &mut rest[..n * layer.out_dim];
             let bias = &self.params[layer.bias_offset..layer.bias_offset + layer.out_dim];
-            for row in out.chunks_exact_mut(layer.out_dim) {
-                row.copy_from_slice(bias);
-            }
             let input = self.layer_input(l, x, done, n, &mut scratch.concat);
             let transposed = scratch.transposed_ready.then_some(&scratch.transposed[..]);
-            self.product_a_wt(l, n, input, 1.0, out, transposed);
+            // The product overwrites (no read of C) and the bias is added after it: filling every
+            // row with the bias first cost a `memmove` call per row (5–8 % of a training step).
+            self.product_a_wt(l, n, input, 0.0, out, transposed);
+            for row in out.chunks_exact_mut(layer.out_dim) {
+                for (o, &b) in row.iter_mut().zip(bias) {
+                    *o += b;
+                }
+            }
             layer.activation.forward_inplace(out);
         }
     }
@@ -426,7 +435,7 @@ impl Mlp {
             }
             if l > 0 || d_x.is_some() {
                 let w = &self.params[layer.weight_offset..layer.bias_offset];
-                gemm_a_b(n, o, i, zbar, o, w, i, 0.0, &mut scratch.ibar, i);
+                gemm_a_b(n, o, i, zbar, o, w, i, 0.0, &mut scratch.ibar, i, self.precision);
                 if l > 0 && !layer.skip {
                     // Ī_l is Ā_{l−1} as it is: swap the buffers instead of copying
                     std::mem::swap(&mut scratch.zbar, &mut scratch.ibar);
@@ -498,10 +507,10 @@ impl Mlp {
                 if l > 0 && !layer.skip {
                     // G_{A_{l−1}} = G_{I_l}: write the product where it is kept
                     let prev = &mut lower[n * self.layers[l - 1].act_offset..];
-                    gemm_a_b(n, o, i, gz, o, w, i, 0.0, prev, i);
+                    gemm_a_b(n, o, i, gz, o, w, i, 0.0, prev, i, self.precision);
                     continue;
                 }
-                gemm_a_b(n, o, i, gz, o, w, i, 0.0, &mut scratch.ibar, i);
+                gemm_a_b(n, o, i, gz, o, w, i, 0.0, &mut scratch.ibar, i, self.precision);
             }
             let prev_out = if l > 0 {
                 &mut lower[n * self.layers[l - 1].act_offset..]

@@ -151,6 +151,13 @@ pub fn train_geometry(
         log_every: config.train.log_every,
         snapshot_seconds: &snapshots,
     };
+    let precision = config.train.matmul_precision;
+    if i2sdf_nn::linalg::effective_precision(precision) != precision {
+        on_event(Event::Note(format!(
+            "train.matmul_precision = \"{}\": this CPU has no AMX tiles (or the OS refused them), stage 1's products run in f32",
+            precision.name()
+        )));
+    }
     let stage = if resume && run.checkpoint_path().is_file() {
         Stage1::resume(dataset, config, &maps, &run.checkpoint_path())?
     } else {

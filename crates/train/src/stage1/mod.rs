@@ -177,7 +177,8 @@ impl Stage1 {
         Self::with_scene(dataset, config, scene, maps)
     }
 
-    fn with_scene(dataset: &Dataset, config: TrainConfig, scene: NeuralScene, maps: &TrainingMaps) -> Self {
+    fn with_scene(dataset: &Dataset, config: TrainConfig, mut scene: NeuralScene, maps: &TrainingMaps) -> Self {
+        scene.set_matmul_precision(config.train.matmul_precision);
         let t = &config.train;
         let schedule = |lr_warmup: u64| LrSchedule::WarmupCosine {
             warmup: lr_warmup,
