@@ -8,7 +8,8 @@
 #
 # Two configurations compared as a pair: run them one after the other on the same machine
 # (nothing else on the cores), e.g. NAME=defaults, then NAME=grid with --set
-# sampling.occupancy_resolution=64.
+# sampling.occupancy_resolution=64. A run that ends before the last snapshot is also scored at
+# its end (the row "end", at the stage's own wall time).
 set -euo pipefail
 ROOM=$1 WORK=$2 NAME=$3
 shift 3
@@ -28,8 +29,14 @@ kill $pid 2>/dev/null || true
 wait $pid 2>/dev/null || true
 "$I" bench --json > "$RUN.bench_after.json"
 echo "seconds,iteration,psnr,ssim,fscore,thin_2cm,thin_5cm,depth_l1" > "$RUN.curve.csv"
-for t in "${TIMES[@]}"; do
-  snap=$(printf "%s/snapshots/stage1-%05ds" "$RUN" "$t")
+ended=""
+[ -f "$last" ] || ended=end
+for t in "${TIMES[@]}" $ended; do
+  if [ "$t" = end ]; then
+    snap=$RUN
+  else
+    snap=$(printf "%s/snapshots/stage1-%05ds" "$RUN" "$t")
+  fi
   [ -f "$snap/run.json" ] || continue
   "$I" eval --run "$snap" --data "$ROOM" --out "$snap.eval.json" --mesh-resolution 256 --force > /dev/null 2>&1
   python3 - "$snap" "$t" >> "$RUN.curve.csv" <<'PY'
@@ -37,7 +44,10 @@ import json, sys
 snap, t = sys.argv[1], sys.argv[2]
 r = json.load(open(snap + ".eval.json")); g = r["geometry"]; m = g.get("mesh") or {}
 th = g.get("thin_objects") or {}
-it = json.load(open(snap + "/run.json"))["stage1"]["iterations"]
+stage = json.load(open(snap + "/run.json"))["stage1"]
+it = stage["iterations"]
+if t == "end":
+    t = f"{stage['seconds']:.0f}"
 print(",".join(str(x) for x in [t, it, r["novel_view"]["psnr"], r["novel_view"]["ssim"], m.get("fscore"),
       th.get("recall_2cm"), th.get("recall_5cm"), g.get("depth_l1")]))
 PY
@@ -52,6 +62,6 @@ print("| minutes | iteration | test PSNR | F @ 5 cm | thin @ 2 cm | thin @ 5 cm 
 print("|---|---|---|---|---|---|")
 f = lambda v, d: "" if v in ("", "None") else f"{float(v):.{d}f}"
 for row in csv.DictReader(open(f"{run}.curve.csv")):
-    print(f"| {int(row['seconds']) / 60:g} | {row['iteration']} | {f(row['psnr'], 2)} | {f(row['fscore'], 3)} "
+    print(f"| {int(row['seconds']) / 60:.3g} | {row['iteration']} | {f(row['psnr'], 2)} | {f(row['fscore'], 3)} "
           f"| {f(row['thin_2cm'], 2)} | {f(row['thin_5cm'], 2)} |")
 PY

@@ -152,8 +152,11 @@ mod imp {
     /// `x` rounded to bf16 (`hi`, 16 values) and, when `lo` is wanted, the bf16 of the remainder.
     #[inline]
     #[target_feature(enable = "avx512f,avx512bw,avx512bf16,avx512vl")]
-    unsafe fn split16(x: __m512) -> (__m256i, __m256i) {
+    unsafe fn split16<const LO: bool>(x: __m512) -> (__m256i, __m256i) {
         let hi: __m256i = std::mem::transmute(_mm512_cvtneps_pbh(x));
+        if !LO {
+            return (hi, _mm256_setzero_si256());
+        }
         let hi_f = _mm512_castsi512_ps(_mm512_slli_epi32::<16>(_mm512_cvtepu16_epi32(hi)));
         let lo: __m256i = std::mem::transmute(_mm512_cvtneps_pbh(_mm512_sub_ps(x, hi_f)));
         (hi, lo)
@@ -170,7 +173,7 @@ mod imp {
 
     /// `A` into `[mp × kp]` bf16 rows (zero padded).
     #[target_feature(enable = "avx512f,avx512bw,avx512bf16,avx512vl")]
-    unsafe fn pack_a(
+    unsafe fn pack_a<const LO: bool>(
         m: usize,
         k: usize,
         a: *const f32,
@@ -199,7 +202,7 @@ mod imp {
                         } else {
                             _mm512_setzero_ps()
                         };
-                        let (h, l) = split16(x);
+                        let (h, l) = split16::<LO>(x);
                         _mm256_storeu_si256(hi.as_mut_ptr().add(r * kp + p) as *mut __m256i, h);
                         if let Some(lo) = lo.as_deref_mut() {
                             _mm256_storeu_si256(lo.as_mut_ptr().add(r * kp + p) as *mut __m256i, l);
@@ -232,8 +235,8 @@ mod imp {
                             } else {
                                 zero
                             };
-                            let (h0, l0) = split16(x0);
-                            let (h1, l1) = split16(x1);
+                            let (h0, l0) = split16::<LO>(x0);
+                            let (h1, l1) = split16::<LO>(x1);
                             wh[q] = pair_words(h0, h1);
                             wl[q] = pair_words(l0, l1);
                         }
@@ -332,7 +335,7 @@ mod imp {
 
     /// `B` (row-major `[k × n]`) into the pair layout `[kp/2 × np]` of `u32`.
     #[target_feature(enable = "avx512f,avx512bw,avx512bf16,avx512vl")]
-    unsafe fn pack_b(
+    unsafe fn pack_b<const LO: bool>(
         k: usize,
         n: usize,
         b: *const f32,
@@ -368,8 +371,8 @@ mod imp {
                     } else {
                         _mm512_setzero_ps()
                     };
-                    let (h0, l0) = split16(x0);
-                    let (h1, l1) = split16(x1);
+                    let (h0, l0) = split16::<LO>(x0);
+                    let (h1, l1) = split16::<LO>(x1);
                     _mm512_storeu_si512(hi.as_mut_ptr().add(q * np + j) as *mut _, pair_words(h0, h1));
                     if let Some(lo) = lo.as_deref_mut() {
                         _mm512_storeu_si512(lo.as_mut_ptr().add(q * np + j) as *mut _, pair_words(l0, l1));
@@ -514,8 +517,14 @@ mod imp {
         );
         PACKS.with_borrow_mut(|packs| unsafe {
             let Packs { a_hi, a_lo, b_hi, b_lo } = packs;
-            pack_a(m, k, a, rsa, csa, mp, kp, a_hi, split.then_some(&mut *a_lo));
-            pack_b(k, n, b, ldb, kp, np, b_hi, split.then_some(&mut *b_lo));
+            // (the bf16 packing is compiled without the low parts' arithmetic)
+            if split {
+                pack_a::<true>(m, k, a, rsa, csa, mp, kp, a_hi, Some(&mut *a_lo));
+                pack_b::<true>(k, n, b, ldb, kp, np, b_hi, Some(&mut *b_lo));
+            } else {
+                pack_a::<false>(m, k, a, rsa, csa, mp, kp, a_hi, None);
+                pack_b::<false>(k, n, b, ldb, kp, np, b_hi, None);
+            }
             let passes_full = [
                 (a_hi.as_ptr(), b_hi.as_ptr()),
                 (a_hi.as_ptr(), b_lo.as_ptr()),

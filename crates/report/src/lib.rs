@@ -476,7 +476,7 @@ fn curves_section(assets: &mut Assets, log: &TrainingLog) -> Result<String, Data
             "stage1",
             "stage 1 time per iteration",
             "ms",
-            &["ms_forward", "ms_backward", "ms_sampling"],
+            &["ms_sampling", "ms_forward", "ms_losses", "ms_backward", "ms_adam"],
             false,
         ),
         (

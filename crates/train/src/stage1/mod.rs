@@ -75,10 +75,16 @@ pub struct StepStats {
     pub smooth_pairs: usize,
     /// The step produced a non-finite loss and was skipped.
     pub skipped: bool,
-    /// Milliseconds spent placing samples, in the forward, and in backward + Adam.
+    /// Milliseconds spent placing samples (and the extra points), in the render forward, in the
+    /// losses (and the PDF maps' update), in the backward, and in Adam (and the pose
+    /// correction). Before 2026-12-05 `ms_backward` held the last three together.
     pub ms_sampling: f32,
     pub ms_forward: f32,
+    #[serde(default)]
+    pub ms_losses: f32,
     pub ms_backward: f32,
+    #[serde(default)]
+    pub ms_adam: f32,
 }
 
 /// One optimizer group's moments, mutably, as the checkpoint tensors `adam.{group}.m` / `.v`

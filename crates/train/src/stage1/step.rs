@@ -97,6 +97,7 @@ impl Stage1 {
         }
 
         // Backward and update.
+        let t3 = std::time::Instant::now();
         let zeros = vec![0.0f32; self.batch.len()];
         renderer::backward(
             &self.scene,
@@ -112,11 +113,15 @@ impl Stage1 {
             d_grad.as_flattened_mut(),
             &mut self.grads,
         );
+        let t4 = std::time::Instant::now();
         self.apply_adam();
         self.correct_poses(rng);
-        st.ms_sampling = (t1 - t0).as_secs_f32() * 1e3;
-        st.ms_forward = (t2 - t1).as_secs_f32() * 1e3;
-        st.ms_backward = t2.elapsed().as_secs_f32() * 1e3;
+        let ms = |a: std::time::Instant, b: std::time::Instant| (b - a).as_secs_f32() * 1e3;
+        st.ms_sampling = ms(t0, t1);
+        st.ms_forward = ms(t1, t2);
+        st.ms_losses = ms(t2, t3);
+        st.ms_backward = ms(t3, t4);
+        st.ms_adam = t4.elapsed().as_secs_f32() * 1e3;
         self.iteration += 1;
         StepOutcome {
             stats: st,
