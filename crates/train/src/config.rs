@@ -276,13 +276,16 @@ pub struct TrainLoop {
 impl Default for TrainLoop {
     fn default() -> Self {
         TrainLoop {
-            iterations: 5000,
+            // 2500 iterations with the bubble step from 15 % to the end, and faster MLP and β
+            // learning rates: the 5000-iteration defaults' quality in half the time (issue 26,
+            // docs/results.md "Stage 1 against the clock").
+            iterations: 2500,
             rays: 1024,
             bubble_points: 1024,
             eikonal_points: 1024,
             lr_grid: 1e-2,
-            lr_mlp: 5e-3,
-            lr_beta: 1e-2,
+            lr_mlp: 1e-2,
+            lr_beta: 2e-2,
             lr_final_fraction: 0.1,
             lr_warmup: 100,
             seed: 0,

@@ -83,6 +83,9 @@ fn without_depth_bubble_and_smoothness_points_lie_on_the_rendered_surface() {
             "train.rays=256".into(),
             "train.eikonal_points=256".into(),
             "train.bubble_points=128".into(),
+            // a smooth step (the defaults have none), for its pairs
+            "schedule.warmup_fraction=0.25".into(),
+            "schedule.bubble_fraction=0.5".into(),
         ],
     )
     .unwrap();

@@ -18,6 +18,9 @@ fn config() -> TrainConfig {
         "train.rays=128",
         "train.eikonal_points=128",
         "train.bubble_points=128",
+        // the three steps of the paper's schedule, so that each is resumed into
+        "schedule.warmup_fraction=0.25",
+        "schedule.bubble_fraction=0.5",
         "model.hash_levels=4",
         "model.hash_log2_table=12",
         "sampling.samples=16",

@@ -65,8 +65,11 @@ pub struct Schedule {
 impl Default for Schedule {
     fn default() -> Self {
         Schedule {
-            warmup_fraction: 0.25,
-            bubble_fraction: 0.5,
+            // Issue 26: the room closes as soon as the bubble step starts, and the thin objects it
+            // recovers are partly lost in a smooth step, so the bubble step starts at 15 % and
+            // runs to the end (the paper's 25 / 50 / 25 %: configs/paper.toml).
+            warmup_fraction: 0.15,
+            bubble_fraction: 0.85,
             bubble: true,
             // Measured on the default room (issue 12): the thin objects survive the smooth step.
             smooth_bubble: 1.0,
@@ -141,7 +144,10 @@ mod tests {
 
     #[test]
     fn paper_step_lengths_and_weights() {
+        // configs/paper.toml's schedule
         let s = Schedule {
+            warmup_fraction: 0.25,
+            bubble_fraction: 0.5,
             smooth_bubble: 0.0,
             ..Default::default()
         };
@@ -157,6 +163,14 @@ mod tests {
         let w = s.weights(Phase::Smooth, &base);
         assert_eq!((w.eikonal, w.smooth, w.bubble), (0.1, 0.01, 0.0));
         assert_eq!((w.depth, w.normal, w.emitter, w.rgb), (0.1, 0.05, 0.5, 1.0));
+    }
+
+    #[test]
+    fn the_default_bubble_step_runs_to_the_end() {
+        let s = Schedule::default();
+        assert_eq!(s.boundaries(2500), (375, 2500));
+        assert_eq!(s.phase(374, 2500), Phase::WarmUp);
+        assert_eq!(s.phase(2499, 2500), Phase::Bubble);
     }
 
     #[test]
