@@ -336,11 +336,11 @@ const PLAN_BENCH_MS: f64 = 75.0;
 const QUICK_SECONDS: [f64; 8] = [7.0, 85.0, 13.0, 1.0, 8.0, 16.0, 5.0, 4.0];
 /// The full demo: its fresh-clone run of 2026-12-01 (51 min at a bench of ~165 ms, other jobs on
 /// the cores at times) scaled by 75/165; synthesis from a quiet run (4 min 42 s at ~75 ms); stage
-/// 1 from a quiet run of the current defaults (838.6 s between benches of 147 and 164 ms), stage
-/// 2 likewise (146 s at a bench of ~150 ms: its 393k-pixel cache, 128 samples baked); the mesh
+/// 1 from a quiet run of the defaults of 2026-12-05 (184.3 s between benches of 87.9 and 89.1 ms,
+/// bf16 products on AMX; about 1.2× that without AMX), stage 2 likewise (146 s at a bench of ~150 ms: its 393k-pixel cache, 128 samples baked); the mesh
 /// at 1024 from `i2sdf mesh` on that run (~75 s at ~150 ms), once in the mesh step and once in
 /// eval; the export with its 2048-texel atlas 64 s at a bench of ~170 ms (2026-12-04).
-const FULL_SECONDS: [f64; 8] = [280.0, 420.0, 75.0, 70.0, 100.0, 200.0, 25.0, 15.0];
+const FULL_SECONDS: [f64; 8] = [280.0, 160.0, 75.0, 70.0, 100.0, 200.0, 25.0, 15.0];
 
 fn minutes(seconds: f64) -> String {
     if seconds < 90.0 {
