@@ -14,8 +14,9 @@
 //!
 //! Operands are packed per call into thread-local buffers: `A` row-major `[m₁₆ × k₃₂]` bf16 (rows
 //! padded to 16, the inner dimension to 32 with zeros), `B` in AMX's pair layout
-//! `[k₃₂/2 × n₁₆]` of `u32` (`B(2q, j)` in the low half, `B(2q+1, j)` in the high half). `C` is
-//! read and written in place when `m` and `n` are multiples of 16, else through a padded copy.
+//! `[k₃₂/2 × n₁₆]` of `u32` (`B(2q, j)` in the low half, `B(2q+1, j)` in the high half). Output
+//! blocks that lie inside `C` are read (when accumulating) and written in place by the tiles;
+//! blocks over its edge go through a small buffer and vector code.
 //! The tile registers are configured at the start of each call and released at its end, so no
 //! tile state outlives a call (the compiler knows nothing of them).
 

@@ -1,5 +1,6 @@
-//! Thin, safe wrappers over `matrixmultiply::sgemm` for the three products of a dense layer, and the
-//! small slice utilities the tile loops share.
+//! Thin, safe wrappers for the three products of a dense layer — on the engine's AVX-512 kernel
+//! ([`crate::smallgemm`]), `matrixmultiply::sgemm`, or in half precision on AMX tiles
+//! ([`crate::amx`], per [`MatmulPrecision`]) — and the small slice utilities the tile loops share.
 //!
 //! All matrices are row-major with an explicit leading dimension (row stride). The engine calls these
 //! from inside rayon tasks, one tile per call, so matrixmultiply's own threading must stay off: it
