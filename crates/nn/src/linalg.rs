@@ -65,6 +65,52 @@ fn amx_for(m: usize, n: usize, precision: MatmulPrecision) -> Option<bool> {
     }
 }
 
+/// The engine's own kernels, which share one calling convention (strided `A`, row-major `B`,
+/// overwrite or accumulate); everything else goes to matrixmultiply.
+#[derive(Clone, Copy)]
+enum Kernel {
+    /// AMX tiles; `true`: bf16x3.
+    Amx(bool),
+    /// The AVX-512 f32 kernel.
+    Small,
+}
+
+/// The kernel for a product, when one of ours takes it: AMX where `precision` asks for half
+/// precision and the shape suits it, else the f32 kernel where `small` says so.
+fn kernel_for(m: usize, n: usize, precision: MatmulPrecision, small: bool) -> Option<Kernel> {
+    amx_for(m, n, precision)
+        .map(Kernel::Amx)
+        .or(small.then_some(Kernel::Small))
+}
+
+/// `C = (accumulate ? C : 0) + A·B` on `kernel`, `A(r, p) = a[r·rsa + p·csa]`.
+///
+/// # Safety
+/// As [`crate::smallgemm::gemm`]: all three matrices in bounds for the strides.
+#[allow(clippy::too_many_arguments)]
+unsafe fn run_kernel(
+    kernel: Kernel,
+    m: usize,
+    k: usize,
+    n: usize,
+    a: *const f32,
+    rsa: usize,
+    csa: usize,
+    b: *const f32,
+    ldb: usize,
+    accumulate: bool,
+    c: *mut f32,
+    ldc: usize,
+) {
+    // SAFETY: the caller's bounds; AMX is only chosen where `amx::available()`.
+    unsafe {
+        match kernel {
+            Kernel::Amx(split) => crate::amx::gemm(m, k, n, a, rsa, csa, b, ldb, accumulate, c, ldc, split),
+            Kernel::Small => crate::smallgemm::gemm(m, k, n, a, rsa, csa, b, ldb, accumulate, c, ldc),
+        }
+    }
+}
+
 fn use_small_gemm() -> bool {
     use std::sync::OnceLock;
     static CHOICE: OnceLock<bool> = OnceLock::new();
@@ -99,8 +145,8 @@ pub fn gemm_a_bt(
     }
     assert!(a.len() >= (m - 1) * lda + k && b.len() >= (n - 1) * ldb + k);
     assert!(c.len() >= (m - 1) * ldc + n);
-    let amx = amx_for(m, n, precision).filter(|_| beta == 0.0 || beta == 1.0);
-    if (amx.is_some() || small_gemm_for(k, n)) && (beta == 0.0 || beta == 1.0) {
+    let kernel = kernel_for(m, n, precision, small_gemm_for(k, n)).filter(|_| beta == 0.0 || beta == 1.0);
+    if let Some(kernel) = kernel {
         TRANSPOSED.with_borrow_mut(|bt| {
             if bt.len() < k * n {
                 bt.resize(k * n, 0.0);
@@ -110,28 +156,10 @@ pub fn gemm_a_bt(
                     bt[p * n + j] = b[j * ldb + p];
                 }
             }
-            // SAFETY: bounds asserted above; Bᵀ is [k×n] in `bt`; AMX only where available.
-            if let Some(split) = amx {
-                unsafe {
-                    crate::amx::gemm(
-                        m,
-                        k,
-                        n,
-                        a.as_ptr(),
-                        lda,
-                        1,
-                        bt.as_ptr(),
-                        n,
-                        beta == 1.0,
-                        c.as_mut_ptr(),
-                        ldc,
-                        split,
-                    )
-                };
-                return;
-            }
+            // SAFETY: bounds asserted above; Bᵀ is [k×n] in `bt`.
             unsafe {
-                crate::smallgemm::gemm(
+                run_kernel(
+                    kernel,
                     m,
                     k,
                     n,
@@ -190,30 +218,11 @@ pub fn gemm_a_b(
     }
     assert!(a.len() >= (m - 1) * lda + k && b.len() >= (k.max(1) - 1) * ldb + n);
     assert!(c.len() >= (m - 1) * ldc + n);
-    if let Some(split) = amx_for(m, n, precision).filter(|_| beta == 0.0 || beta == 1.0) {
-        // SAFETY: bounds asserted above; AMX only where available.
-        unsafe {
-            crate::amx::gemm(
-                m,
-                k,
-                n,
-                a.as_ptr(),
-                lda,
-                1,
-                b.as_ptr(),
-                ldb,
-                beta == 1.0,
-                c.as_mut_ptr(),
-                ldc,
-                split,
-            )
-        };
-        return;
-    }
-    if small_gemm_for(k, n) && (beta == 0.0 || beta == 1.0) {
+    if let Some(kernel) = kernel_for(m, n, precision, small_gemm_for(k, n)).filter(|_| beta == 0.0 || beta == 1.0) {
         // SAFETY: bounds asserted above.
         unsafe {
-            crate::smallgemm::gemm(
+            run_kernel(
+                kernel,
                 m,
                 k,
                 n,
@@ -271,10 +280,11 @@ pub fn gemm_at_b_acc(
     }
     assert!(a.len() >= (k - 1) * lda + m && b.len() >= (k - 1) * ldb + n);
     assert!(c.len() >= (m - 1) * ldc + n);
-    if let Some(split) = amx_for(m, n, precision) {
-        // SAFETY: bounds asserted above; A(r, p) = a[p·lda + r]; AMX only where available.
+    if let Some(kernel) = kernel_for(m, n, precision, small_gemm_for(m, n)) {
+        // SAFETY: bounds asserted above; A(r, p) = a[p·lda + r].
         unsafe {
-            crate::amx::gemm(
+            run_kernel(
+                kernel,
                 m,
                 k,
                 n,
@@ -286,14 +296,8 @@ pub fn gemm_at_b_acc(
                 true,
                 c.as_mut_ptr(),
                 ldc,
-                split,
             )
         };
-        return;
-    }
-    if small_gemm_for(m, n) {
-        // SAFETY: bounds asserted above; A(r, p) = a[p·lda + r].
-        unsafe { crate::smallgemm::gemm(m, k, n, a.as_ptr(), 1, lda, b.as_ptr(), ldb, true, c.as_mut_ptr(), ldc) };
         return;
     }
     // SAFETY: bounds asserted above.
