@@ -53,6 +53,12 @@ impl<'a> SceneQuery<'a> {
             .infer(points, &mut self.sdf_ws, sdf, None, Some(gradient));
     }
 
+    /// Distance and feature z (`[n × feature_dim]`) at `points`, without the gradient's backward
+    /// pass (what F_e and the material backbone need).
+    pub fn sdf_feature(&mut self, points: &[f32], sdf: &mut [f32], feature: &mut [f32]) {
+        self.scene.sdf.infer(points, &mut self.sdf_ws, sdf, Some(feature), None);
+    }
+
     /// Distance, feature z (`[n × feature_dim]`) and gradient at `points`.
     pub fn sdf_full(&mut self, points: &[f32], sdf: &mut [f32], feature: &mut [f32], gradient: &mut [f32]) {
         self.scene
