@@ -13,7 +13,7 @@ use crate::report::{
 };
 use i2sdf_data::dataset::ObjectInfo;
 use i2sdf_data::ply::read_ground_truth;
-use i2sdf_data::{Bounds, DataError, Dataset, Frame, Split};
+use i2sdf_data::{Bounds, Camera, DataError, Dataset, Frame, ImageF32, Split};
 use i2sdf_model::images::render_volume_view;
 use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::{extract_mesh, NeuralScene};
@@ -124,9 +124,28 @@ pub fn view_metrics_with_progress(
     splits: &[Split],
     progress: &dyn EvalProgress,
 ) -> Result<EvalReport, DataError> {
+    view_metrics_keeping(scene, dataset, settings, lpips, splits, progress, None)
+}
+
+/// [`view_metrics_with_progress`], keeping in `test_images` the radiance field's image of each
+/// test view as it was scored.
+fn view_metrics_keeping(
+    scene: &NeuralScene,
+    dataset: &Dataset,
+    settings: &RenderSettings,
+    lpips: Option<&Lpips>,
+    splits: &[Split],
+    progress: &dyn EvalProgress,
+    mut test_images: Option<&mut Vec<(Camera, ImageF32)>>,
+) -> Result<EvalReport, DataError> {
     let mut report = EvalReport::default();
     for &split in splits {
-        let (views, too_small) = split_metrics(scene, dataset, split, settings, lpips, progress)?;
+        let keep = if split == Split::Test {
+            test_images.as_deref_mut()
+        } else {
+            None
+        };
+        let (views, too_small) = split_metrics(scene, dataset, split, settings, lpips, progress, keep)?;
         if let Some((w, h)) = too_small {
             let note = lpips_too_small_note(w, h);
             if !report.notes.contains(&note) {
@@ -154,6 +173,7 @@ fn split_metrics(
     settings: &RenderSettings,
     lpips: Option<&Lpips>,
     progress: &dyn EvalProgress,
+    mut keep: Option<&mut Vec<(Camera, ImageF32)>>,
 ) -> Result<(ViewSplitMetrics, Option<(usize, usize)>), DataError> {
     let (mut p, mut s, mut d, mut n) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let (mut l, mut too_small) = (Vec::new(), None);
@@ -190,6 +210,9 @@ fn split_metrics(
             if let Some(x) = normal_angular_l1(&v.normal.data, &gn.data, None)? {
                 n.push(x);
             }
+        }
+        if let Some(keep) = keep.as_deref_mut() {
+            keep.push((f.camera.clone(), v.rgb));
         }
         progress.inc(1);
     }
@@ -275,15 +298,30 @@ pub fn evaluate_with_progress(
     options: &EvalOptions,
     progress: &dyn EvalProgress,
 ) -> Result<(EvalReport, TriangleMesh), DataError> {
+    evaluate_keeping_test_images(scene, dataset, bounds, options, progress, &mut Vec::new())
+}
+
+/// [`evaluate_with_progress`], keeping in `test_images` the radiance field's image of each test
+/// view (camera, LDR image) as it was scored: the relit sets' differential composites start from
+/// the same images ([`crate::relight::relight_metrics`]).
+pub fn evaluate_keeping_test_images(
+    scene: &NeuralScene,
+    dataset: &Dataset,
+    bounds: &Bounds,
+    options: &EvalOptions,
+    progress: &dyn EvalProgress,
+    test_images: &mut Vec<(Camera, ImageF32)>,
+) -> Result<(EvalReport, TriangleMesh), DataError> {
     // The GT first: a bad one is refused before the views are rendered.
     let gt = dataset.mesh_path.as_ref().map(read_ground_truth).transpose()?;
-    let mut report = view_metrics_with_progress(
+    let mut report = view_metrics_keeping(
         scene,
         dataset,
         &options.render,
         options.lpips.as_deref(),
         options.splits.splits(),
         progress,
+        Some(test_images),
     )?;
     if options.lpips.is_none() {
         report.notes.push(no_lpips_note());

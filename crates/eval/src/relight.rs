@@ -89,8 +89,10 @@ pub fn read_specs(dataset: &Dataset) -> Result<Vec<(EditSpec, EditAssets)>, Data
         .collect()
 }
 
-/// The relight section of the report; all null without relit sets. `on_row` is called after
-/// each rendered row.
+/// The relight section of the report; all null without relit sets. `captured` may hold the
+/// radiance field's images of some cameras rendered with the run's render settings (eval's test
+/// views), which the differential composites then use instead of rendering them again. `on_row`
+/// is called after each rendered row.
 ///
 /// Without emitters (stage 2 found none) nothing is rendered and every figure is null, each set
 /// listed with its frame count only: the edit renderer's light comes from the recovered emitters
@@ -102,6 +104,7 @@ pub fn relight_metrics(
     run: &OpenedRun,
     dataset: &Dataset,
     options: &RelightOptions,
+    captured: &[(Camera, ImageF32)],
     on_row: &(dyn Fn() + Sync),
 ) -> Result<RelightMetrics, DataError> {
     if dataset.relight.is_empty() {
@@ -118,11 +121,15 @@ pub fn relight_metrics(
         settings: &options.render,
         frames_per_set: None,
     };
+    let mut renders = SharedRenders::default();
+    for (camera, image) in captured {
+        renders.insert_captured(camera, image.clone());
+    }
     let mut metrics = score_relit_sets(
         &scoring,
         dataset,
         &specs,
-        &mut SharedRenders::default(),
+        &mut renders,
         on_row,
         &mut |_| {},
     )?;
@@ -500,7 +507,7 @@ mod tests {
         let on_row = || {
             rows.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         };
-        let m = relight_metrics(&run, &dataset, &RelightOptions::default(), &on_row).unwrap();
+        let m = relight_metrics(&run, &dataset, &RelightOptions::default(), &[], &on_row).unwrap();
         assert_eq!(rows.into_inner(), 0, "nothing rendered");
         let sets = m.sets.clone().unwrap();
         assert_eq!(sets.keys().collect::<Vec<_>>(), ["lamp_dim"]);

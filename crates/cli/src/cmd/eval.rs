@@ -13,7 +13,7 @@ use clap::Args as ClapArgs;
 use i2sdf_data::{imageio, Split};
 use i2sdf_edit::EditSettings;
 use i2sdf_eval::intrinsic::{intrinsic_metrics_with_progress, IntrinsicOptions};
-use i2sdf_eval::neural::{evaluate_with_progress, EvalOptions, ViewSplits};
+use i2sdf_eval::neural::{evaluate_keeping_test_images, EvalOptions, ViewSplits};
 use i2sdf_eval::progress::EvalProgress;
 use i2sdf_eval::relight::{relight_frames, relight_metrics, RelightOptions};
 use std::path::PathBuf;
@@ -106,7 +106,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     options.mesh.threshold = args.threshold;
     let steps = EvalSteps::default();
-    let (mut report, mesh) = evaluate_with_progress(&run.scene, &dataset, &dataset.bounds, &options, &steps)?;
+    // The test views' images, which the relit sets' differential composites reuse.
+    let mut test_images = Vec::new();
+    let (mut report, mesh) = evaluate_keeping_test_images(
+        &run.scene,
+        &dataset,
+        &dataset.bounds,
+        &options,
+        &steps,
+        &mut test_images,
+    )?;
     steps.end();
     if let (Some(fields), Some(frozen)) = (&run.fields, run.frozen(&dataset)?) {
         let intrinsic = IntrinsicOptions {
@@ -136,7 +145,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             // Nothing to relight: no black images are scored, the figures are null (the sets
             // listed with their frames) and a note says why.
             crate::progress::line(&format!("warning: {}", i2sdf_eval::report::zero_emitter_note()));
-            report.relight = relight_metrics(&run, &dataset, &relight, &|| {})?;
+            report.relight = relight_metrics(&run, &dataset, &relight, &test_images, &|| {})?;
             report.note_no_emitters();
         } else if relight_frames(&dataset) > 0 {
             let rows: usize = dataset
@@ -146,7 +155,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .map(|f| f.camera.height)
                 .sum();
             let bar = crate::progress::Step::new("relit sets: path tracing", rows as u64, "rows");
-            report.relight = relight_metrics(&run, &dataset, &relight, &|| bar.inc(1))?;
+            report.relight = relight_metrics(&run, &dataset, &relight, &test_images, &|| bar.inc(1))?;
             bar.finish();
         }
     }
