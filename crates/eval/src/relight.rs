@@ -125,14 +125,7 @@ pub fn relight_metrics(
     for (camera, image) in captured {
         renders.insert_captured(camera, image.clone());
     }
-    let mut metrics = score_relit_sets(
-        &scoring,
-        dataset,
-        &specs,
-        &mut renders,
-        on_row,
-        &mut |_| {},
-    )?;
+    let mut metrics = score_relit_sets(&scoring, dataset, &specs, &mut renders, on_row, &mut |_| {})?;
     metrics.settings = Some(RelightSettings {
         spp: options.render.spp,
         bounces: options.render.bounces,

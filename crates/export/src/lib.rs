@@ -18,7 +18,6 @@ pub mod gltf_write;
 pub mod material_map;
 pub mod material_scene;
 pub mod scene_model;
-pub mod simplify;
 
 pub use axes::UpAxis;
 pub use gltf_write::Container;

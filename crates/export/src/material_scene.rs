@@ -9,12 +9,12 @@ use crate::bake::{rasterize, MaterialTextures};
 use crate::cluster;
 use crate::material_map::{emissive, GltfPbr};
 use crate::scene_model::{LightDesc, MaterialDesc, PrimitiveDesc, SceneModel};
-use crate::simplify;
 use crate::ExportOptions;
 use glam::Vec3;
 use i2sdf_data::DataError;
 use i2sdf_edit::{RecoveredScene, RecoveredSurface};
 use i2sdf_model::{FrozenScene, NeuralMaterial};
+use i2sdf_render::simplify;
 use i2sdf_render::{GgxBrdf, Material, SurfacePoint};
 use rand::{Rng, SeedableRng};
 

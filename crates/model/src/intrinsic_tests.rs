@@ -402,8 +402,15 @@ fn baked_cast_agrees_with_the_tracer() {
         frozen.cast(&rays, &mut traced);
         frozen.occluded(&rays, &mut occ_traced);
         // What the tracer hits on the bounded segments that this coarse bake (64) misses: few.
-        let lost = traced.iter().zip(&trusted_miss).filter(|(h, &m)| m && h.is_some()).count();
-        assert!(lost <= 10, "{lost} of 200 segments hit by the tracer and missed by the BVH");
+        let lost = traced
+            .iter()
+            .zip(&trusted_miss)
+            .filter(|(h, &m)| m && h.is_some())
+            .count();
+        assert!(
+            lost <= 10,
+            "{lost} of 200 segments hit by the tracer and missed by the BVH"
+        );
         for (i, _) in trusted_miss.iter().enumerate().filter(|(_, &m)| m) {
             traced[i] = None;
             occ_traced[i] = false;

@@ -32,7 +32,7 @@ pub mod volume;
 pub use config::{Backbone, ModelConfig};
 pub use emitters::{Emitter, EmitterTable};
 pub use intrinsic::{emitter_cone_lights, emitter_lights, rerender_view, FrozenScene, LabelledHit, NeuralMaterial};
-pub use marching_cubes::{extract_mesh, marching_cubes, McGrid, McOptions};
+pub use marching_cubes::{extract_mesh, marching_cubes, voxel_size, McGrid, McOptions, TRACED_SIMPLIFY_VOXELS};
 pub use material_field::{
     MaterialBackbone, MaterialConfig, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
 };

@@ -333,11 +333,18 @@ struct RayConsts {
 }
 
 impl RayConsts {
+    /// A direction component under 1e-20 in size is taken as ±1e-20 for the reciprocal: a ray
+    /// that lies in a box's face plane (a zero component, the origin on the plane) then meets
+    /// that slab on [0, ∞) instead of making 0·∞ = NaN, which the box test's min and max would
+    /// drop and the box with it (a ray along +z through a sphere's pole missed it).
     fn new(origin: Vec3, dir: Vec3) -> Self {
+        let safe = dir
+            .to_array()
+            .map(|d| if d.abs() < 1e-20 { 1e-20f32.copysign(d) } else { d });
         RayConsts {
             origin: origin.to_array(),
             dir: dir.to_array(),
-            inv: dir.recip().to_array(),
+            inv: safe.map(|d| 1.0 / d),
         }
     }
 }
@@ -400,7 +407,11 @@ impl TriPack {
 /// glam's `Vec3::cross`, operation for operation.
 #[inline(always)]
 fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[1] * b[2] - b[1] * a[2], a[2] * b[0] - b[2] * a[0], a[0] * b[1] - b[0] * a[1]]
+    [
+        a[1] * b[2] - b[1] * a[2],
+        a[2] * b[0] - b[2] * a[0],
+        a[0] * b[1] - b[0] * a[1],
+    ]
 }
 
 /// glam's `Vec3::dot`, operation for operation.
@@ -427,8 +438,7 @@ impl WideNode {
 
     /// The slab test of all [`WIDTH`] children at once (the loop vectorizes: one lane per
     /// child): bit i of the result is set when the ray meets child i within (t_min, t_max),
-    /// and `near[i]` is where it enters. As the binary tree's test did, a NaN (0·∞, a ray in a
-    /// slab's plane) keeps the box, conservatively.
+    /// and `near[i]` is where it enters. [`RayConsts::new`] keeps 0·∞ out of it.
     #[inline(always)]
     fn slab(&self, ray: &RayConsts, t_min: f32, t_max: f32, near: &mut [f32; WIDTH]) -> u32 {
         let mut far = [0f32; WIDTH];
@@ -481,7 +491,11 @@ fn collapse(binary: &[Node], leaf_packs: &[(u32, u32)]) -> Vec<WideNode> {
     let mut work = vec![(0usize, 0u32)];
     while let Some((w, b)) = work.pop() {
         let root = &binary[b as usize];
-        let mut children: Vec<u32> = if root.count > 0 { vec![b] } else { vec![b + 1, root.offset] };
+        let mut children: Vec<u32> = if root.count > 0 {
+            vec![b]
+        } else {
+            vec![b + 1, root.offset]
+        };
         while children.len() < WIDTH {
             let open = children
                 .iter()
@@ -738,6 +752,30 @@ mod tests {
         let mesh = clutter(&mut rng);
         let bvh = Bvh::build(&mesh);
         check_against_brute_force(&mesh, &bvh, 2000, &mut rng);
+    }
+
+    /// Rays along an axis through vertices on a box's face plane (0·∞ in the slab test) still
+    /// find the sphere they cross.
+    #[test]
+    fn axis_aligned_rays_in_face_planes_hit() {
+        let mut mesh = TriangleMesh::unit_icosphere(3);
+        mesh.positions
+            .iter_mut()
+            .for_each(|p| *p = (Vec3::new(3.0, 0.0, 5.0) + 0.5 * Vec3::from(*p)).to_array());
+        let bvh = Bvh::build(&mesh);
+        let mut stack = Vec::new();
+        for (o, d) in [
+            (Vec3::new(3.0, 0.0, 0.0), Vec3::Z),
+            (Vec3::new(3.0, 0.0, 9.0), -Vec3::Z),
+            (Vec3::new(0.0, 0.0, 5.0), Vec3::X),
+            (Vec3::new(3.0, -4.0, 5.0), Vec3::Y),
+        ] {
+            let brute = brute_force(&mesh, o, d, f32::INFINITY);
+            assert!(brute.is_some());
+            let hit = bvh.intersect(o, d, 0.0, f32::INFINITY, &mut stack);
+            assert_eq!(hit.map(|h| h.t), brute.map(|b| b.0), "{o} {d}");
+            assert!(bvh.occluded(o, d, 0.0, f32::INFINITY, &mut stack), "{o} {d}");
+        }
     }
 
     /// Traversal has no depth limit: a chain tree 700 binary levels deep, about a hundred wide

@@ -26,6 +26,7 @@ pub mod mesh_geometry;
 pub mod proposal;
 pub mod render_view;
 pub mod sampling;
+pub mod simplify;
 pub mod sphere_light;
 pub mod textured_material;
 

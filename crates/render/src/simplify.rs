@@ -1,8 +1,11 @@
 //! Simplification of the marching-cubes surface to a face budget (meshoptimizer's edge-collapse
 //! simplifier, through the `meshopt` bindings), one group of faces at a time: ordinary surface
 //! and each emitter apart, their shared borders locked, so a group's faces never collapse across
-//! its border and the groups still meet edge to edge afterwards.
+//! its border and the groups still meet edge to edge afterwards. The glTF export simplifies to
+//! its face budget; the edit renderer's recovered surface, which paths are traced in, to an error
+//! bound only ([`simplify_labelled`]).
 
+use i2sdf_data::TriangleMesh;
 use meshopt::{SimplifyOptions, VertexDataAdapter};
 
 /// Faces kept of each group whatever the budget (an emitter's few faces keep its shape).
@@ -46,6 +49,41 @@ pub fn simplify_groups(
             out.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect()
         })
         .collect()
+}
+
+/// `mesh` simplified as far as `max_error` (world units) allows, each label's faces apart
+/// (`labels`: one per face; at least [`MIN_GROUP_FACES`] kept per label): the new mesh, its
+/// faces' labels, and for each new vertex its index in `mesh` (vertices are only removed). Flat
+/// walls of a marching-cubes mesh collapse to a few large triangles, so a BVH over the result
+/// is smaller and its traversal touches less memory.
+pub fn simplify_labelled(mesh: &TriangleMesh, labels: &[u32], max_error: f32) -> (TriangleMesh, Vec<u32>, Vec<u32>) {
+    assert_eq!(labels.len(), mesh.faces.len(), "one label per face");
+    let mut names: Vec<u32> = labels.to_vec();
+    names.sort_unstable();
+    names.dedup();
+    let groups: Vec<Vec<[u32; 3]>> = names
+        .iter()
+        .map(|&l| {
+            mesh.faces
+                .iter()
+                .zip(labels)
+                .filter(|(_, &f)| f == l)
+                .map(|(f, _)| *f)
+                .collect()
+        })
+        .collect();
+    let groups = simplify_groups(&mesh.positions, &groups, 0, max_error);
+    let (kept, groups) = compact(mesh.positions.len(), &groups);
+    let mut out = TriangleMesh {
+        positions: kept.iter().map(|&v| mesh.positions[v as usize]).collect(),
+        ..Default::default()
+    };
+    let mut out_labels = Vec::new();
+    for (g, &l) in groups.iter().zip(&names) {
+        out.faces.extend(g);
+        out_labels.extend(std::iter::repeat_n(l, g.len()));
+    }
+    (out, out_labels, kept)
 }
 
 /// The vertices the groups still use, in order, and the groups re-indexed into them.
