@@ -50,6 +50,9 @@ pub struct EvalOptions {
     pub lpips: Option<std::sync::Arc<Lpips>>,
     /// Whose image metrics: the test views', the training views' or both.
     pub splits: ViewSplits,
+    /// A mesh to score instead of extracting one at `mesh_resolution` (world units; `eval
+    /// --mesh`).
+    pub given_mesh: Option<TriangleMesh>,
 }
 
 /// Which views' image metrics an evaluation scores (`eval --split`).
@@ -92,6 +95,7 @@ impl Default for EvalOptions {
             render: RenderSettings::default(),
             lpips: None,
             splits: ViewSplits::Test,
+            given_mesh: None,
         }
     }
 }
@@ -327,7 +331,10 @@ pub fn evaluate_keeping_test_images(
         report.notes.push(no_lpips_note());
     }
     progress.step(progress::MESH_EXTRACTION, 0);
-    let mesh = extract_mesh(scene, bounds, options.mesh_resolution)?;
+    let mesh = match &options.given_mesh {
+        Some(mesh) => mesh.clone(),
+        None => extract_mesh(scene, bounds, options.mesh_resolution)?,
+    };
     report.geometry.mesh = match gt {
         Some(gt) => {
             let views = culling_views(dataset);
@@ -551,6 +558,29 @@ mod tests {
         }
         assert_eq!(steps[0].1, 2, "two test views");
         assert_eq!(steps[2].1, 80_000, "points on both meshes");
+
+        // A given mesh is scored instead of an extracted one: the run's own mesh scores the
+        // same, the GT box itself perfectly; the test views' images are kept as scored.
+        let (mesh, images) = {
+            let mut images = Vec::new();
+            let (_, mesh) =
+                evaluate_keeping_test_images(&scene, &dataset, &dataset.bounds, &options, &NoProgress, &mut images)
+                    .unwrap();
+            (mesh, images)
+        };
+        assert_eq!(images.len(), 2);
+        let given = EvalOptions {
+            given_mesh: Some(mesh),
+            ..options
+        };
+        let (same, _) = evaluate(&scene, &dataset, &dataset.bounds, &given).unwrap();
+        assert_eq!(same.geometry.mesh, report.geometry.mesh);
+        let gt_box = EvalOptions {
+            given_mesh: Some(box_mesh(b.min.map(|x| x as f32), b.max.map(|x| x as f32))),
+            ..given
+        };
+        let (perfect, _) = evaluate(&scene, &dataset, &dataset.bounds, &gt_box).unwrap();
+        assert_eq!(perfect.geometry.mesh.fscore, Some(1.0));
     }
 
     /// `--split`: the test views fill `novel_view` and the geometry's depth and normal errors,

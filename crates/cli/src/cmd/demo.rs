@@ -236,6 +236,10 @@ fn outputs(args: &Args, plan: &mut StagePlan, scene: &Path, run_dir: &Path) -> a
         data: Some(scene.to_path_buf()),
         out: args.out.join("metrics.json"),
         mesh_out: None,
+        // The full demo trains on `scene` itself, so the mesh step's mesh is the one eval would
+        // extract (same run, bounds and resolution): extracting it again took as long as the
+        // mesh step. The quick demo's run has the capture's bounds; its mesh is cheap anyway.
+        mesh: (!args.quick).then(|| args.out.join("mesh.ply")),
         force: true,
         mesh_resolution: resolution,
         threshold: 0.05,

@@ -1,6 +1,7 @@
 //! `i2sdf eval --run RUN --data SCENE --out METRICS.json`: the metrics JSON (every figure that
 //! cannot be computed is null; `i2sdf_eval::report`). With `--mesh-out FILE.ply` it also writes
-//! the extracted mesh it scored; it writes nothing else. Both outputs are checked before the work
+//! the extracted mesh it scored; it writes nothing else. `--mesh FILE.ply` scores that mesh
+//! instead of extracting one. Both outputs are checked before the work
 //! (`i2sdf_data::output`) and an existing one is replaced only with `--force`. With
 //! stage 2 (`RUN/stage2.safetensors`) it fills `rerender`, `material` and `emitters` from a Monte
 //! Carlo re-render of the test views (`--spp` paths per pixel), and `relight` from path-traced
@@ -34,6 +35,11 @@ pub struct Args {
     /// Also write the extracted mesh that was scored (binary PLY, world units).
     #[arg(long)]
     pub mesh_out: Option<PathBuf>,
+    /// Score this mesh (PLY, world units) instead of extracting one at --mesh-resolution: what
+    /// `i2sdf mesh` wrote from this run (the demo's mesh.ply), or another method's mesh of the
+    /// scene. The metrics' notes name it.
+    #[arg(long, value_name = "FILE.ply")]
+    pub mesh: Option<PathBuf>,
     /// Replace --out (and --mesh-out) if they exist.
     #[arg(long)]
     pub force: bool,
@@ -77,7 +83,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !(1..=1024).contains(&args.bounces) {
         return Err(i2sdf_data::DataError::invalid(format!("--bounces {}: must be in [1, 1024]", args.bounces)).into());
     }
+    if args.mesh.is_some() && args.mesh_out.is_some() {
+        return Err(i2sdf_data::DataError::invalid(
+            "--mesh-out with --mesh: the scored mesh is the one --mesh names already",
+        )
+        .into());
+    }
     // Read and checked now, not after the views are rendered.
+    let given_mesh = match &args.mesh {
+        Some(path) => {
+            let mesh = i2sdf_data::ply::read_ply(path)?;
+            if mesh.num_faces() == 0 {
+                return Err(
+                    i2sdf_data::DataError::field(path, "face", "no faces: --mesh needs a triangle mesh").into(),
+                );
+            }
+            Some(mesh)
+        }
+        None => None,
+    };
     let lpips = match &args.lpips_weights {
         Some(path) => Some(std::sync::Arc::new(i2sdf_eval::Lpips::load(path)?)),
         None => None,
@@ -102,6 +126,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         render: run.config.render.clone(),
         lpips,
         splits,
+        given_mesh,
         ..Default::default()
     };
     options.mesh.threshold = args.threshold;
@@ -117,6 +142,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &mut test_images,
     )?;
     steps.end();
+    if let Some(path) = &args.mesh {
+        report.notes.push(format!(
+            "geometry: the mesh scored is {} (eval --mesh), not one extracted from the run",
+            path.display()
+        ));
+    }
     if let (Some(fields), Some(frozen)) = (&run.fields, run.frozen(&dataset)?) {
         let intrinsic = IntrinsicOptions {
             spp: args.spp,
