@@ -17,7 +17,7 @@ pub struct Args {
     #[arg(long, default_value = "out/demo")]
     pub out: PathBuf,
     /// A small room (80×60, 24 views) and a short training on its phone capture (`capture/`,
-    /// scored against the exact room): about 2½ minutes where the bench iteration takes ~75 ms
+    /// scored against the exact room): about 2 minutes where the bench iteration takes ~75 ms
     /// (the demo says what to expect on this machine before it starts).
     #[arg(long)]
     pub quick: bool,
@@ -338,13 +338,11 @@ const PLAN_BENCH_MS: f64 = 75.0;
 /// scaled by their machine's bench iteration.
 /// `--quick`: the fresh-clone run of 2026-12-01 (276 s in all at a bench of ~150 ms), halved.
 const QUICK_SECONDS: [f64; 8] = [7.0, 85.0, 13.0, 1.0, 8.0, 16.0, 5.0, 4.0];
-/// The full demo: its fresh-clone run of 2026-12-01 (51 min at a bench of ~165 ms, other jobs on
-/// the cores at times) scaled by 75/165; synthesis from a quiet run (4 min 42 s at ~75 ms); stage
-/// 1 from a quiet run of the defaults of 2026-12-05 (184.3 s between benches of 87.9 and 89.1 ms,
-/// bf16 products on AMX; about 1.2× that without AMX), stage 2 likewise (146 s at a bench of ~150 ms: its 393k-pixel cache, 128 samples baked); the mesh
-/// at 1024 from `i2sdf mesh` on that run (~75 s at ~150 ms), once in the mesh step and once in
-/// eval; the export with its 2048-texel atlas 64 s at a bench of ~170 ms (2026-12-04).
-const FULL_SECONDS: [f64; 8] = [280.0, 160.0, 75.0, 70.0, 100.0, 200.0, 25.0, 15.0];
+/// The full demo: its run of 2026-12-05 (743.5 s in all between benches of 111.3 and 106.8 ms)
+/// scaled by 75/109: synthesis 146 s, stage 1 242 s, stage 2 105 s, the mesh at 1024 40 s and
+/// the export 12 s, the render 54 s, eval 100 s (it scores the mesh step's mesh), the edits and
+/// the report about 30 s. About 1.2× that for stage 1 without AMX (no bf16 products).
+const FULL_SECONDS: [f64; 8] = [104.0, 168.0, 74.0, 37.0, 36.0, 67.0, 17.0, 6.0];
 
 fn minutes(seconds: f64) -> String {
     if seconds < 90.0 {
