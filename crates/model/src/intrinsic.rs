@@ -93,6 +93,7 @@ impl BakedSurface {
     /// The marching-cubes mesh of `scene`'s SDF over `bounds` (world units, padded by
     /// [`PAD_FRACTION`](crate::marching_cubes::PAD_FRACTION)) at `resolution` samples along the
     /// longest side, in a BVH ([`FrozenScene::bake`]).
+    ///
     /// Not simplified, unlike the edit renderer's surface: simplified by a tenth of a voxel
     /// (493k faces → 76k), the default room's test-view re-render took as long (41.2 s against
     /// 40.6 s; its time is in the network queries) and lost 0.03 dB.

@@ -146,6 +146,38 @@ mod tests {
             .sum()
     }
 
+    /// Labelled simplification: each label keeps its area, its faces keep their label, and every
+    /// new vertex is the old one it names.
+    #[test]
+    fn a_labelled_flat_grid_collapses_each_label_apart() {
+        let (p, groups) = plane(32);
+        let mut mesh = TriangleMesh {
+            positions: p.clone(),
+            ..Default::default()
+        };
+        let mut labels = Vec::new();
+        for (l, g) in groups.iter().enumerate() {
+            mesh.faces.extend(g);
+            labels.extend(std::iter::repeat_n(5 * l as u32, g.len()));
+        }
+        let (out, out_labels, kept) = simplify_labelled(&mesh, &labels, 1e-4);
+        assert_eq!(out_labels.len(), out.faces.len());
+        assert!(out.faces.len() < mesh.faces.len() / 4, "{} faces", out.faces.len());
+        for (v, &k) in out.positions.iter().zip(&kept) {
+            assert_eq!(*v, p[k as usize]);
+        }
+        for (l, g) in groups.iter().enumerate() {
+            let faces: Vec<[u32; 3]> = out
+                .faces
+                .iter()
+                .zip(&out_labels)
+                .filter(|(_, &x)| x == 5 * l as u32)
+                .map(|(f, _)| *f)
+                .collect();
+            assert!((area(&out.positions, &faces) - area(&p, g)).abs() < 1e-4);
+        }
+    }
+
     #[test]
     fn a_flat_grid_collapses_to_the_budget_keeping_each_groups_area_and_the_shared_border() {
         let (p, groups) = plane(32);
