@@ -110,6 +110,27 @@ impl BakedSurface {
 /// Points per block of the labelling and field queries (parallel tasks over blocks).
 const FROZEN_BLOCK: usize = 4096;
 
+/// A ray without a kept feature ([`HitFeatures::slot`]).
+const NO_FEATURE: u32 = u32::MAX;
+
+/// The SDF feature z at the BVH hits of a baked cast that lie inside an emitter's sphere, kept
+/// from the Newton step's query for F_e ([`FrozenScene::cast`]).
+struct HitFeatures {
+    /// Per ray: its row of `z`, or [`NO_FEATURE`].
+    slot: Vec<u32>,
+    /// `[rows × feature_dim]`.
+    z: Vec<f32>,
+}
+
+impl HitFeatures {
+    fn none(rays: usize) -> Self {
+        HitFeatures {
+            slot: vec![NO_FEATURE; rays],
+            z: Vec::new(),
+        }
+    }
+}
+
 impl<'a> FrozenScene<'a> {
     pub fn new(scene: &'a NeuralScene, emitters: &'a EmitterTable, radiometry: Radiometry) -> Self {
         FrozenScene {
@@ -237,11 +258,15 @@ impl<'a> FrozenScene<'a> {
     }
 
     /// The unlabelled hits of world rays: the sphere tracer's, or, when baked, the BVH's refined
-    /// onto the SDF with the tracer for the rest.
-    fn cast_unlabelled(&self, rays: &[Ray], out: &mut [Option<LabelledHit>]) {
+    /// onto the SDF with the tracer for the rest. With `emitter_features`, the baked cast also
+    /// keeps the feature z at the BVH hits inside an emitter's sphere ([`HitFeatures`]).
+    fn cast_unlabelled(&self, rays: &[Ray], out: &mut [Option<LabelledHit>], emitter_features: bool) -> HitFeatures {
         match &self.baked {
-            None => self.cast_traced(rays, out),
-            Some(b) => self.cast_baked(b, rays, out),
+            None => {
+                self.cast_traced(rays, out);
+                HitFeatures::none(rays.len())
+            }
+            Some(b) => self.cast_baked(b, rays, out, emitter_features),
         }
     }
 
@@ -269,7 +294,13 @@ impl<'a> FrozenScene<'a> {
         (r.t_min.max(cs.near * s), r.t_max.min(exit))
     }
 
-    fn cast_baked(&self, baked: &BakedSurface, rays: &[Ray], out: &mut [Option<LabelledHit>]) {
+    fn cast_baked(
+        &self,
+        baked: &BakedSurface,
+        rays: &[Ray],
+        out: &mut [Option<LabelledHit>],
+        emitter_features: bool,
+    ) -> HitFeatures {
         // 1. The BVH's closest hits.
         let mut t_bvh = vec![f32::NAN; rays.len()];
         t_bvh
@@ -286,10 +317,28 @@ impl<'a> FrozenScene<'a> {
                     }
                 }
             });
-        // 2. One SDF + gradient query at every BVH hit, then one Newton step along the ray.
+        // 2. One SDF + gradient query at every BVH hit, then one Newton step along the ray. At
+        // the hits inside an emitter's sphere the same query keeps the feature z for F_e.
         let idx: Vec<usize> = (0..rays.len()).filter(|&i| !t_bvh[i].is_nan()).collect();
         let points: Vec<Vec3> = idx.iter().map(|&i| rays[i].at(t_bvh[i])).collect();
-        let dg = self.sdf_gradient(&points);
+        let near_emitter: Vec<bool> = points
+            .iter()
+            .map(|p| emitter_features && self.emitters.index(p.as_dvec3(), self.index_margin).is_some())
+            .collect();
+        let (mut dg, mut features) = (vec![(0.0f32, Vec3::ZERO); points.len()], HitFeatures::none(rays.len()));
+        {
+            let (with, without): (Vec<usize>, Vec<usize>) = (0..points.len()).partition(|&j| near_emitter[j]);
+            let pick = |js: &[usize]| js.iter().map(|&j| points[j]).collect::<Vec<Vec3>>();
+            for (&j, v) in without.iter().zip(self.sdf_gradient(&pick(&without))) {
+                dg[j] = v;
+            }
+            let (dg_with, z) = self.sdf_gradient_feature(&pick(&with));
+            for (slot, (&j, v)) in with.iter().zip(dg_with).enumerate() {
+                dg[j] = v;
+                features.slot[idx[j]] = slot as u32;
+            }
+            features.z = z;
+        }
         let (s, voxel) = (self.scale(), baked.voxel);
         // A ray the BVH misses goes to the tracer only when it is unbounded (a path's next
         // segment): most bounded ones are light samples that reach their light, a fifth of a
@@ -327,10 +376,13 @@ impl<'a> FrozenScene<'a> {
                 out[i].as_mut().unwrap().normal = g.normalize_or_zero();
             }
         }
-        // 3. The sphere tracer for the rest.
+        // 3. The sphere tracer for the rest (their BVH hit's feature is not theirs).
         let rest: Vec<usize> = (0..rays.len()).filter(|&i| fallback[i]).collect();
+        for &i in &rest {
+            features.slot[i] = NO_FEATURE;
+        }
         if rest.is_empty() {
-            return;
+            return features;
         }
         let rest_rays: Vec<Ray> = rest.iter().map(|&i| rays[i]).collect();
         let mut traced = vec![None; rest.len()];
@@ -338,6 +390,7 @@ impl<'a> FrozenScene<'a> {
         for (&i, h) in rest.iter().zip(traced) {
             out[i] = h;
         }
+        features
     }
 
     /// Casts world rays (origin, unit direction, t_min, t_max per ray) into the frozen SDF and
@@ -345,9 +398,14 @@ impl<'a> FrozenScene<'a> {
     /// chunks, or the baked BVH's ([`FrozenScene::bake`]); the labelling in blocks). F_e is
     /// queried only at hits that some emitter's sphere, enlarged by `index_margin`, contains
     /// (elsewhere index(x) is `None` whatever F_e says), and only when the table has emitters.
+    ///
+    /// When baked, F_e takes the feature z that the Newton step's query computed at the BVH hit
+    /// (a fraction of a voxel before the refined hit) instead of querying the SDF again at the
+    /// refined hit: light samples all end on an emitter, and that second query was a fifth of
+    /// a test-view re-render's time.
     pub fn cast(&self, rays: &[Ray], out: &mut [Option<LabelledHit>]) {
         assert_eq!(rays.len(), out.len());
-        self.cast_unlabelled(rays, out);
+        let features = self.cast_unlabelled(rays, out, !self.emitters.is_empty());
         if self.emitters.is_empty() {
             return;
         }
@@ -360,7 +418,26 @@ impl<'a> FrozenScene<'a> {
             .unzip();
         let points: Vec<Vec3> = idx.iter().map(|&i| out[i].unwrap().position).collect();
         let mut prob = vec![0.0; points.len()];
-        self.emitter_prob(&points, &mut prob);
+        let (kept, queried): (Vec<usize>, Vec<usize>) =
+            (0..idx.len()).partition(|&j| features.slot[idx[j]] != NO_FEATURE);
+        let fd = self.scene.feature_dim();
+        let z: Vec<f32> = kept
+            .iter()
+            .flat_map(|&j| {
+                let slot = features.slot[idx[j]] as usize;
+                features.z[slot * fd..(slot + 1) * fd].iter().copied()
+            })
+            .collect();
+        let mut p = vec![0.0; kept.len()];
+        self.emitter_prob_of_features(&z, &mut p);
+        for (&j, p) in kept.iter().zip(p) {
+            prob[j] = p;
+        }
+        let mut p = vec![0.0; queried.len()];
+        self.emitter_prob(&queried.iter().map(|&j| points[j]).collect::<Vec<_>>(), &mut p);
+        for (&j, p) in queried.iter().zip(p) {
+            prob[j] = p;
+        }
         for (((&i, p), k), x) in idx.iter().zip(&prob).zip(cluster).zip(&points) {
             if *p > self.emitter_threshold || self.observed.as_ref().is_some_and(|o| !o.observed(*x)) {
                 out[i].as_mut().unwrap().emitter = Some(k);
@@ -431,6 +508,39 @@ impl<'a> FrozenScene<'a> {
         });
     }
 
+    /// F_e (probability) of features z already computed (`z`: `[n × feature_dim]`).
+    fn emitter_prob_of_features(&self, z: &[f32], out: &mut [f32]) {
+        let fd = self.scene.feature_dim();
+        out.par_chunks_mut(FROZEN_BLOCK)
+            .zip(z.par_chunks(FROZEN_BLOCK * fd))
+            .for_each(|(o, z)| SceneQuery::new(self.scene).emitter(z, o));
+    }
+
+    /// The SDF, its gradient and the feature z (`[n × feature_dim]`) at world points.
+    fn sdf_gradient_feature(&self, points_world: &[Vec3]) -> (Vec<(f32, Vec3)>, Vec<f32>) {
+        let fd = self.scene.feature_dim();
+        let mut packed = vec![0.0f32; points_world.len() * (4 + fd)];
+        self.blocks(points_world, &mut packed, 4 + fd, |q, norm, _, o| {
+            let m = o.len() / (4 + fd);
+            let (mut d, mut z, mut g) = (vec![0.0; m], vec![0.0; m * fd], vec![0.0; m * 3]);
+            q.sdf_full(norm, &mut d, &mut z, &mut g);
+            for (i, row) in o.chunks_exact_mut(4 + fd).enumerate() {
+                row[0] = d[i];
+                row[1..4].copy_from_slice(&g[i * 3..i * 3 + 3]);
+                row[4..].copy_from_slice(&z[i * fd..(i + 1) * fd]);
+            }
+        });
+        let dg = packed
+            .chunks_exact(4 + fd)
+            .map(|r| (r[0], Vec3::new(r[1], r[2], r[3])))
+            .collect();
+        let z = packed
+            .chunks_exact(4 + fd)
+            .flat_map(|r| r[4..].iter().copied())
+            .collect();
+        (dg, z)
+    }
+
     /// The SDF feature z(x) at world points (`out`: `[n × feature_dim]`), for the FeatureMlp
     /// material backbone.
     pub fn features(&self, points_world: &[Vec3], out: &mut [f32]) {
@@ -488,7 +598,7 @@ impl Geometry for FrozenScene<'_> {
         let rays = &rays[..];
         if self.baked.is_some() {
             let mut hits = vec![None; rays.len()];
-            self.cast_unlabelled(rays, &mut hits);
+            self.cast_unlabelled(rays, &mut hits, false);
             for (o, h) in occluded.iter_mut().zip(hits) {
                 *o = h.is_some();
             }

@@ -468,3 +468,24 @@ fn baked_cast_agrees_with_the_tracer() {
     }
     assert_agree(&all, &traced, 0.35 * holed.baked.as_ref().unwrap().voxel);
 }
+
+/// The baked cast's kept features give F_e as a query at the same points would: the joint
+/// SDF + gradient + feature query equals the separate ones, and F_e of the kept features equals
+/// `emitter_prob` there.
+#[test]
+fn kept_features_give_the_same_emitter_probability() {
+    let s = scene();
+    let t = table(&s);
+    let f = frozen_scene(&s, &t);
+    let points: Vec<Vec3> = dirs(300).iter().map(|d| centre() + 0.9 * *d).collect();
+    let (dg, z) = f.sdf_gradient_feature(&points);
+    assert_eq!(dg, f.sdf_gradient(&points));
+    let fd = s.feature_dim();
+    let mut z_alone = vec![0.0; points.len() * fd];
+    f.features(&points, &mut z_alone);
+    assert_eq!(z, z_alone);
+    let (mut from_z, mut queried) = (vec![0.0; points.len()], vec![0.0; points.len()]);
+    f.emitter_prob_of_features(&z, &mut from_z);
+    f.emitter_prob(&points, &mut queried);
+    assert_eq!(from_z, queried);
+}
