@@ -338,11 +338,12 @@ const PLAN_BENCH_MS: f64 = 75.0;
 /// scaled by their machine's bench iteration.
 /// `--quick`: the fresh-clone run of 2026-12-01 (276 s in all at a bench of ~150 ms), halved.
 const QUICK_SECONDS: [f64; 8] = [7.0, 85.0, 13.0, 1.0, 8.0, 16.0, 5.0, 4.0];
-/// The full demo: its run of 2026-12-05 (743.5 s in all between benches of 111.3 and 106.8 ms)
-/// scaled by 75/109: synthesis 146 s, stage 1 242 s, stage 2 105 s, the mesh at 1024 40 s and
-/// the export 12 s, the render 54 s, eval 100 s (it scores the mesh step's mesh), the edits and
-/// the report about 30 s. About 1.2× that for stage 1 without AMX (no bf16 products).
-const FULL_SECONDS: [f64; 8] = [104.0, 168.0, 74.0, 37.0, 36.0, 67.0, 17.0, 6.0];
+/// The full demo: its second run of 2026-12-05 (691.2 s in all between benches of 104.7 and
+/// 99.6 ms) scaled by 75/102: synthesis 143 s, stage 1 231 s, stage 2 100 s, the mesh at 1024
+/// 39 s and the export 12 s, the render 43 s, eval 81 s (it scores the mesh step's mesh), the
+/// edits 13 s and the report 18 s, and about 13 s of loading between them. About 1.2× that for
+/// stage 1 without AMX (no bf16 products).
+const FULL_SECONDS: [f64; 8] = [107.0, 171.0, 75.0, 37.0, 33.0, 62.0, 10.0, 13.0];
 
 fn minutes(seconds: f64) -> String {
     if seconds < 90.0 {
