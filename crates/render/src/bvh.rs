@@ -25,6 +25,7 @@ pub const MAX_SAH_DEPTH: usize = 48;
 /// of the closed room would otherwise escape it).
 const EDGE_EPS: f32 = 1e-6;
 
+/// A node of the binary SAH tree the build makes (collapsed into [`WideNode`]s afterwards).
 #[derive(Clone, Copy, Debug)]
 struct Node {
     lo: Vec3,
@@ -58,7 +59,7 @@ pub struct BvhHit {
 const WIDTH: usize = 8;
 
 /// A node of the traversed tree: its children's boxes, per axis across children (one vector
-/// each), and what each child is. An empty slot has the box [`WideNode::EMPTY`] gives it.
+/// each), and what each child is. An empty slot's bit in `used_mask` is clear.
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(64))]
 struct WideNode {
