@@ -505,6 +505,8 @@ fn nothing_a_user_has_is_overwritten() {
         ("eval --out the run's own file", vec!["eval", "--run", r1, "--out", &run_json, "--force"], 2, vec!["run's own file"]),
         ("eval --mesh a missing file", vec!["eval", "--run", r1, "--out", p("gm.json"), "--mesh", p("missing.ply")], 2, vec!["missing.ply", "cannot read"]),
         ("eval --mesh not a PLY", vec!["eval", "--run", r1, "--out", p("gm.json"), "--mesh", nf], 2, vec![nf]),
+        ("eval --renders into the dataset", vec!["eval", "--run", r1, "--out", p("rd.json"), "--renders", leak(&data.join("renders"))], 2, vec!["--renders", "never writes into a dataset"]),
+        ("eval --renders over a user's folder", vec!["eval", "--run", r1, "--out", p("rd.json"), "--renders", u], 2, vec!["--renders"]),
         ("eval --mesh with --mesh-out", vec!["eval", "--run", r1, "--out", p("gm.json"), "--mesh", leak(&existing_ply), "--mesh-out", p("gm.ply")], 2, vec!["--mesh-out with --mesh"]),
         ("render --out the dataset", vec!["render", "--run", r1, "--out", d], 2, vec!["--out", "is a dataset"]),
         ("render --out the dataset --force", vec!["render", "--run", r1, "--out", d, "--force"], 2, vec!["--out", "is a dataset"]),

@@ -553,6 +553,7 @@ fn eval_scores_the_relit_sets() {
     ]);
     std::fs::write(&json_path, serde_json::to_string(&top).unwrap()).unwrap();
     let out = dir.path().join("m.json");
+    let renders = dir.path().join("renders");
     let o = i2sdf(&[
         "eval",
         "--run",
@@ -567,8 +568,25 @@ fn eval_scores_the_relit_sets() {
         "2",
         "--mesh-resolution",
         "32",
+        "--renders",
+        s(&renders),
     ]);
     assert_eq!(o.code, 0, "{}", o.stderr);
+    // The views eval wrote as it scored them are what `render` writes of the same views.
+    let rendered = dir.path().join("rendered");
+    let all = "rgb,depth,normal,emitter,albedo,specular,roughness,emission,rerender";
+    let o = i2sdf(&["render", "--run", s(run), "--data", s(&data), "--out", s(&rendered), "--what", all, "--spp", "2"]);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    let mut compared = 0;
+    for map in all.split(',') {
+        for entry in std::fs::read_dir(rendered.join(map)).unwrap() {
+            let path = entry.unwrap().path();
+            let theirs = renders.join(map).join(path.file_name().unwrap());
+            assert!(std::fs::read(&path).unwrap() == std::fs::read(&theirs).unwrap(), "{}", theirs.display());
+            compared += 1;
+        }
+    }
+    assert_eq!(compared, tests.len() * 16, "9 PNGs and 7 EXRs per view");
     let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     let r = &m["relight"];
     for key in ["psnr", "ssim", "psnr_differential", "ssim_differential"] {

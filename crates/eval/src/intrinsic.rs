@@ -13,6 +13,7 @@ use i2sdf_data::{DataError, Dataset, Frame, ImageF32, Split};
 use i2sdf_model::images::rerender_ldr;
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::{rerender_view, EmitterTable, FrozenScene};
+use i2sdf_render::ViewRender;
 
 /// Options of [`intrinsic_metrics`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -215,16 +216,18 @@ pub fn intrinsic_metrics(
     dataset: &Dataset,
     options: &IntrinsicOptions,
 ) -> Result<(RerenderMetrics, MaterialMetrics, EmitterMetrics), DataError> {
-    intrinsic_metrics_with_progress(frozen, fields, dataset, options, &|| {})
+    intrinsic_metrics_with_progress(frozen, fields, dataset, options, &|| {}, None)
 }
 
-/// [`intrinsic_metrics`], calling `on_row` after each rendered row (progress).
+/// [`intrinsic_metrics`], calling `on_row` after each rendered row (progress), and keeping each
+/// test view's re-render in `keep` when given (`eval --renders` writes them).
 pub fn intrinsic_metrics_with_progress(
     frozen: &FrozenScene,
     fields: &IntrinsicFields,
     dataset: &Dataset,
     options: &IntrinsicOptions,
     on_row: &(dyn Fn() + Sync),
+    mut keep: Option<&mut Vec<ViewRender>>,
 ) -> Result<(RerenderMetrics, MaterialMetrics, EmitterMetrics), DataError> {
     let (mut p, mut s) = (Vec::new(), Vec::new());
     let mut acc = MaterialAccumulator::default();
@@ -274,6 +277,9 @@ pub fn intrinsic_metrics_with_progress(
         }
         if let Some(r) = &f.roughness {
             acc.add_roughness(&v.roughness, &r.data, r.channels, &mask);
+        }
+        if let Some(keep) = keep.as_deref_mut() {
+            keep.push(v);
         }
     }
     let rerender = RerenderMetrics {

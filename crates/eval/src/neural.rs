@@ -13,8 +13,8 @@ use crate::report::{
 };
 use i2sdf_data::dataset::ObjectInfo;
 use i2sdf_data::ply::read_ground_truth;
-use i2sdf_data::{Bounds, Camera, DataError, Dataset, Frame, ImageF32, Split};
-use i2sdf_model::images::render_volume_view;
+use i2sdf_data::{Bounds, Camera, DataError, Dataset, Frame, Split};
+use i2sdf_model::images::{render_volume_view, RenderedView};
 use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::{extract_mesh, NeuralScene};
 
@@ -131,8 +131,8 @@ pub fn view_metrics_with_progress(
     view_metrics_keeping(scene, dataset, settings, lpips, splits, progress, None)
 }
 
-/// [`view_metrics_with_progress`], keeping in `test_images` the radiance field's image of each
-/// test view as it was scored.
+/// [`view_metrics_with_progress`], keeping in `test_images` the radiance field's view of each
+/// test view (its image, depth, normals, emitter probability) as it was scored.
 fn view_metrics_keeping(
     scene: &NeuralScene,
     dataset: &Dataset,
@@ -140,7 +140,7 @@ fn view_metrics_keeping(
     lpips: Option<&Lpips>,
     splits: &[Split],
     progress: &dyn EvalProgress,
-    mut test_images: Option<&mut Vec<(Camera, ImageF32)>>,
+    mut test_images: Option<&mut Vec<(Camera, RenderedView)>>,
 ) -> Result<EvalReport, DataError> {
     let mut report = EvalReport::default();
     for &split in splits {
@@ -177,7 +177,7 @@ fn split_metrics(
     settings: &RenderSettings,
     lpips: Option<&Lpips>,
     progress: &dyn EvalProgress,
-    mut keep: Option<&mut Vec<(Camera, ImageF32)>>,
+    mut keep: Option<&mut Vec<(Camera, RenderedView)>>,
 ) -> Result<(ViewSplitMetrics, Option<(usize, usize)>), DataError> {
     let (mut p, mut s, mut d, mut n) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let (mut l, mut too_small) = (Vec::new(), None);
@@ -216,7 +216,7 @@ fn split_metrics(
             }
         }
         if let Some(keep) = keep.as_deref_mut() {
-            keep.push((f.camera.clone(), v.rgb));
+            keep.push((f.camera.clone(), v));
         }
         progress.inc(1);
     }
@@ -305,16 +305,16 @@ pub fn evaluate_with_progress(
     evaluate_keeping_test_images(scene, dataset, bounds, options, progress, &mut Vec::new())
 }
 
-/// [`evaluate_with_progress`], keeping in `test_images` the radiance field's image of each test
-/// view (camera, LDR image) as it was scored: the relit sets' differential composites start from
-/// the same images ([`crate::relight::relight_metrics`]).
+/// [`evaluate_with_progress`], keeping in `test_images` the radiance field's view of each test
+/// camera as it was scored: the relit sets' differential composites start from the same images
+/// ([`crate::relight::relight_metrics`]), and `eval --renders` writes them.
 pub fn evaluate_keeping_test_images(
     scene: &NeuralScene,
     dataset: &Dataset,
     bounds: &Bounds,
     options: &EvalOptions,
     progress: &dyn EvalProgress,
-    test_images: &mut Vec<(Camera, ImageF32)>,
+    test_images: &mut Vec<(Camera, RenderedView)>,
 ) -> Result<(EvalReport, TriangleMesh), DataError> {
     // The GT first: a bad one is refused before the views are rendered.
     let gt = dataset.mesh_path.as_ref().map(read_ground_truth).transpose()?;

@@ -138,14 +138,18 @@ pub struct MapImage {
 /// (z-depth, world units; PNG near = bright), `normal` (world-space; PNG (n + 1)/2), `emitter`
 /// (probability).
 pub fn stage1_maps(scene: &NeuralScene, settings: &RenderSettings, camera: &Camera, what: &[&str]) -> Vec<MapImage> {
-    let v = render_volume_view(scene, settings, camera);
+    stage1_maps_of(&render_volume_view(scene, settings, camera), what)
+}
+
+/// [`stage1_maps`] of a view already rendered (`eval` writes the views it scored).
+pub fn stage1_maps_of(v: &RenderedView, what: &[&str]) -> Vec<MapImage> {
     let mut normal = v.normal.clone();
     normal.data.iter_mut().for_each(|x| *x = 0.5 * (*x + 1.0));
     let maps = [
-        ("rgb", v.rgb, None),
-        ("depth", depth_preview(&v.depth), Some(v.depth)),
-        ("normal", normal, Some(v.normal)),
-        ("emitter", v.emitter, None),
+        ("rgb", v.rgb.clone(), None),
+        ("depth", depth_preview(&v.depth), Some(v.depth.clone())),
+        ("normal", normal, Some(v.normal.clone())),
+        ("emitter", v.emitter.clone(), None),
     ];
     wanted(maps, what)
 }
@@ -163,12 +167,24 @@ pub fn stage2_maps(
     on_row: &(dyn Fn() + Sync),
 ) -> Vec<MapImage> {
     let v = rerender_view(frozen, &fields.material, camera, spp, 0, view, on_row);
+    stage2_maps_of(&v, frozen, fields, camera, what)
+}
+
+/// [`stage2_maps`] of a re-render already made (`v`, of `camera`): `eval` writes the re-renders
+/// it scored.
+pub fn stage2_maps_of(
+    v: &ViewRender,
+    frozen: &FrozenScene,
+    fields: &IntrinsicFields,
+    camera: &Camera,
+    what: &[&str],
+) -> Vec<MapImage> {
     let rm = &fields.radiometry;
     let kd = rgb_map(v.width, v.height, &v.kd);
     let ks = rgb_map(v.width, v.height, &v.ks);
     let rough = ImageF32::from_data(v.width, v.height, 1, v.roughness.clone());
-    let emission = emission_map(&v, camera, &fields.emitters, frozen.index_margin);
-    let hdr = rerender_hdr(&v);
+    let emission = emission_map(v, camera, &fields.emitters, frozen.index_margin);
+    let hdr = rerender_hdr(v);
     let maps = [
         ("albedo", imageio::tone_map_srgb(&kd, 1.0), Some(kd)),
         ("specular", imageio::tone_map_srgb(&ks, 1.0), Some(ks)),
@@ -177,6 +193,19 @@ pub fn stage2_maps(
         ("rerender", rm.encode_image(&hdr), Some(hdr)),
     ];
     wanted(maps, what)
+}
+
+/// Writes a view's maps as `render` lays them out: `DIR/MAP/NAME.png`, and `DIR/MAP/NAME.exr`
+/// where the map has one (each map's folder created).
+pub fn write_maps(dir: &std::path::Path, name: &str, maps: &[MapImage]) -> Result<(), i2sdf_data::DataError> {
+    for m in maps {
+        let file = |ext: &str| dir.join(m.map).join(format!("{name}.{ext}"));
+        if let Some(exr) = &m.exr {
+            imageio::write_exr(&file("exr"), exr)?;
+        }
+        imageio::write_png(&file("png"), &m.png)?;
+    }
+    Ok(())
 }
 
 fn wanted<const N: usize>(maps: [(&'static str, ImageF32, Option<ImageF32>); N], what: &[&str]) -> Vec<MapImage> {

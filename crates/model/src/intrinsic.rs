@@ -39,7 +39,7 @@ use i2sdf_render::{
     RadianceField, Ray, Scene, SurfacePoint, ViewRender, ViewSettings,
 };
 use rayon::prelude::*;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 /// A ray's first surface hit in the frozen scene, labelled.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -79,6 +79,11 @@ pub struct FrozenScene<'a> {
     /// emitter's sphere that no camera saw is that emitter's whatever F_e says (F_e was never
     /// trained there: the far side of a bulb).
     pub observed: Option<Arc<ObservedViews>>,
+    /// Query buffers kept between calls, with the networks' transposed weights (the scene is
+    /// borrowed, so its weights cannot change while this lives). Why: a re-render makes
+    /// thousands of small queries, and allocating, zeroing and transposing for each was a tenth
+    /// of its time.
+    queries: Mutex<Vec<SceneQuery<'a>>>,
 }
 
 /// The marching-cubes mesh of the frozen SDF in a BVH, world units.
@@ -143,6 +148,7 @@ impl<'a> FrozenScene<'a> {
             baked_exact_normals: false,
             baked: None,
             observed: None,
+            queries: Mutex::new(Vec::new()),
         }
     }
 
@@ -182,6 +188,7 @@ impl<'a> FrozenScene<'a> {
             baked_exact_normals: false,
             baked: self.baked.clone(),
             observed: None,
+            queries: Mutex::new(Vec::new()),
         };
         self.observed = Some(Arc::new(ObservedViews::new(&unlabelled, cameras)));
     }
@@ -378,6 +385,10 @@ impl<'a> FrozenScene<'a> {
         }
         // 3. The sphere tracer for the rest (their BVH hit's feature is not theirs).
         let rest: Vec<usize> = (0..rays.len()).filter(|&i| fallback[i]).collect();
+        if std::env::var("I2SDF_DBG").is_ok() {
+            let miss = rest.iter().filter(|&&i| t_bvh[i].is_nan()).count();
+            eprintln!("DBG rays {} bvh_hits {} rest {} (miss-unbounded {}, rejected {})", rays.len(), idx.len(), rest.len(), miss, rest.len()-miss);
+        }
         for &i in &rest {
             features.slot[i] = NO_FEATURE;
         }
@@ -445,6 +456,12 @@ impl<'a> FrozenScene<'a> {
         }
     }
 
+    /// A query from the pool (return it with `self.queries.lock().unwrap().push(q)`).
+    fn query(&self) -> SceneQuery<'a> {
+        let pooled = self.queries.lock().unwrap().pop();
+        pooled.unwrap_or_else(|| SceneQuery::for_fixed_weights(self.scene))
+    }
+
     /// Runs `f(query, normalized points of the block, block index range)` over blocks of world
     /// points in parallel, one [`SceneQuery`] per block.
     fn blocks<T: Send>(
@@ -459,10 +476,11 @@ impl<'a> FrozenScene<'a> {
             .zip(points_world.par_chunks(FROZEN_BLOCK))
             .enumerate()
             .for_each(|(b, (o, pts))| {
-                let mut q = SceneQuery::new(self.scene);
+                let mut q = self.query();
                 let mut norm = Vec::new();
                 self.to_normalized(pts, &mut norm);
                 f(&mut q, &norm, b * FROZEN_BLOCK, o);
+                self.queries.lock().unwrap().push(q);
             });
     }
 
@@ -513,7 +531,11 @@ impl<'a> FrozenScene<'a> {
         let fd = self.scene.feature_dim();
         out.par_chunks_mut(FROZEN_BLOCK)
             .zip(z.par_chunks(FROZEN_BLOCK * fd))
-            .for_each(|(o, z)| SceneQuery::new(self.scene).emitter(z, o));
+            .for_each(|(o, z)| {
+                let mut q = self.query();
+                q.emitter(z, o);
+                self.queries.lock().unwrap().push(q);
+            });
     }
 
     /// The SDF, its gradient and the feature z (`[n × feature_dim]`) at world points.
@@ -621,18 +643,18 @@ impl RadianceField for FrozenScene<'_> {
 
 /// The material fields as the integrator's material: world positions → the normalized frame
 /// (and z(x) from the frozen SDF for the FeatureMlp backbone) → Kd, Ks, ρ → [`GgxBrdf`].
-pub struct NeuralMaterial<'a> {
-    pub field: &'a MaterialField,
-    pub frozen: &'a FrozenScene<'a>,
+pub struct NeuralMaterial<'f, 'a> {
+    pub field: &'f MaterialField,
+    pub frozen: &'f FrozenScene<'a>,
 }
 
-impl<'a> NeuralMaterial<'a> {
-    pub fn new(field: &'a MaterialField, frozen: &'a FrozenScene<'a>) -> Self {
+impl<'f, 'a> NeuralMaterial<'f, 'a> {
+    pub fn new(field: &'f MaterialField, frozen: &'f FrozenScene<'a>) -> Self {
         NeuralMaterial { field, frozen }
     }
 }
 
-impl Material for NeuralMaterial<'_> {
+impl Material for NeuralMaterial<'_, '_> {
     fn eval_batch(&self, points: &[SurfacePoint], out: &mut [GgxBrdf]) {
         assert_eq!(points.len(), out.len());
         let world: Vec<Vec3> = points.iter().map(|p| p.position).collect();

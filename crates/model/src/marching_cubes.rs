@@ -10,6 +10,7 @@ use crate::mc_tables::{case_table, CaseLoop};
 use crate::memory::{gib, MachineMemory};
 use crate::query::SceneQuery;
 use crate::scene::NeuralScene;
+use rayon::prelude::*;
 use i2sdf_data::mesh::TriangleMesh;
 use i2sdf_data::{Bounds, DataError};
 
@@ -218,19 +219,36 @@ impl<'g, F: FnMut(&[[f32; 3]], &mut [f32])> PlaneSource<'g, F> {
             self.block_planes = planes_per_block.min(self.grid.samples[2] - k);
             let total = self.block_planes * plane_len;
             self.block_values.resize(total, 0.0);
-            let nx = self.grid.samples[0];
-            for flat in 0..total {
-                let (kk, rem) = (k + flat / plane_len, flat % plane_len);
-                let (i, j) = (rem % nx, rem / nx);
-                if let Some(band) = self.band.as_ref().filter(|b| !b.needs(i, j, kk)) {
-                    self.block_values[flat] = band.fill(i, j, kk);
-                    continue;
-                }
-                let p = self.grid.point(i, j, kk);
-                self.points.push([p[0] as f32, p[1] as f32, p[2] as f32]);
-                self.targets.push(flat);
-                if self.points.len() == self.batch_points {
-                    self.flush()?;
+            let (nx, grid, band) = (self.grid.samples[0], self.grid, self.band.as_ref());
+            // Each plane in parallel: the band's samples filled, the others' points listed (in
+            // order, so the sampler's batches are what a serial sweep makes). Why: done serially,
+            // this was a quarter of the mesh's time at 1024 on 2 cores.
+            let listed: Vec<(Vec<usize>, Vec<[f32; 3]>)> = self.block_values[..total]
+                .par_chunks_mut(plane_len)
+                .enumerate()
+                .map(|(p, values)| {
+                    let kk = k + p;
+                    let (mut targets, mut points) = (Vec::new(), Vec::new());
+                    for (rem, v) in values.iter_mut().enumerate() {
+                        let (i, j) = (rem % nx, rem / nx);
+                        if let Some(band) = band.filter(|b| !b.needs(i, j, kk)) {
+                            *v = band.fill(i, j, kk);
+                            continue;
+                        }
+                        let q = grid.point(i, j, kk);
+                        points.push([q[0] as f32, q[1] as f32, q[2] as f32]);
+                        targets.push(p * plane_len + rem);
+                    }
+                    (targets, points)
+                })
+                .collect();
+            for (targets, points) in listed {
+                for (t, q) in targets.into_iter().zip(points) {
+                    self.points.push(q);
+                    self.targets.push(t);
+                    if self.points.len() == self.batch_points {
+                        self.flush()?;
+                    }
                 }
             }
             self.flush()?;

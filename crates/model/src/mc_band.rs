@@ -106,8 +106,9 @@ impl BandMask {
                         (coarse[1][j + 1] - coarse[1][j]) as f64 * step[1],
                         (coarse[2][k + 1] - coarse[2][k]) as f64 * step[2],
                     ];
+                    // Every point of the block lies within half its diagonal of a corner.
                     let diagonal = (ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2]).sqrt();
-                    let threshold = band.lipschitz as f64 * diagonal;
+                    let threshold = band.lipschitz as f64 * 0.5 * diagonal;
                     let (mut below, mut near) = (0, false);
                     for c in 0..8 {
                         let v = values[(i + (c & 1)) + cx * ((j + ((c >> 1) & 1)) + cy * (k + (c >> 2)))];

@@ -41,6 +41,17 @@ impl<'a> SceneQuery<'a> {
         }
     }
 
+    /// Buffers that keep the networks' transposed weights between calls: for a holder that
+    /// keeps the query beside its shared borrow of the scene, whose weights therefore cannot
+    /// change while it is used ([`SdfInferWorkspace::for_fixed_weights`]).
+    pub fn for_fixed_weights(scene: &'a NeuralScene) -> Self {
+        SceneQuery {
+            sdf_ws: SdfInferWorkspace::for_fixed_weights(),
+            mlp_ws: MlpInferWorkspace::for_fixed_weights(),
+            ..SceneQuery::new(scene)
+        }
+    }
+
     /// Signed distances at `points` (`[n×3]`, normalized frame) into `sdf` (`[n]`).
     pub fn sdf(&mut self, points: &[f32], sdf: &mut [f32]) {
         self.scene.sdf.infer(points, &mut self.sdf_ws, sdf, None, None);

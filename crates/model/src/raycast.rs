@@ -158,7 +158,12 @@ impl<'a> SdfCaster<'a> {
         out[..n].par_chunks_mut(CAST_CHUNK).enumerate().for_each(|(c, hits)| {
             let r0 = c * CAST_CHUNK;
             let r1 = r0 + hits.len();
-            let mut ws = self.pool.lock().unwrap().pop().unwrap_or_default();
+            // The caster holds a shared borrow of the scene, so its pooled workspaces may keep
+            // the transposed weights between calls.
+            let mut ws = self.pool.lock().unwrap().pop().unwrap_or_else(|| CastWorkspace {
+                sdf_ws: SdfInferWorkspace::for_fixed_weights(),
+                ..Default::default()
+            });
             let t_min = t_min.map(|t| &t[r0..r1]);
             self.cast_chunk(&origins[r0..r1], &dirs[r0..r1], t_min, &t_max[r0..r1], hits, &mut ws);
             self.pool.lock().unwrap().push(ws);

@@ -100,6 +100,13 @@ pub struct TileScratch {
     transposed_ready: bool,
 }
 
+impl TileScratch {
+    /// Does it hold the transposed weights of the last [`Mlp::prepare_transposed`]?
+    pub(crate) fn transposed_ready(&self) -> bool {
+        self.transposed_ready
+    }
+}
+
 impl Mlp {
     /// A network with default initialization (weights `N(0, 2/in)`, zero biases), seeded.
     pub fn new(config: MlpConfig, seed: u64) -> Self {

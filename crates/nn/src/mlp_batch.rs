@@ -138,7 +138,22 @@ impl Mlp {
 /// network, never by the number of points.
 #[derive(Default)]
 pub struct MlpInferWorkspace {
+    /// Per task: the address of the parameters it was made for, its scratch, its activations.
     chunks: Vec<(usize, TileScratch, Vec<f32>)>,
+    /// See [`MlpInferWorkspace::for_fixed_weights`].
+    fixed_weights: bool,
+}
+
+impl MlpInferWorkspace {
+    /// A workspace whose holder promises that the network's weights do not change while it is
+    /// used (kept beside a shared borrow of the network): the transposed weights are made once
+    /// per task instead of once per call, as [`crate::sdf::SdfInferWorkspace::for_fixed_weights`].
+    pub fn for_fixed_weights() -> Self {
+        MlpInferWorkspace {
+            chunks: Vec::new(),
+            fixed_weights: true,
+        }
+    }
 }
 
 impl Mlp {
@@ -155,14 +170,15 @@ impl Mlp {
         if ws
             .chunks
             .first()
-            .is_some_and(|c| c.0 != self.params.len() || c.2.len() != TILE * aw)
+            .is_some_and(|c| c.0 != self.params.as_ptr() as usize || c.2.len() != TILE * aw)
         {
             ws.chunks.clear();
         }
         while ws.chunks.len() < tasks {
             ws.chunks
-                .push((self.params.len(), self.new_scratch(), vec![0.0; TILE * aw]));
+                .push((self.params.as_ptr() as usize, self.new_scratch(), vec![0.0; TILE * aw]));
         }
+        let fixed = ws.fixed_weights;
         let ranges = even_ranges(tiles, tasks);
         let rows: Vec<usize> = ranges
             .iter()
@@ -171,7 +187,9 @@ impl Mlp {
         let outs = split_lengths_mut(&mut output[..n * od], &rows);
         let work: Vec<_> = ranges.into_iter().zip(ws.chunks.iter_mut()).zip(outs).collect();
         work.into_par_iter().for_each(|((range, (_, scratch, acts)), out_c)| {
-            self.prepare_transposed(scratch);
+            if !(fixed && scratch.transposed_ready()) {
+                self.prepare_transposed(scratch);
+            }
             for t in range.clone() {
                 let (r0, m) = (t * TILE, TILE.min(n - t * TILE));
                 let local = r0 - range.start * TILE;

@@ -15,8 +15,9 @@ pub const INFER_BLOCK: usize = 16 * TILE;
 /// One parallel task's buffers of [`SdfNetwork::infer`]: one block's encoding and Jacobian, one
 /// tile's MLP input and activations.
 struct InferBlock {
-    /// (parameter count, MLP input width) of the network the buffers were sized for.
-    key: (usize, usize),
+    /// (parameter address, parameter count, MLP input width) of the network the buffers were
+    /// sized (and, with fixed weights, transposed) for.
+    key: (usize, usize, usize),
     scratch: TileScratch,
     enc: Vec<f32>,
     jac: Vec<f32>,
@@ -32,11 +33,25 @@ struct InferBlock {
 #[derive(Default)]
 pub struct SdfInferWorkspace {
     blocks: Vec<InferBlock>,
+    /// See [`SdfInferWorkspace::for_fixed_weights`].
+    fixed_weights: bool,
 }
 
 impl SdfInferWorkspace {
+    /// A workspace whose holder promises that the network's weights do not change while it is
+    /// used (one kept beside a shared borrow of the network, as a frozen scene's or a ray
+    /// caster's): the transposed weights are made once per task instead of once per call. Why:
+    /// stage 2's renders call the network many times on small sets (a sphere tracer's last
+    /// steps), and transposing on every call was 4 % of a re-render.
+    pub fn for_fixed_weights() -> Self {
+        SdfInferWorkspace {
+            blocks: Vec::new(),
+            fixed_weights: true,
+        }
+    }
+
     fn prepare(&mut self, net: &SdfNetwork, tasks: usize) {
-        let key = (net.mlp.params.len(), net.in_dim());
+        let key = (net.mlp.params.as_ptr() as usize, net.mlp.params.len(), net.in_dim());
         if self.blocks.first().is_some_and(|b| b.key != key) {
             self.blocks.clear();
         }
@@ -85,6 +100,7 @@ impl SdfNetwork {
         let blocks = n.div_ceil(INFER_BLOCK);
         let tasks = (2 * rayon::current_num_threads()).min(blocks).max(1);
         ws.prepare(self, tasks);
+        let fixed = ws.fixed_weights;
         let ranges = even_ranges(blocks, tasks);
         let rows: Vec<usize> = ranges
             .iter()
@@ -124,7 +140,9 @@ impl SdfNetwork {
             .collect();
         work.into_par_iter()
             .for_each(|((range, st), (sdf_c, (mut feat_c, mut grad_c)))| {
-                self.mlp.prepare_transposed(&mut st.scratch);
+                if !(fixed && st.scratch.transposed_ready()) {
+                    self.mlp.prepare_transposed(&mut st.scratch);
+                }
                 let base = range.start * INFER_BLOCK;
                 for b in range {
                     let b0 = b * INFER_BLOCK;
@@ -271,6 +289,33 @@ mod tests {
             net.forward(&x[..m * 3], &mut SdfWorkspace::default(), &mut d3, &mut z3);
             assert_eq!(d2, d3);
             net.infer(&[], &mut ws, &mut [], None, None);
+        }
+    }
+
+    /// A fixed-weights workspace keeps the transposed weights between calls and gives what a
+    /// fresh workspace gives, call after call; one kept while the weights change would not (which
+    /// is why only holders of a shared borrow of the network make one).
+    #[test]
+    fn a_fixed_weights_workspace_reuses_its_transposed_weights() {
+        for mut net in nets() {
+            let n = INFER_BLOCK + 2 * TILE + 9;
+            let x: Vec<f32> = (0..n * 3).map(|i| ((i * 37 % 101) as f32 / 101.0) * 1.6 - 0.8).collect();
+            let fresh = |net: &SdfNetwork| {
+                let mut d = vec![0.0; n];
+                net.infer(&x, &mut SdfInferWorkspace::default(), &mut d, None, None);
+                d
+            };
+            let mut fixed = SdfInferWorkspace::for_fixed_weights();
+            for _ in 0..3 {
+                let mut d = vec![0.0; n];
+                net.infer(&x, &mut fixed, &mut d, None, None);
+                assert_eq!(d, fresh(&net));
+            }
+            // The promise broken: the kept transposition is stale, the result differs.
+            net.mlp.params.iter_mut().for_each(|w| *w *= 1.5);
+            let mut d = vec![0.0; n];
+            net.infer(&x, &mut fixed, &mut d, None, None);
+            assert_ne!(d, fresh(&net));
         }
     }
 }

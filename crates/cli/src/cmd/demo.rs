@@ -7,7 +7,7 @@
 //! HDR, perturbed training poses) and scores it against the exact room (`scene/`).
 //! Each step reuses the subcommand of the same name; finished steps are skipped on a re-run.
 
-use super::{check, edit, eval, export, mesh, render, report, synth, train};
+use super::{check, edit, eval, export, mesh, report, synth, train};
 use clap::Args as ClapArgs;
 use std::path::{Path, PathBuf};
 
@@ -73,13 +73,13 @@ fn synthesize(args: &Args, plan: &mut StagePlan, scene: &Path, train_data: &Path
     };
     for (k, &(dir, capture)) in rooms.iter().enumerate() {
         if dir.join("transforms.json").is_file() {
-            crate::progress::line(&format!("== 1/8 reuse the room in {}", dir.display()));
+            crate::progress::line(&format!("== 1/{STEPS} reuse the room in {}", dir.display()));
             continue;
         }
         if k == 0 {
             plan.stage(1, &format!("synthesize the room into {}", dir.display()));
         } else {
-            crate::progress::line(&format!("== 1/8 its phone capture into {}", dir.display()));
+            crate::progress::line(&format!("== 1/{STEPS} its phone capture into {}", dir.display()));
         }
         let (width, height, views, spp) = if args.quick {
             (80, 60, 24, 32)
@@ -183,8 +183,8 @@ fn train_both(args: &Args, plan: &mut StagePlan, train_data: &Path, run_dir: &Pa
     Ok(())
 }
 
-/// Steps 4–8: the mesh, the test views, the metrics, the edits and the report, scored against
-/// the exact room `scene`.
+/// Steps 4–7: the mesh, the metrics (with the test views' renders), the edits and the report,
+/// scored against the exact room `scene`.
 fn outputs(args: &Args, plan: &mut StagePlan, scene: &Path, run_dir: &Path) -> anyhow::Result<()> {
     plan.stage(4, "extract the mesh and export the room");
     // The mesh that eval scores (thin objects need fine cells, see MESH_RESOLUTION); the edits'
@@ -219,23 +219,15 @@ fn outputs(args: &Args, plan: &mut StagePlan, scene: &Path, run_dir: &Path) -> a
         up: "auto".into(),
         data: Some(scene.to_path_buf()),
     })?;
-    plan.stage(5, "render the test views");
-    render::run(render::Args {
-        run: run_dir.to_path_buf(),
-        out: args.out.join("render"),
-        force: true,
-        split: "test".into(),
-        what: "rgb,depth,normal,emitter,albedo,specular,roughness,emission,rerender".into(),
-        data: Some(scene.to_path_buf()),
-        spp: if args.quick { 16 } else { 64 },
-        path: Default::default(),
-    })?;
-    plan.stage(6, "evaluate");
+    plan.stage(5, "evaluate, writing the test views as scored into render/");
     eval::run(eval::Args {
         run: run_dir.to_path_buf(),
         data: Some(scene.to_path_buf()),
         out: args.out.join("metrics.json"),
         mesh_out: None,
+        // The test views' maps and re-renders as eval rendered them: a separate `render` step
+        // rendered them all again (43 s of the full demo at a bench of ~100 ms).
+        renders: Some(args.out.join("render")),
         // The full demo trains on `scene` itself, so the mesh step's mesh is the one eval would
         // extract (same run, bounds and resolution): extracting it again took as long as the
         // mesh step. The quick demo's run has the capture's bounds; its mesh is cheap anyway.
@@ -252,7 +244,7 @@ fn outputs(args: &Args, plan: &mut StagePlan, scene: &Path, run_dir: &Path) -> a
         split: "test".into(),
     })?;
     plan.stage(
-        7,
+        6,
         "edit: the ceiling light recoloured, a wall mirror, an inserted sphere",
     );
     for (name, text) in DEMO_EDITS {
@@ -278,7 +270,7 @@ fn outputs(args: &Args, plan: &mut StagePlan, scene: &Path, run_dir: &Path) -> a
             path: Default::default(),
         })?;
     }
-    plan.stage(8, "write the HTML report");
+    plan.stage(7, "write the HTML report");
     report::run(report::Args {
         run: run_dir.to_path_buf(),
         out: args.out.join("report"),
@@ -330,6 +322,10 @@ fn check_demo_folder(out: &std::path::Path) -> Result<(), i2sdf_data::DataError>
 /// not be 2048 wide).
 const QUICK_TEXTURE_SIZE: u32 = 512;
 
+/// The demo's steps: synthesis and check, stage 1, stage 2, mesh and export, eval (which writes
+/// the test views' renders), edits, report.
+const STEPS: usize = 7;
+
 /// The bench iteration (ms) of the machine the plan's seconds are for.
 const PLAN_BENCH_MS: f64 = 75.0;
 
@@ -337,13 +333,13 @@ const PLAN_BENCH_MS: f64 = 75.0;
 /// report) on the machine where the bench iteration takes [`PLAN_BENCH_MS`]: measured runs
 /// scaled by their machine's bench iteration.
 /// `--quick`: the fresh-clone run of 2026-12-01 (276 s in all at a bench of ~150 ms), halved.
-const QUICK_SECONDS: [f64; 8] = [7.0, 85.0, 13.0, 1.0, 8.0, 16.0, 5.0, 4.0];
+const QUICK_SECONDS: [f64; STEPS] = [7.0, 85.0, 13.0, 1.0, 17.0, 5.0, 4.0];
 /// The full demo: its second run of 2026-12-05 (691.2 s in all between benches of 104.7 and
 /// 99.6 ms) scaled by 75/102: synthesis 143 s, stage 1 231 s, stage 2 100 s, the mesh at 1024
 /// 39 s and the export 12 s, the render 43 s, eval 81 s (it scores the mesh step's mesh), the
 /// edits 13 s and the report 18 s, and about 13 s of loading between them. About 1.2× that for
 /// stage 1 without AMX (no bf16 products).
-const FULL_SECONDS: [f64; 8] = [107.0, 171.0, 75.0, 37.0, 33.0, 62.0, 10.0, 13.0];
+const FULL_SECONDS: [f64; STEPS] = [107.0, 171.0, 75.0, 37.0, 64.0, 10.0, 13.0];
 
 fn minutes(seconds: f64) -> String {
     if seconds < 90.0 {
@@ -357,7 +353,7 @@ fn minutes(seconds: f64) -> String {
 /// position the plan's seconds done, its message the step, the time so far and what is left —
 /// the plan's expected seconds scaled by how fast this machine has gone through the steps done.
 /// A ticker thread moves it within a step (up to 95 % of the step's plan) so that it never
-/// stands still while a step runs; each step also prints one `== k/8` line, which logs keep.
+/// stands still while a step runs; each step also prints one `== k/7` line, which logs keep.
 struct StagePlan {
     state: std::sync::Arc<std::sync::Mutex<PlanState>>,
     bar: indicatif::ProgressBar,
@@ -365,7 +361,7 @@ struct StagePlan {
 }
 
 struct PlanState {
-    expected: &'static [f64; 8],
+    expected: &'static [f64; STEPS],
     /// This machine's seconds per planned second before any step has shown its own.
     initial_pace: f64,
     start: std::time::Instant,
@@ -380,7 +376,7 @@ struct PlanState {
 }
 
 impl StagePlan {
-    fn new(expected: &'static [f64; 8], pace: f64) -> Self {
+    fn new(expected: &'static [f64; STEPS], pace: f64) -> Self {
         let state = PlanState::new(expected, pace);
         let bar = crate::progress::top_bar(state.total().ceil() as u64);
         bar.set_style(
@@ -422,10 +418,10 @@ impl StagePlan {
         let mut s = self.lock();
         let now = s.start.elapsed().as_secs_f64();
         let (elapsed, left) = s.begin(k, now);
-        s.what = format!("{k}/8 {what}");
+        s.what = format!("{k}/{STEPS} {what}");
         s.show(&self.bar);
         crate::progress::line(&format!(
-            "== {k}/8 {what}  [{} elapsed, about {} left]",
+            "== {k}/{STEPS} {what}  [{} elapsed, about {} left]",
             minutes(elapsed),
             minutes(left)
         ));
@@ -457,7 +453,7 @@ impl Drop for StagePlan {
 }
 
 impl PlanState {
-    fn new(expected: &'static [f64; 8], initial_pace: f64) -> Self {
+    fn new(expected: &'static [f64; STEPS], initial_pace: f64) -> Self {
         PlanState {
             expected,
             initial_pace,
@@ -552,7 +548,7 @@ mod tests {
 
     #[test]
     fn the_eta_follows_the_plan_then_this_machine() {
-        const PLAN: [f64; 8] = [10.0, 100.0, 20.0, 5.0, 5.0, 50.0, 10.0, 0.0];
+        const PLAN: [f64; STEPS] = [10.0, 100.0, 20.0, 5.0, 55.0, 10.0, 0.0];
         let state = || PlanState::new(&PLAN, 1.0);
         let mut plan = state();
         assert_eq!(plan.progress(0.0), (0.0, 200.0));

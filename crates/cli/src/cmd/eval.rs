@@ -17,6 +17,7 @@ use i2sdf_eval::intrinsic::{intrinsic_metrics_with_progress, IntrinsicOptions};
 use i2sdf_eval::neural::{evaluate_keeping_test_images, EvalOptions, ViewSplits};
 use i2sdf_eval::progress::EvalProgress;
 use i2sdf_eval::relight::{relight_frames, relight_metrics, RelightOptions};
+use i2sdf_model::images::{stage1_maps_of, stage2_maps_of, write_maps, STAGE1_MAPS, STAGE2_MAPS};
 use std::path::PathBuf;
 use std::sync::RwLock;
 
@@ -40,7 +41,13 @@ pub struct Args {
     /// scene. The metrics' notes name it.
     #[arg(long, value_name = "FILE.ply")]
     pub mesh: Option<PathBuf>,
-    /// Replace --out (and --mesh-out) if they exist.
+    /// Also write the test views as they were scored into this folder, laid out as `i2sdf render
+    /// --split test --what rgb,depth,normal,emitter` writes them (with stage 2, also albedo,
+    /// specular, roughness, emission and the re-render at --spp): the images cost nothing more,
+    /// where a separate `render` would render them again.
+    #[arg(long, value_name = "DIR")]
+    pub renders: Option<PathBuf>,
+    /// Replace --out (and --mesh-out, --renders) if they exist.
     #[arg(long)]
     pub force: bool,
     /// Marching-cubes resolution of the evaluated mesh; the relit sets are traced in the
@@ -116,6 +123,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     }
     let run = super::open_run(&args.run)?;
+    let renders = match &args.renders {
+        Some(dir) => {
+            if i2sdf_data::output::absolute(dir) == i2sdf_data::output::absolute(&args.out) {
+                return Err(i2sdf_data::DataError::invalid("--renders and --out name the same path").into());
+            }
+            let maps = STAGE1_MAPS.len() + if run.fields.is_some() { STAGE2_MAPS.len() } else { 0 };
+            let pixels: u64 = dataset
+                .split(Split::Test)
+                .map(|f| (f.camera.width * f.camera.height) as u64)
+                .sum();
+            Some(super::output_dir(
+                "--renders",
+                dir,
+                args.force,
+                "a render",
+                &|d| super::only_entries(d, super::render::previous_render),
+                &inputs,
+                Some(pixels * maps as u64 * 16),
+            )?)
+        }
+        None => None,
+    };
     // A mesh resolution that cannot fit is refused now, not after the views are rendered.
     i2sdf_model::marching_cubes::sdf_grid(&run.scene, &dataset.bounds, args.mesh_resolution)?.check_fits(
         &i2sdf_model::McOptions::for_sdf(args.mesh_resolution),
@@ -155,12 +184,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         };
         let rows: usize = dataset.split(Split::Test).map(|f| f.camera.height).sum();
         let bar = crate::progress::Step::new("stage 2: re-rendering the test views", rows as u64, "rows");
-        let (rerender, material, emitters) =
-            intrinsic_metrics_with_progress(&frozen, fields, &dataset, &intrinsic, &|| bar.inc(1))?;
+        let mut rerenders = Vec::new();
+        let (rerender, material, emitters) = intrinsic_metrics_with_progress(
+            &frozen,
+            fields,
+            &dataset,
+            &intrinsic,
+            &|| bar.inc(1),
+            renders.is_some().then_some(&mut rerenders),
+        )?;
         bar.finish();
+        if let Some(staged) = &renders {
+            for (v, f) in rerenders.iter().zip(dataset.split(Split::Test)) {
+                let maps = stage2_maps_of(v, &frozen, fields, &f.camera, &STAGE2_MAPS);
+                write_maps(staged.path(), &f.name, &maps)?;
+            }
+        }
         report.rerender = rerender;
         report.material = material;
         report.emitters = emitters;
+        let captured: Vec<_> = test_images.iter().map(|(c, v)| (c.clone(), v.rgb.clone())).collect();
         let relight = RelightOptions {
             render: EditSettings {
                 spp: args.spp,
@@ -176,7 +219,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             // Nothing to relight: no black images are scored, the figures are null (the sets
             // listed with their frames) and a note says why.
             crate::progress::line(&format!("warning: {}", i2sdf_eval::report::zero_emitter_note()));
-            report.relight = relight_metrics(&run, &dataset, &relight, &test_images, &|| {})?;
+            report.relight = relight_metrics(&run, &dataset, &relight, &captured, &|| {})?;
             report.note_no_emitters();
         } else if relight_frames(&dataset) > 0 {
             let rows: usize = dataset
@@ -186,9 +229,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .map(|f| f.camera.height)
                 .sum();
             let bar = crate::progress::Step::new("relit sets: path tracing", rows as u64, "rows");
-            report.relight = relight_metrics(&run, &dataset, &relight, &test_images, &|| bar.inc(1))?;
+            report.relight = relight_metrics(&run, &dataset, &relight, &captured, &|| bar.inc(1))?;
             bar.finish();
         }
+    }
+    if let Some(staged) = renders {
+        for (f, (_, v)) in dataset.split(Split::Test).zip(&test_images) {
+            write_maps(staged.path(), &f.name, &stage1_maps_of(v, &STAGE1_MAPS))?;
+        }
+        staged.commit()?;
     }
     if let Some(corrections) = i2sdf_model::poses::PoseCorrections::read(&run.dir)? {
         report.poses = i2sdf_eval::poses::pose_metrics(&corrections, &dataset);

@@ -15,8 +15,8 @@
 //! looping) and `MAP.mp4` when `ffmpeg` is on the PATH.
 
 use clap::Args as ClapArgs;
-use i2sdf_data::{animation, camera_path, imageio, Camera, DataError, ImageF32, PathKind, Split};
-use i2sdf_model::images::{stage1_maps, stage2_maps, STAGE1_MAPS, STAGE2_MAPS};
+use i2sdf_data::{animation, camera_path, Camera, DataError, ImageF32, PathKind, Split};
+use i2sdf_model::images::{stage1_maps, stage2_maps, write_maps, STAGE1_MAPS, STAGE2_MAPS};
 use std::path::PathBuf;
 
 #[derive(ClapArgs)]
@@ -296,12 +296,8 @@ fn render_views(
             let spp_view = (spp, view as u32);
             images.extend(stage2_maps(frozen, fields, camera, spp_view, what, &|| bar.inc(1)));
         }
+        write_maps(out, name, &images)?;
         for m in images {
-            let file = |ext: &str| out.join(m.map).join(format!("{name}.{ext}"));
-            if let Some(exr) = &m.exr {
-                imageio::write_exr(&file("exr"), exr)?;
-            }
-            imageio::write_png(&file("png"), &m.png)?;
             if animated {
                 match anim.iter_mut().find(|(k, _)| k == m.map) {
                     Some((_, v)) => v.push(m.png),
@@ -316,7 +312,7 @@ fn render_views(
 
 /// Whether an entry of an existing folder is what `render` writes there: a map's folder, or a
 /// path's animation of one (`MAP.gif`, `MAP.mp4`).
-fn previous_render(name: &str, is_dir: bool) -> bool {
+pub(crate) fn previous_render(name: &str, is_dir: bool) -> bool {
     let is_map = |m: &str| STAGE1_MAPS.contains(&m) || STAGE2_MAPS.contains(&m);
     if is_dir {
         return is_map(name);
