@@ -22,7 +22,9 @@ use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::{
     emitter_cone_lights, extract_mesh, EmitterTable, FrozenScene, MaterialField, NeuralMaterial, NeuralScene, OpenedRun,
 };
-use i2sdf_render::{AreaLight, Estimator, Integrator, Light, MeshGeometry, PathStart, ViewRender, ViewSettings};
+use i2sdf_render::{
+    AreaLight, Estimator, Integrator, Light, MeshGeometry, PathStart, SphereLight, ViewRender, ViewSettings,
+};
 
 /// The frozen SDF's zero level set as the edit renderer's base geometry: the marching-cubes mesh
 /// (world units) with, per triangle, label 0 (ordinary) or k + 1 (emitter k: F_e > threshold at
@@ -109,17 +111,56 @@ impl RecoveredSurface {
         })
     }
 
-    /// The recovered emitters as cone lights (without a surface to sample): label 0 ordinary surface, k + 1 emitter k;
-    /// emitter k an area light over its triangles emitting L\[k\] (a cone light about its
-    /// cluster where it has none), its box its cluster's (centre ± extent / 2).
+    /// The recovered emitters: label 0 ordinary surface, k + 1 emitter k; emitter k its
+    /// triangles emitting L\[k\] ([`emitter_light`]; a cone light about its cluster where it has
+    /// none), its box its cluster's (centre ± extent / 2).
     pub fn lights(&self, table: &EmitterTable) -> BaseLights {
         let mut base = recovered_lights(table);
         for (k, faces) in self.emitter_faces.iter().enumerate() {
             if !faces.is_empty() {
-                base.lights[k] = Box::new(AreaLight::new(&self.mesh, faces, table.emission(k))) as Box<dyn Light>;
+                base.lights[k] = emitter_light(&self.mesh, faces, table.emission(k));
             }
         }
         base
+    }
+}
+
+/// An emitter whose triangles' area-weighted normals sum to at most this fraction of its area
+/// faces every way: a closed surface, such as a bulb (a flat panel sums to 1, a sphere to 0).
+pub const CLOSED_EMITTER_NET_NORMAL: f32 = 0.5;
+/// A closed emitter whose area is at least this fraction of its bounding sphere's (a sphere
+/// 1, a cube 0.64, a 1 m tube of 2 cm radius 0.04) is sampled by that sphere's solid angle.
+pub const COMPACT_EMITTER_FILL: f32 = 0.25;
+
+/// The light of one emitter's triangles `faces` of `mesh`, emitting `emission` from their front:
+/// a [`SphereLight`] about their bounding sphere when they are closed and compact (a bulb: by
+/// area, half the samples land on its far side and the rest are weighed by cos/d²; by the
+/// sphere's solid angle, every sample sees the near side with one density), else an
+/// [`AreaLight`] (a panel, whose triangles all face one way).
+pub fn emitter_light(mesh: &TriangleMesh, faces: &[u32], emission: Vec3) -> Box<dyn Light> {
+    let (mut net, mut area) = (Vec3::ZERO, 0.0f32);
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for &f in faces {
+        let p = [0, 1, 2].map(|k| mesh.vertex(f as usize, k));
+        let c = (p[1] - p[0]).cross(p[2] - p[0]);
+        net += 0.5 * c;
+        area += 0.5 * c.length();
+        for v in p {
+            (lo, hi) = (lo.min(v), hi.max(v));
+        }
+    }
+    let centre = 0.5 * (lo + hi);
+    let radius = faces
+        .iter()
+        .flat_map(|&f| [0, 1, 2].map(|k| mesh.vertex(f as usize, k)))
+        .map(|v| (v - centre).length())
+        .fold(0.0f32, f32::max);
+    let closed = net.length() <= CLOSED_EMITTER_NET_NORMAL * area;
+    let compact = area >= COMPACT_EMITTER_FILL * 4.0 * std::f32::consts::PI * radius * radius;
+    if closed && compact && radius > 0.0 {
+        Box::new(SphereLight::new(mesh, faces, centre, emission))
+    } else {
+        Box::new(AreaLight::new(mesh, faces, emission))
     }
 }
 
@@ -276,4 +317,46 @@ impl RecoveredScene<'_> {
 /// dataset's images, LDR.
 pub fn edit_images(v: &ViewRender, gains: &[Vec3], radiometry: &Radiometry) -> (ImageF32, ImageF32) {
     hdr_ldr_images(&v.hdr(gains), v.width, v.height, radiometry)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use i2sdf_render::Visibility;
+
+    /// Whether the light's samples (from either side, the first that carries light) are
+    /// directions whose first hit decides, rather than points on the emitter.
+    fn samples_by_direction(light: &dyn Light) -> bool {
+        let s = [3.0f32, -3.0]
+            .into_iter()
+            .flat_map(|x| (0..16).map(move |i| (x, i as f32 / 16.0)))
+            .find_map(|(x, u)| light.sample(Vec3::new(x, 0.5, 0.2), [u, 0.6, 0.2]))
+            .unwrap();
+        matches!(s.visibility, Visibility::FirstHit(_))
+    }
+
+    /// A bulb (a closed, compact mesh) is sampled by its sphere's solid angle; a panel, half a
+    /// bulb and a long thin tube by area.
+    #[test]
+    fn bulbs_are_sampled_by_solid_angle_and_the_rest_by_area() {
+        let mut bulb = TriangleMesh::unit_icosphere(2);
+        bulb.positions.iter_mut().for_each(|p| *p = (0.1 * Vec3::from(*p)).to_array());
+        let all: Vec<u32> = (0..bulb.faces.len() as u32).collect();
+        assert!(samples_by_direction(emitter_light(&bulb, &all, Vec3::ONE).as_ref()));
+        let upper: Vec<u32> = all
+            .iter()
+            .copied()
+            .filter(|&f| (0..3).all(|k| bulb.vertex(f as usize, k).x >= -1e-6))
+            .collect();
+        assert!(!samples_by_direction(emitter_light(&bulb, &upper, Vec3::ONE).as_ref()));
+        let mut panel = TriangleMesh::default();
+        panel.positions = vec![[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]];
+        panel.faces = vec![[0, 1, 2], [0, 2, 3]];
+        assert!(!samples_by_direction(emitter_light(&panel, &[0, 1], Vec3::ONE).as_ref()));
+        let mut tube = TriangleMesh::unit_icosphere(2);
+        tube.positions
+            .iter_mut()
+            .for_each(|p| *p = [0.02 * p[0], 0.5 * p[1], 0.02 * p[2]]);
+        assert!(!samples_by_direction(emitter_light(&tube, &all, Vec3::ONE).as_ref()));
+    }
 }

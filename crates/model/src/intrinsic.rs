@@ -385,10 +385,6 @@ impl<'a> FrozenScene<'a> {
         }
         // 3. The sphere tracer for the rest (their BVH hit's feature is not theirs).
         let rest: Vec<usize> = (0..rays.len()).filter(|&i| fallback[i]).collect();
-        if std::env::var("I2SDF_DBG").is_ok() {
-            let miss = rest.iter().filter(|&&i| t_bvh[i].is_nan()).count();
-            eprintln!("DBG rays {} bvh_hits {} rest {} (miss-unbounded {}, rejected {})", rays.len(), idx.len(), rest.len(), miss, rest.len()-miss);
-        }
         for &i in &rest {
             features.slot[i] = NO_FEATURE;
         }
