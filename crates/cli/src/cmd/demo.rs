@@ -1,11 +1,12 @@
 //! `i2sdf demo [--out DIR] [--quick]`: the whole pipeline on the built-in synthetic room —
-//! synthesize it, validate it, train stage 1 and stage 2, extract the mesh, render the test views
-//! (with the material maps and the Monte Carlo re-render), evaluate, and render three edits of
-//! a test view (`edits/`: an emitter recoloured, a wall mirror, an inserted sphere), and write
-//! the HTML report (`report/index.html`). `--quick` trains on a phone capture of the room
+//! synthesize it, validate it, train stage 1 and stage 2, extract the mesh, evaluate (writing
+//! the test views as scored into `render/`: the maps, the material maps and the Monte Carlo
+//! re-render, as `render` lays them out), render three edits of a test view (`edits/`: an
+//! emitter recoloured, a wall mirror, an inserted sphere), and write the HTML report
+//! (`report/index.html`). `--quick` trains on a phone capture of the room
 //! (`capture/`: JPEG, lens distortion, coarse noisy depth with confidence, no normals, masks or
 //! HDR, perturbed training poses) and scores it against the exact room (`scene/`).
-//! Each step reuses the subcommand of the same name; finished steps are skipped on a re-run.
+//! Each step reuses the subcommand of its name; finished steps are skipped on a re-run.
 
 use super::{check, edit, eval, export, mesh, report, synth, train};
 use clap::Args as ClapArgs;
@@ -17,7 +18,7 @@ pub struct Args {
     #[arg(long, default_value = "out/demo")]
     pub out: PathBuf,
     /// A small room (80×60, 24 views) and a short training on its phone capture (`capture/`,
-    /// scored against the exact room): about 2 minutes where the bench iteration takes ~75 ms
+    /// scored against the exact room): about 1½ minutes where the bench iteration takes ~75 ms
     /// (the demo says what to expect on this machine before it starts).
     #[arg(long)]
     pub quick: bool,
@@ -329,17 +330,18 @@ const STEPS: usize = 7;
 /// The bench iteration (ms) of the machine the plan's seconds are for.
 const PLAN_BENCH_MS: f64 = 75.0;
 
-/// Expected seconds of the 8 steps (synth + check, stage 1, stage 2, mesh, render, eval, edits,
-/// report) on the machine where the bench iteration takes [`PLAN_BENCH_MS`]: measured runs
-/// scaled by their machine's bench iteration.
-/// `--quick`: the fresh-clone run of 2026-12-01 (276 s in all at a bench of ~150 ms), halved.
-const QUICK_SECONDS: [f64; STEPS] = [7.0, 85.0, 13.0, 1.0, 17.0, 5.0, 4.0];
-/// The full demo: its second run of 2026-12-05 (691.2 s in all between benches of 104.7 and
-/// 99.6 ms) scaled by 75/102: synthesis 143 s, stage 1 231 s, stage 2 100 s, the mesh at 1024
-/// 39 s and the export 12 s, the render 43 s, eval 81 s (it scores the mesh step's mesh), the
-/// edits 13 s and the report 18 s, and about 13 s of loading between them. About 1.2× that for
-/// stage 1 without AMX (no bf16 products).
-const FULL_SECONDS: [f64; STEPS] = [107.0, 171.0, 75.0, 37.0, 64.0, 10.0, 13.0];
+/// Expected seconds of the [`STEPS`] steps on the machine where the bench iteration takes
+/// [`PLAN_BENCH_MS`]: measured runs scaled by their machine's bench iteration.
+/// `--quick`: its run of 2026-12-05 (128.7 s in all between benches of 112.1 and 108.0 ms)
+/// scaled by 75/110: synthesis and capture 11 s, stage 1 83 s, stage 2 15 s, mesh and export
+/// 8 s, eval 8 s, edits 2 s, report 3 s.
+const QUICK_SECONDS: [f64; STEPS] = [8.0, 57.0, 10.0, 5.0, 6.0, 2.0, 2.0];
+/// The full demo: its run of 2026-12-05 with eval writing the test views' renders (632.0 s in
+/// all between benches of 106.1 and 107.4 ms) scaled by 75/106.75: synthesis 145 s, stage 1
+/// 236 s, stage 2 96 s, the mesh at 1024 29 s and the export 11 s, eval 82 s (it scores the
+/// mesh step's mesh), the edits 13.5 s and the report 17.4 s. About 1.2× that for stage 1
+/// without AMX (no bf16 products).
+const FULL_SECONDS: [f64; STEPS] = [102.0, 166.0, 67.0, 30.0, 58.0, 9.5, 12.0];
 
 fn minutes(seconds: f64) -> String {
     if seconds < 90.0 {
