@@ -575,14 +575,30 @@ fn eval_scores_the_relit_sets() {
     // The views eval wrote as it scored them are what `render` writes of the same views.
     let rendered = dir.path().join("rendered");
     let all = "rgb,depth,normal,emitter,albedo,specular,roughness,emission,rerender";
-    let o = i2sdf(&["render", "--run", s(run), "--data", s(&data), "--out", s(&rendered), "--what", all, "--spp", "2"]);
+    let o = i2sdf(&[
+        "render",
+        "--run",
+        s(run),
+        "--data",
+        s(&data),
+        "--out",
+        s(&rendered),
+        "--what",
+        all,
+        "--spp",
+        "2",
+    ]);
     assert_eq!(o.code, 0, "{}", o.stderr);
     let mut compared = 0;
     for map in all.split(',') {
         for entry in std::fs::read_dir(rendered.join(map)).unwrap() {
             let path = entry.unwrap().path();
             let theirs = renders.join(map).join(path.file_name().unwrap());
-            assert!(std::fs::read(&path).unwrap() == std::fs::read(&theirs).unwrap(), "{}", theirs.display());
+            assert!(
+                std::fs::read(&path).unwrap() == std::fs::read(&theirs).unwrap(),
+                "{}",
+                theirs.display()
+            );
             compared += 1;
         }
     }

@@ -10,9 +10,9 @@ use crate::mc_tables::{case_table, CaseLoop};
 use crate::memory::{gib, MachineMemory};
 use crate::query::SceneQuery;
 use crate::scene::NeuralScene;
-use rayon::prelude::*;
 use i2sdf_data::mesh::TriangleMesh;
 use i2sdf_data::{Bounds, DataError};
+use rayon::prelude::*;
 
 /// A regular grid of samples over an axis-aligned box (`samples` points per axis, corners included).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -299,7 +299,9 @@ mod tests {
     fn a_fixed_weights_workspace_reuses_its_transposed_weights() {
         for mut net in nets() {
             let n = INFER_BLOCK + 2 * TILE + 9;
-            let x: Vec<f32> = (0..n * 3).map(|i| ((i * 37 % 101) as f32 / 101.0) * 1.6 - 0.8).collect();
+            let x: Vec<f32> = (0..n * 3)
+                .map(|i| ((i * 37 % 101) as f32 / 101.0) * 1.6 - 0.8)
+                .collect();
             let fresh = |net: &SdfNetwork| {
                 let mut d = vec![0.0; n];
                 net.infer(&x, &mut SdfInferWorkspace::default(), &mut d, None, None);
