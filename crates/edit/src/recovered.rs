@@ -340,7 +340,9 @@ mod tests {
     #[test]
     fn bulbs_are_sampled_by_solid_angle_and_the_rest_by_area() {
         let mut bulb = TriangleMesh::unit_icosphere(2);
-        bulb.positions.iter_mut().for_each(|p| *p = (0.1 * Vec3::from(*p)).to_array());
+        bulb.positions
+            .iter_mut()
+            .for_each(|p| *p = (0.1 * Vec3::from(*p)).to_array());
         let all: Vec<u32> = (0..bulb.faces.len() as u32).collect();
         assert!(samples_by_direction(emitter_light(&bulb, &all, Vec3::ONE).as_ref()));
         let upper: Vec<u32> = all
@@ -352,7 +354,9 @@ mod tests {
         let mut panel = TriangleMesh::default();
         panel.positions = vec![[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]];
         panel.faces = vec![[0, 1, 2], [0, 2, 3]];
-        assert!(!samples_by_direction(emitter_light(&panel, &[0, 1], Vec3::ONE).as_ref()));
+        assert!(!samples_by_direction(
+            emitter_light(&panel, &[0, 1], Vec3::ONE).as_ref()
+        ));
         let mut tube = TriangleMesh::unit_icosphere(2);
         tube.positions
             .iter_mut()

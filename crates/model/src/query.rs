@@ -20,6 +20,9 @@ pub struct SceneQuery<'a> {
     pub scene: &'a NeuralScene,
     sdf_ws: SdfInferWorkspace,
     mlp_ws: MlpInferWorkspace,
+    /// F_e's own buffers: F_c and F_e alternate in a re-render, and one workspace would be
+    /// rebuilt at every switch.
+    emitter_ws: MlpInferWorkspace,
     feature: Vec<f32>,
     gradient: Vec<f32>,
     dist: Vec<f32>,
@@ -33,6 +36,7 @@ impl<'a> SceneQuery<'a> {
             scene,
             sdf_ws: SdfInferWorkspace::default(),
             mlp_ws: MlpInferWorkspace::default(),
+            emitter_ws: MlpInferWorkspace::default(),
             feature: Vec::new(),
             gradient: Vec::new(),
             dist: Vec::new(),
@@ -48,6 +52,7 @@ impl<'a> SceneQuery<'a> {
         SceneQuery {
             sdf_ws: SdfInferWorkspace::for_fixed_weights(),
             mlp_ws: MlpInferWorkspace::for_fixed_weights(),
+            emitter_ws: MlpInferWorkspace::for_fixed_weights(),
             ..SceneQuery::new(scene)
         }
     }
@@ -113,7 +118,7 @@ impl<'a> SceneQuery<'a> {
 
     /// F_e at points with features already computed: `prob` is `[n]`.
     pub fn emitter(&mut self, features: &[f32], prob: &mut [f32]) {
-        self.scene.emitter.infer(features, &mut self.mlp_ws, prob);
+        self.scene.emitter.infer(features, &mut self.emitter_ws, prob);
     }
 }
 

@@ -138,8 +138,9 @@ impl Mlp {
 /// network, never by the number of points.
 #[derive(Default)]
 pub struct MlpInferWorkspace {
-    /// Per task: the address of the parameters it was made for, its scratch, its activations.
-    chunks: Vec<(usize, TileScratch, Vec<f32>)>,
+    /// Per task: the (address, length) of the parameters it was made for, its scratch, its
+    /// activations.
+    chunks: Vec<((usize, usize), TileScratch, Vec<f32>)>,
     /// See [`MlpInferWorkspace::for_fixed_weights`].
     fixed_weights: bool,
 }
@@ -167,16 +168,12 @@ impl Mlp {
         assert!(output.len() >= n * od);
         let tiles = n.div_ceil(TILE);
         let tasks = (2 * rayon::current_num_threads()).min(tiles).max(1);
-        if ws
-            .chunks
-            .first()
-            .is_some_and(|c| c.0 != self.params.as_ptr() as usize || c.2.len() != TILE * aw)
-        {
+        let key = (self.params.as_ptr() as usize, self.params.len());
+        if ws.chunks.first().is_some_and(|c| c.0 != key || c.2.len() != TILE * aw) {
             ws.chunks.clear();
         }
         while ws.chunks.len() < tasks {
-            ws.chunks
-                .push((self.params.as_ptr() as usize, self.new_scratch(), vec![0.0; TILE * aw]));
+            ws.chunks.push((key, self.new_scratch(), vec![0.0; TILE * aw]));
         }
         let fixed = ws.fixed_weights;
         let ranges = even_ranges(tiles, tasks);

@@ -42,7 +42,7 @@ impl SdfInferWorkspace {
     /// used (one kept beside a shared borrow of the network, as a frozen scene's or a ray
     /// caster's): the transposed weights are made once per task instead of once per call. Why:
     /// stage 2's renders call the network many times on small sets (a sphere tracer's last
-    /// steps), and transposing on every call was 4 % of a re-render.
+    /// steps), and transposing on every call was 2–4 % of a re-render's CPU samples.
     pub fn for_fixed_weights() -> Self {
         SdfInferWorkspace {
             blocks: Vec::new(),
