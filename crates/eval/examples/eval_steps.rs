@@ -64,7 +64,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!(
         "evaluate: {:.2} s; mesh {} faces, F-score {:?}",
         start.elapsed().as_secs_f64(),
-        mesh.num_faces(),
+        mesh.as_ref().map_or(0, |m| m.num_faces()),
         report.geometry.mesh.fscore
     );
     if fields.is_some_and(|f| f.emitters.is_empty()) {

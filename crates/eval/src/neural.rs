@@ -282,13 +282,13 @@ pub fn mesh_report_with_progress(
 }
 
 /// The whole evaluation of a run: view metrics, and mesh metrics when the dataset has a GT mesh.
-/// Returns the report and the extracted mesh.
+/// Returns the report and the extracted mesh (None when `options.given_mesh` was scored).
 pub fn evaluate(
     scene: &NeuralScene,
     dataset: &Dataset,
     bounds: &Bounds,
     options: &EvalOptions,
-) -> Result<(EvalReport, TriangleMesh), DataError> {
+) -> Result<(EvalReport, Option<TriangleMesh>), DataError> {
     evaluate_with_progress(scene, dataset, bounds, options, &NoProgress)
 }
 
@@ -301,7 +301,7 @@ pub fn evaluate_with_progress(
     bounds: &Bounds,
     options: &EvalOptions,
     progress: &dyn EvalProgress,
-) -> Result<(EvalReport, TriangleMesh), DataError> {
+) -> Result<(EvalReport, Option<TriangleMesh>), DataError> {
     evaluate_keeping_test_images(scene, dataset, bounds, options, progress, &mut Vec::new())
 }
 
@@ -315,7 +315,7 @@ pub fn evaluate_keeping_test_images(
     options: &EvalOptions,
     progress: &dyn EvalProgress,
     test_images: &mut Vec<(Camera, RenderedView)>,
-) -> Result<(EvalReport, TriangleMesh), DataError> {
+) -> Result<(EvalReport, Option<TriangleMesh>), DataError> {
     // The GT first: a bad one is refused before the views are rendered.
     let gt = dataset.mesh_path.as_ref().map(read_ground_truth).transpose()?;
     let mut report = view_metrics_keeping(
@@ -331,15 +331,21 @@ pub fn evaluate_keeping_test_images(
         report.notes.push(no_lpips_note());
     }
     progress.step(progress::MESH_EXTRACTION, 0);
-    let mesh = match &options.given_mesh {
-        Some(mesh) => mesh.clone(),
-        None => extract_mesh(scene, bounds, options.mesh_resolution)?,
+    // A given mesh is scored where it is (the demo's is millions of faces), not copied.
+    let extracted = match &options.given_mesh {
+        Some(_) => None,
+        None => Some(extract_mesh(scene, bounds, options.mesh_resolution)?),
     };
+    let mesh = options
+        .given_mesh
+        .as_ref()
+        .or(extracted.as_ref())
+        .expect("given or extracted");
     report.geometry.mesh = match gt {
         Some(gt) => {
             let views = culling_views(dataset);
             let (mesh_report, thin) =
-                mesh_report_with_progress(&mesh, &gt, &views, &dataset.objects, &options.mesh, progress)?;
+                mesh_report_with_progress(mesh, &gt, &views, &dataset.objects, &options.mesh, progress)?;
             report.geometry.thin_objects = thin;
             mesh_report
         }
@@ -348,7 +354,7 @@ pub fn evaluate_keeping_test_images(
             ..Default::default()
         },
     };
-    Ok((report, mesh))
+    Ok((report, extracted))
 }
 
 #[cfg(test)]
@@ -566,7 +572,7 @@ mod tests {
             let (_, mesh) =
                 evaluate_keeping_test_images(&scene, &dataset, &dataset.bounds, &options, &NoProgress, &mut images)
                     .unwrap();
-            (mesh, images)
+            (mesh.expect("extracted"), images)
         };
         assert_eq!(images.len(), 2);
         let given = EvalOptions {

@@ -452,10 +452,13 @@ impl<'a> FrozenScene<'a> {
         }
     }
 
-    /// A query from the pool (return it with `self.queries.lock().unwrap().push(q)`).
-    fn query(&self) -> SceneQuery<'a> {
+    /// Runs `f` with a query from the pool ([`FrozenScene::queries`]), returned to it after.
+    fn with_query<R>(&self, f: impl FnOnce(&mut SceneQuery<'a>) -> R) -> R {
         let pooled = self.queries.lock().unwrap().pop();
-        pooled.unwrap_or_else(|| SceneQuery::for_fixed_weights(self.scene))
+        let mut q = pooled.unwrap_or_else(|| SceneQuery::for_fixed_weights(self.scene));
+        let r = f(&mut q);
+        self.queries.lock().unwrap().push(q);
+        r
     }
 
     /// Runs `f(query, normalized points of the block, block index range)` over blocks of world
@@ -472,11 +475,9 @@ impl<'a> FrozenScene<'a> {
             .zip(points_world.par_chunks(FROZEN_BLOCK))
             .enumerate()
             .for_each(|(b, (o, pts))| {
-                let mut q = self.query();
                 let mut norm = Vec::new();
                 self.to_normalized(pts, &mut norm);
-                f(&mut q, &norm, b * FROZEN_BLOCK, o);
-                self.queries.lock().unwrap().push(q);
+                self.with_query(|q| f(q, &norm, b * FROZEN_BLOCK, o));
             });
     }
 
@@ -527,11 +528,7 @@ impl<'a> FrozenScene<'a> {
         let fd = self.scene.feature_dim();
         out.par_chunks_mut(FROZEN_BLOCK)
             .zip(z.par_chunks(FROZEN_BLOCK * fd))
-            .for_each(|(o, z)| {
-                let mut q = self.query();
-                q.emitter(z, o);
-                self.queries.lock().unwrap().push(q);
-            });
+            .for_each(|(o, z)| self.with_query(|q| q.emitter(z, o)));
     }
 
     /// The SDF, its gradient and the feature z (`[n × feature_dim]`) at world points.

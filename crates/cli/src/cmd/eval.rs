@@ -246,8 +246,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     report.time_s.stage1 = (info.stage1.iterations > 0).then_some(info.stage1.seconds);
     report.time_s.stage2 = info.stage2.filter(|s| s.iterations > 0).map(|s| s.seconds);
     let json = report.to_json();
-    if let Some(path) = &args.mesh_out {
-        i2sdf_eval::write_ply(path, &mesh)?;
+    // --mesh-out is refused with --mesh, so an extracted mesh is there to write.
+    if let (Some(path), Some(mesh)) = (&args.mesh_out, &mesh) {
+        i2sdf_eval::write_ply(path, mesh)?;
     }
     imageio::write_bytes_atomic(&args.out, json.as_bytes())?;
     println!("{json}");
