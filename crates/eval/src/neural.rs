@@ -112,28 +112,17 @@ pub fn view_metrics(
     dataset: &Dataset,
     settings: &RenderSettings,
 ) -> Result<EvalReport, DataError> {
-    view_metrics_with_progress(scene, dataset, settings, None, &[Split::Test], &NoProgress)
+    view_metrics_with_progress(scene, dataset, settings, None, &[Split::Test], &NoProgress, None)
 }
 
 /// [`view_metrics`] of the views of `splits`, with LPIPS when `lpips` is given, reporting the
 /// step "test views" (or "training views") to `progress`, counted in views. The test views fill
 /// `novel_view` and `geometry`'s depth and normal errors, the training views `train_view` (the
 /// paper's figures in brackets, Table 1). LPIPS stays null, with [`lpips_too_small_note`], when a
-/// view is smaller than AlexNet takes ([`MIN_SIDE`]).
+/// view is smaller than AlexNet takes ([`MIN_SIDE`]). With `test_images`, the radiance field's
+/// view of each test view (its image, depth, normals, emitter probability) is kept there as it
+/// was scored.
 pub fn view_metrics_with_progress(
-    scene: &NeuralScene,
-    dataset: &Dataset,
-    settings: &RenderSettings,
-    lpips: Option<&Lpips>,
-    splits: &[Split],
-    progress: &dyn EvalProgress,
-) -> Result<EvalReport, DataError> {
-    view_metrics_keeping(scene, dataset, settings, lpips, splits, progress, None)
-}
-
-/// [`view_metrics_with_progress`], keeping in `test_images` the radiance field's view of each
-/// test view (its image, depth, normals, emitter probability) as it was scored.
-fn view_metrics_keeping(
     scene: &NeuralScene,
     dataset: &Dataset,
     settings: &RenderSettings,
@@ -318,7 +307,7 @@ pub fn evaluate_keeping_test_images(
 ) -> Result<(EvalReport, Option<TriangleMesh>), DataError> {
     // The GT first: a bad one is refused before the views are rendered.
     let gt = dataset.mesh_path.as_ref().map(read_ground_truth).transpose()?;
-    let mut report = view_metrics_keeping(
+    let mut report = view_metrics_with_progress(
         scene,
         dataset,
         &options.render,
@@ -492,9 +481,16 @@ mod tests {
             i2sdf_data::fixture::write_native(dir.path(), &options);
             let dataset = i2sdf_data::load(dir.path()).unwrap();
             let scene = tiny_scene(&dataset);
-            let report =
-                view_metrics_with_progress(&scene, &dataset, &settings, Some(&lpips), &[Split::Test], &NoProgress)
-                    .unwrap();
+            let report = view_metrics_with_progress(
+                &scene,
+                &dataset,
+                &settings,
+                Some(&lpips),
+                &[Split::Test],
+                &NoProgress,
+                None,
+            )
+            .unwrap();
             if width == 40 {
                 let v = report.novel_view.lpips.expect("LPIPS with weights");
                 assert!(v.is_finite() && v > 0.0, "{v}");
@@ -602,7 +598,8 @@ mod tests {
         let settings = RenderSettings::default();
         let run = |splits: ViewSplits| {
             let progress = Recorder::default();
-            let r = view_metrics_with_progress(&scene, &dataset, &settings, None, splits.splits(), &progress).unwrap();
+            let r = view_metrics_with_progress(&scene, &dataset, &settings, None, splits.splits(), &progress, None)
+                .unwrap();
             (r, progress.0.into_inner().unwrap())
         };
         let (test, steps) = run(ViewSplits::Test);
