@@ -155,31 +155,67 @@ impl BandMask {
         self.active.iter().filter(|&&a| a).count() as f64 / self.active.len().max(1) as f64
     }
 
-    /// Does fine sample (i, j, k) lie in an active block?
-    pub(crate) fn needs(&self, i: usize, j: usize, k: usize) -> bool {
+    /// Row `j` of fine plane `k`: which of its samples need evaluating, and the fill of the
+    /// others. Why by row: asked sample by sample, the block lookups and the corner gathers of
+    /// the 95 % of samples that are filled took a sixth of the mesh's CPU time at 1024.
+    pub(crate) fn row(&self, j: usize, k: usize) -> BandRow<'_> {
         let [bx, by, _] = self.blocks();
-        let (x, y, z) = (self.blocks_of[0][i], self.blocks_of[1][j], self.blocks_of[2][k]);
-        (z.0..=z.1).any(|c| {
-            (y.0..=y.1).any(|b| (x.0..=x.1).any(|a| self.active[a as usize + bx * (b as usize + by * c as usize)]))
-        })
+        let (y, z) = (self.blocks_of[1][j], self.blocks_of[2][k]);
+        let active_x = (0..bx)
+            .map(|a| (z.0..=z.1).any(|c| (y.0..=y.1).any(|b| self.active[a + bx * (b as usize + by * c as usize)])))
+            .collect();
+        let (cx, cy) = (self.coarse[0].len(), self.coarse[1].len());
+        let (b1, b2) = (y.1 as usize, z.1 as usize);
+        let frac = |a: usize, b: usize, i: usize| {
+            let (lo, hi) = (self.coarse[a][b], self.coarse[a][b + 1]);
+            (i - lo) as f32 / (hi - lo) as f32
+        };
+        let (ty, tz) = (frac(1, b1, j), frac(2, b2, k));
+        // Per x corner column (coarse index x) and corner c's (dy, dz): the coarse value.
+        let corners = (0..cx)
+            .map(|x| std::array::from_fn(|c| self.values[x + cx * ((b1 + (c & 1)) + cy * (b2 + (c >> 1)))]))
+            .collect();
+        BandRow {
+            mask: self,
+            active_x,
+            ty,
+            tz,
+            corners,
+        }
+    }
+}
+
+/// One row of fine samples of a [`BandMask`] ([`BandMask::row`]).
+pub(crate) struct BandRow<'m> {
+    mask: &'m BandMask,
+    /// Per x block: is any block holding this row's samples of it active?
+    active_x: Vec<bool>,
+    ty: f32,
+    tz: f32,
+    /// Per coarse x: the values at (x, y + dy, z + dz), index dy + 2 dz.
+    corners: Vec<[f32; 4]>,
+}
+
+impl BandRow<'_> {
+    /// Does fine sample i of the row lie in an active block?
+    pub(crate) fn needs(&self, i: usize) -> bool {
+        let x = self.mask.blocks_of[0][i];
+        self.active_x[x.0 as usize] || self.active_x[x.1 as usize]
     }
 
-    /// The value of an unevaluated fine sample: trilinear in the corners of its (inactive) block.
-    pub(crate) fn fill(&self, i: usize, j: usize, k: usize) -> f32 {
-        let b = [self.blocks_of[0][i].1, self.blocks_of[1][j].1, self.blocks_of[2][k].1].map(|b| b as usize);
-        let idx = [i, j, k];
-        let t: [f32; 3] = std::array::from_fn(|a| {
-            let (lo, hi) = (self.coarse[a][b[a]], self.coarse[a][b[a] + 1]);
-            (idx[a] - lo) as f32 / (hi - lo) as f32
-        });
-        let (cx, cy) = (self.coarse[0].len(), self.coarse[1].len());
+    /// The value of unevaluated fine sample i: trilinear in the corners of its (inactive) block,
+    /// the eight terms summed in corner order (x fastest).
+    pub(crate) fn fill(&self, i: usize) -> f32 {
+        let b = self.mask.blocks_of[0][i].1 as usize;
+        let (lo, hi) = (self.mask.coarse[0][b], self.mask.coarse[0][b + 1]);
+        let t = [(i - lo) as f32 / (hi - lo) as f32, self.ty, self.tz];
         let mut v = 0.0;
         for c in 0..8 {
             let (dx, dy, dz) = (c & 1, (c >> 1) & 1, c >> 2);
             let w = (if dx == 1 { t[0] } else { 1.0 - t[0] })
                 * (if dy == 1 { t[1] } else { 1.0 - t[1] })
                 * (if dz == 1 { t[2] } else { 1.0 - t[2] });
-            v += w * self.values[(b[0] + dx) + cx * ((b[1] + dy) + cy * (b[2] + dz))];
+            v += w * self.corners[b + dx][dy + 2 * dz];
         }
         v
     }
@@ -317,6 +353,7 @@ mod tests {
         // A linear field far from its zero: no block active, and the fill is exact.
         assert_eq!(mask.active_fraction(), 0.0);
         let x = grid.point(17, 3, 5)[0] as f32;
-        assert!((mask.fill(17, 3, 5) - (x + 10.0)).abs() < 1e-5);
+        assert!((mask.row(3, 5).fill(17) - (x + 10.0)).abs() < 1e-5);
+        assert!(!mask.row(3, 5).needs(17));
     }
 }
