@@ -19,7 +19,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .ok_or(format!("{data}: no ground-truth mesh"))?;
     let pred = i2sdf_data::ply::read_ply(std::path::Path::new(mesh))?;
     let gt = i2sdf_data::ply::read_ply(&gt_path)?;
-    let (report, thin) = mesh_report(
+    let (report, groups) = mesh_report(
         &pred,
         &gt,
         &culling_views(&dataset),
@@ -28,7 +28,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     )?;
     println!(
         "{}",
-        serde_json::to_string_pretty(&serde_json::json!({"mesh": report, "thin_objects": thin}))?
+        serde_json::to_string_pretty(&serde_json::json!({"mesh": report, "thin_objects": groups.thin, "small_objects": groups.small}))?
     );
     Ok(())
 }

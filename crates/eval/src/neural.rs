@@ -9,7 +9,7 @@ use crate::mesh::TriangleMesh;
 use crate::mesh_metrics::{mesh_metrics_with_progress, CullingView, MeshMetricsOptions, ObjectGroup};
 use crate::progress::{self, EvalProgress, NoProgress};
 use crate::report::{
-    lpips_too_small_note, no_lpips_note, EvalReport, MeshReport, NovelViewMetrics, ThinObjectsReport, ViewSplitMetrics,
+    lpips_too_small_note, no_lpips_note, EvalReport, MeshReport, NovelViewMetrics, ObjectGroupReport, ViewSplitMetrics,
 };
 use i2sdf_data::dataset::ObjectInfo;
 use i2sdf_data::ply::read_ground_truth;
@@ -224,18 +224,29 @@ fn split_metrics(
 
 /// Objects with any of these tags make up `geometry.thin_objects`.
 pub const THIN_OBJECT_TAGS: [&str; 2] = ["thin", "suspended"];
+/// Objects with this tag make up `geometry.small_objects` (scored at the thin objects'
+/// thresholds).
+pub const SMALL_OBJECT_TAGS: [&str; 1] = ["small"];
+
+/// The recall of the object groups `eval` reports on their own: `geometry.thin_objects` and
+/// `geometry.small_objects` (None: the dataset has no object of the group).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GroupReports {
+    pub thin: Option<ObjectGroupReport>,
+    pub small: Option<ObjectGroupReport>,
+}
 pub use crate::mesh_metrics::THIN_OBJECT_THRESHOLDS;
 
 /// Mesh metrics of `pred` against `gt` (see [`crate::mesh_metrics::mesh_metrics`]), with the
 /// per-object recall named and tagged from `objects`, and the recall of the objects tagged thin or
-/// suspended (`None` when `objects` has none).
+/// suspended and of those tagged small (each `None` when `objects` has none).
 pub fn mesh_report(
     pred: &TriangleMesh,
     gt: &TriangleMesh,
     views: &[CullingView],
     objects: &[ObjectInfo],
     options: &MeshMetricsOptions,
-) -> Result<(MeshReport, Option<ThinObjectsReport>), DataError> {
+) -> Result<(MeshReport, GroupReports), DataError> {
     mesh_report_with_progress(pred, gt, views, objects, options, &NoProgress)
 }
 
@@ -247,27 +258,41 @@ pub fn mesh_report_with_progress(
     objects: &[ObjectInfo],
     options: &MeshMetricsOptions,
     progress: &dyn EvalProgress,
-) -> Result<(MeshReport, Option<ThinObjectsReport>), DataError> {
-    let thin: Vec<&ObjectInfo> = objects
-        .iter()
-        .filter(|o| o.tags.iter().any(|t| THIN_OBJECT_TAGS.contains(&t.as_str())))
-        .collect();
+) -> Result<(MeshReport, GroupReports), DataError> {
+    let tagged = |tags: &[&str]| -> Vec<&ObjectInfo> {
+        objects
+            .iter()
+            .filter(|o| o.tags.iter().any(|t| tags.contains(&t.as_str())))
+            .collect()
+    };
+    let groups = [
+        ("thin_objects", tagged(&THIN_OBJECT_TAGS)),
+        ("small_objects", tagged(&SMALL_OBJECT_TAGS)),
+    ];
     let mut options = options.clone();
-    if !thin.is_empty() {
+    let first_group = options.object_groups.len();
+    for (name, members) in groups.iter().filter(|(_, m)| !m.is_empty()) {
         options.object_groups.push(ObjectGroup {
-            name: "thin_objects".into(),
-            object_ids: thin.iter().map(|o| o.id).collect(),
+            name: (*name).into(),
+            object_ids: members.iter().map(|o| o.id).collect(),
             thresholds: THIN_OBJECT_THRESHOLDS.to_vec(),
         });
     }
     let metrics = mesh_metrics_with_progress(pred, gt, views, &options, progress)?;
     let mut report = MeshReport::from(&metrics);
     report.join_objects(objects);
-    let thin_report = (!thin.is_empty()).then(|| {
-        let group = metrics.group_recall.last().expect("the thin group was added last");
-        ThinObjectsReport::new(group, thin.iter().map(|o| o.name.clone()).collect())
-    });
-    Ok((report, thin_report))
+    let mut added = metrics.group_recall[first_group..].iter();
+    let mut group = |members: &Vec<&ObjectInfo>| {
+        (!members.is_empty()).then(|| {
+            let recall = added.next().expect("one recall per group added");
+            ObjectGroupReport::new(recall, members.iter().map(|o| o.name.clone()).collect())
+        })
+    };
+    let reports = GroupReports {
+        thin: group(&groups[0].1),
+        small: group(&groups[1].1),
+    };
+    Ok((report, reports))
 }
 
 /// The whole evaluation of a run: view metrics, and mesh metrics when the dataset has a GT mesh.
@@ -333,9 +358,10 @@ pub fn evaluate_keeping_test_images(
     report.geometry.mesh = match gt {
         Some(gt) => {
             let views = culling_views(dataset);
-            let (mesh_report, thin) =
+            let (mesh_report, groups) =
                 mesh_report_with_progress(mesh, &gt, &views, &dataset.objects, &options.mesh, progress)?;
-            report.geometry.thin_objects = thin;
+            report.geometry.thin_objects = groups.thin;
+            report.geometry.small_objects = groups.small;
             mesh_report
         }
         None => MeshReport {
@@ -399,9 +425,10 @@ mod tests {
         ];
         // The prediction has the room, the table and the globe, but lost the pole.
         let pred = scene(false, true);
-        let (report, thin) = mesh_report(&pred, &gt, &[], &objects, &options()).unwrap();
+        let (report, groups) = mesh_report(&pred, &gt, &[], &objects, &options()).unwrap();
         assert!(report.recall.unwrap() > 0.99, "{:?}", report.recall);
-        let thin = thin.expect("the dataset has thin objects");
+        assert!(groups.small.is_none());
+        let thin = groups.thin.expect("the dataset has thin objects");
         assert_eq!(thin.objects, ["pole", "globe", "not_in_the_mesh"]);
         // The globe (0.24 m²) is recalled, the pole (0.096 m²) is not: about 70 % recalled.
         let (r2, r5) = (thin.recall_2cm.unwrap(), thin.recall_5cm.unwrap());
@@ -418,24 +445,42 @@ mod tests {
         assert_eq!(per_object[3].tags, ["suspended"]);
 
         // Only the pole missing from the thin group: recall 0 at both distances.
-        let (_, thin) = mesh_report(&pred, &gt, &[], &objects[..3], &options()).unwrap();
-        let thin = thin.unwrap();
+        let (_, groups) = mesh_report(&pred, &gt, &[], &objects[..3], &options()).unwrap();
+        let thin = groups.thin.unwrap();
         assert_eq!((thin.recall_2cm, thin.recall_5cm), (Some(0.0), Some(0.0)));
         // The GT itself recovers everything.
-        let (_, thin) = mesh_report(&gt, &gt, &[], &objects, &options()).unwrap();
-        assert_eq!(thin.unwrap().recall_2cm, Some(1.0));
+        let (_, groups) = mesh_report(&gt, &gt, &[], &objects, &options()).unwrap();
+        assert_eq!(groups.thin.unwrap().recall_2cm, Some(1.0));
+    }
+
+    #[test]
+    fn small_objects_are_scored_apart_from_the_thin_ones() {
+        let gt = scene(true, true);
+        // The globe tagged small: its own group, recalled; the thin group is the lost pole.
+        let objects = [
+            info(0, "room", &["room"]),
+            info(7, "pole", &["thin"]),
+            info(9, "globe", &["small"]),
+        ];
+        let (_, groups) = mesh_report(&scene(false, true), &gt, &[], &objects, &options()).unwrap();
+        let (thin, small) = (groups.thin.unwrap(), groups.small.unwrap());
+        assert_eq!((thin.objects.as_slice(), small.objects.as_slice()), (&["pole".to_string()][..], &["globe".to_string()][..]));
+        assert_eq!((thin.recall_5cm, small.recall_2cm), (Some(0.0), Some(1.0)));
+        // Without the globe in the prediction the small group's recall falls to 0.
+        let (_, groups) = mesh_report(&scene(false, false), &gt, &[], &objects, &options()).unwrap();
+        assert_eq!(groups.small.unwrap().recall_5cm, Some(0.0));
     }
 
     #[test]
     fn datasets_without_thin_objects_report_none() {
         let gt = scene(true, false);
-        let (report, thin) = mesh_report(&gt, &gt, &[], &[info(0, "room", &["room"])], &options()).unwrap();
-        assert!(thin.is_none());
+        let (report, groups) = mesh_report(&gt, &gt, &[], &[info(0, "room", &["room"])], &options()).unwrap();
+        assert!(groups.thin.is_none() && groups.small.is_none());
         let per_object = report.per_object_recall.unwrap();
         assert_eq!(per_object[0].name.as_deref(), Some("room"));
         assert!(per_object[1].name.is_none() && per_object[1].tags.is_empty());
-        let (report, thin) = mesh_report(&gt, &gt, &[], &[], &options()).unwrap();
-        assert!(thin.is_none() && report.fscore == Some(1.0));
+        let (report, groups) = mesh_report(&gt, &gt, &[], &[], &options()).unwrap();
+        assert!(groups == GroupReports::default() && report.fscore == Some(1.0));
     }
 
     /// An untrained scene of two small hash levels over `dataset`'s normalization.

@@ -90,14 +90,18 @@ pub struct GeometryMetrics {
     pub normal_angular_l1: Option<f64>,
     pub mesh: MeshReport,
     /// Recall of the GT objects tagged `thin` or `suspended`, `null` when the dataset has none.
-    pub thin_objects: Option<ThinObjectsReport>,
+    pub thin_objects: Option<ObjectGroupReport>,
+    /// Recall of the GT objects tagged `small` (under 5 cm, on furniture), `null` when the
+    /// dataset has none.
+    pub small_objects: Option<ObjectGroupReport>,
 }
 
-/// How much of the thin and suspended objects (lamp poles, table legs, chandeliers: what the
-/// paper's bubble loss exists to recover) the extracted mesh recovers: the fraction of their
-/// visible GT surface points within 2 cm and 5 cm (0.02 and 0.05 scene units) of it.
+/// How much of a group of objects the extracted mesh recovers: the fraction of their visible GT
+/// surface points within 2 cm and 5 cm (0.02 and 0.05 scene units) of it. The groups: the thin
+/// and suspended objects (lamp poles, table legs, chandeliers: what the paper's bubble loss
+/// exists to recover) and the small ones (a ball on a table, a die).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct ThinObjectsReport {
+pub struct ObjectGroupReport {
     pub recall_2cm: Option<f64>,
     pub recall_5cm: Option<f64>,
     /// Visible GT points on those objects.
@@ -106,7 +110,7 @@ pub struct ThinObjectsReport {
     pub objects: Vec<String>,
 }
 
-impl ThinObjectsReport {
+impl ObjectGroupReport {
     /// From the recall of the group of thin objects at thresholds (0.02, 0.05).
     pub fn new(group: &GroupRecall, objects: Vec<String>) -> Self {
         let at = |t: f64| {
@@ -116,7 +120,7 @@ impl ThinObjectsReport {
                 .position(|&x| x == t)
                 .and_then(|i| group.recall[i])
         };
-        ThinObjectsReport {
+        ObjectGroupReport {
             recall_2cm: at(0.02),
             recall_5cm: at(0.05),
             points: group.points,
@@ -460,7 +464,7 @@ mod tests {
             thresholds: vec![0.02, 0.05],
             recall: vec![Some(0.25), Some(0.5)],
         };
-        report.geometry.thin_objects = Some(ThinObjectsReport::new(&thin, vec!["lamp_pole".into()]));
+        report.geometry.thin_objects = Some(ObjectGroupReport::new(&thin, vec!["lamp_pole".into()]));
         let json = report.to_json();
         let v: Value = serde_json::from_str(&json).unwrap();
         assert!(v["novel_view"]["psnr"].is_null(), "infinity is written as null");

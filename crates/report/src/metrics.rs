@@ -139,6 +139,18 @@ const ROWS: &[Row] = &[
         None,
         "↑",
     ),
+    row(
+        "small objects recall @2 cm",
+        "geometry.small_objects.recall_2cm",
+        None,
+        "↑",
+    ),
+    row(
+        "small objects recall @5 cm",
+        "geometry.small_objects.recall_5cm",
+        None,
+        "↑",
+    ),
     row("re-render PSNR (dB)", "rerender.psnr", None, "↑"),
     row("re-render SSIM", "rerender.ssim", None, "↑"),
     row("albedo PSNR (dB)", "material.albedo_psnr", None, "↑"),

@@ -6,7 +6,7 @@
 //! Every shape belongs to a named, tagged object (see [`crate::scene::tags`]), so that evaluation
 //! can score the thin and suspended objects on their own.
 
-use crate::scene::tags::{FURNITURE, ROOM, SUSPENDED, THIN};
+use crate::scene::tags::{FURNITURE, ROOM, SMALL, SUSPENDED, THIN};
 use crate::scene::{CameraRig, Geometry, MaterialDesc, RoomBounds, SceneDesc, ShapeDesc, TextureDesc};
 use glam::{Quat, Vec3};
 use i2sdf_data::DataError;
@@ -740,7 +740,7 @@ impl RoomBuilder {
     }
 
     /// A coffee table, free-standing and slightly turned: a glass-like glossy top on four thin
-    /// legs, a glossy sphere on it, and a striped rug under it.
+    /// legs, a glossy sphere and a 4 cm ball on it, and a striped rug under it.
     fn coffee_table_group(&mut self) {
         let yaw = self.rng.gen_range(-0.3..0.3f32);
         let origin = Vec3::new(self.rng.gen_range(-0.4..0.4), 0.0, self.rng.gen_range(-0.3..0.3));
@@ -793,10 +793,24 @@ impl RoomBuilder {
                 },
                 mat([0.6, 0.08, 0.05], 0.4, 0.3),
             );
+            // Placed and coloured without the generator's random numbers, so that adding it left
+            // every other object of the rooms where it was.
+            let c = p.to_world(Vec3::new(-0.3, 0.45 + 0.02, 0.12));
+            self.object("coffee_table_ball", &[SMALL]);
+            self.add(
+                "coffee_table_ball",
+                Geometry::Sphere {
+                    center: c.into(),
+                    radius: 0.02,
+                    subdivisions: 3,
+                },
+                mat([0.85, 0.62, 0.12], 0.04, 0.5),
+            );
         }
     }
 
-    /// A small table against a wall on four thin legs, with a cylinder vase on it.
+    /// A small table against a wall on four thin legs, with a cylinder vase and a 3.5 cm die on
+    /// it.
     fn desk_with_legs(&mut self, name: &str) {
         let (w, d) = (self.rng.gen_range(0.9..1.2f32), 0.55f32);
         if let Some(p) = self.against_wall(w, d, 0.02) {
@@ -835,6 +849,15 @@ impl RoomBuilder {
                 0.06,
                 24,
                 mat(c, 0.3, 0.3),
+            );
+            // Without random numbers, as the coffee table's ball.
+            self.object(&format!("{name}_die"), &[SMALL]);
+            self.local_box(
+                p,
+                &format!("{name}_die"),
+                [-0.2, 0.75, -0.0175],
+                [-0.165, 0.785, 0.0175],
+                mat([0.12, 0.25, 0.7], 0.04, 0.5),
             );
         }
     }

@@ -102,6 +102,9 @@ pub mod tags {
     pub const THIN: &str = "thin";
     /// Hanging in the air, attached only to the ceiling (the chandelier).
     pub const SUSPENDED: &str = "suspended";
+    /// Under 5 cm in every direction, resting on furniture (a ball on a table, a die): a few
+    /// depth samples at most, and in contact with a larger surface that the SDF can smooth over.
+    pub const SMALL: &str = "small";
     /// Implied by a shape's `emission`; never needs writing.
     pub const EMITTER: &str = "emitter";
 }
