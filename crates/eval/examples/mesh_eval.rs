@@ -28,7 +28,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     )?;
     println!(
         "{}",
-        serde_json::to_string_pretty(&serde_json::json!({"mesh": report, "thin_objects": groups.thin, "small_objects": groups.small}))?
+        serde_json::to_string_pretty(
+            &serde_json::json!({"mesh": report, "thin_objects": groups.thin, "small_objects": groups.small})
+        )?
     );
     Ok(())
 }

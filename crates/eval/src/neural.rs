@@ -464,7 +464,10 @@ mod tests {
         ];
         let (_, groups) = mesh_report(&scene(false, true), &gt, &[], &objects, &options()).unwrap();
         let (thin, small) = (groups.thin.unwrap(), groups.small.unwrap());
-        assert_eq!((thin.objects.as_slice(), small.objects.as_slice()), (&["pole".to_string()][..], &["globe".to_string()][..]));
+        assert_eq!(
+            (thin.objects.as_slice(), small.objects.as_slice()),
+            (&["pole".to_string()][..], &["globe".to_string()][..])
+        );
         assert_eq!((thin.recall_5cm, small.recall_2cm), (Some(0.0), Some(1.0)));
         // Without the globe in the prediction the small group's recall falls to 0.
         let (_, groups) = mesh_report(&scene(false, false), &gt, &[], &objects, &options()).unwrap();

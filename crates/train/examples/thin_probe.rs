@@ -1,4 +1,4 @@
-//! Why a thin object is missing (issue 12): for each thin or suspended shape of a synthetic
+//! Why a thin or small object is missing (issues 12, 29): for each thin, suspended or small shape of a synthetic
 //! dataset (its `scene.toml`), which training pixels see it (their depth lands within 1 cm of the
 //! shape's surface), what the trained fields make of those pixels, and what the smooth
 //! large surfaces look like beside them:
@@ -23,9 +23,18 @@ use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
-/// Signed distance to a shape's surface (world units), for the rods and balls of thin objects.
+/// Signed distance to a shape's surface (world units), for the rods and balls of thin objects
+/// and the balls and boxes of small ones.
 fn shape_distance(g: &Geometry, p: glam::Vec3) -> Option<f32> {
     match g {
+        Geometry::Box { min, max, yaw_deg } => {
+            let (lo, hi) = (glam::Vec3::from(*min), glam::Vec3::from(*max));
+            let c = 0.5 * (lo + hi);
+            // Into the box's frame: the inverse of its yaw about the vertical through its centre.
+            let q = glam::Quat::from_rotation_y(-yaw_deg.to_radians()) * (p - c);
+            let d = q.abs() - 0.5 * (hi - lo);
+            Some(d.max(glam::Vec3::ZERO).length() + d.max_element().min(0.0))
+        }
         Geometry::Cylinder { a, b, radius, .. } => {
             let (a, b) = (glam::Vec3::from(*a), glam::Vec3::from(*b));
             let ab = b - a;
@@ -81,7 +90,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut groups: Vec<(String, Vec<usize>)> = Vec::new();
     for (s, shape) in desc.shapes.iter().enumerate() {
         let o = &objects[object_of[s] as usize];
-        let wanted = o.tags.iter().any(|t| t == "thin" || t == "suspended");
+        let wanted = o.tags.iter().any(|t| t == "thin" || t == "suspended" || t == "small");
         if wanted && shape_distance(&shape.geometry, glam::Vec3::ZERO).is_some() {
             match groups.iter_mut().find(|g| g.0 == o.name) {
                 Some(g) => g.1.push(s),

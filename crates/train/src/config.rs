@@ -401,6 +401,11 @@ pub struct PoseConfig {
     /// Pixels per view of each photometric alignment round (drawn among those whose smoothed
     /// image has a gradient).
     pub photometric_points: u32,
+    /// With depth and the correction on: the bubble, inside and smoothness points stay where the
+    /// depth maps put them at the *given* poses, while the corrected rays render colour and
+    /// depth and are aligned. The SDF is then anchored to the capture's own fusion of its depth,
+    /// so that it cannot follow the cameras when they drift together (measured, docs/results.md).
+    pub pin_points: bool,
 }
 
 impl Default for PoseConfig {
@@ -424,6 +429,7 @@ impl Default for PoseConfig {
             // against a nearly converged SDF it was no closer than depth alone.
             photometric_weight: 0.0,
             photometric_points: 512,
+            pin_points: false,
         }
     }
 }

@@ -113,6 +113,25 @@ impl TrainImage {
         let (o, d) = self.ray(pixel);
         [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]
     }
+
+    /// The point at distance `t` along a pixel's ray at the given pose (no correction).
+    #[inline]
+    pub fn given_point_along(&self, pixel: usize, t: f32) -> [f32; 3] {
+        let (o, d) = (self.origin, self.dirs[pixel]);
+        [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]
+    }
+
+    /// The depth map's point of a pixel at the corrected pose, or with `given` at the given one.
+    pub fn depth_point(&self, pixel: usize, given: bool) -> Option<[f32; 3]> {
+        let t = self.depth[pixel];
+        (t > 0.0).then(|| {
+            if given {
+                self.given_point_along(pixel, t)
+            } else {
+                self.point_along(pixel, t)
+            }
+        })
+    }
 }
 
 const IDENTITY: [[f32; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
@@ -243,6 +262,17 @@ mod tests {
                 assert!(sphere_exit(im.origin, im.dirs[p], 1.0) >= im.depth[p]);
             }
         }
+        // A corrected view: its depth points move with the correction, the pinned ones do not.
+        let mut images = images;
+        let im = &mut images[0];
+        let p = im.pixels() / 2;
+        let given = im.depth_point(p, true).unwrap();
+        assert_eq!(given, im.surface_point(p).unwrap());
+        im.translation = [0.01, -0.02, 0.0];
+        im.rotation = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]];
+        assert_eq!(im.depth_point(p, true).unwrap(), given);
+        let moved = im.depth_point(p, false).unwrap();
+        assert!((0..3).map(|k| (moved[k] - given[k]).abs()).sum::<f32>() > 0.01);
         let mut batch = RayBatch::default();
         let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
         batch.sample_uniform(&images, 100, &mut rng);

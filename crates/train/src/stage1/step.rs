@@ -196,8 +196,15 @@ impl Stage1 {
                 let (o, d) = (self.batch.origin[r], self.batch.dir[r]);
                 [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]
             }),
-            None => self.images[self.batch.image[r] as usize].surface_point(self.batch.pixel[r] as usize),
+            None => {
+                self.images[self.batch.image[r] as usize].depth_point(self.batch.pixel[r] as usize, self.pin_points())
+            }
         }
+    }
+
+    /// Whether the depth points stay at the given poses (`pose.pin_points`, with a correction).
+    fn pin_points(&self) -> bool {
+        self.config.pose.pin_points && self.poses.is_some()
     }
 
     /// Fills the extra-point buffer (see [`ExtraCounts`]): uniform points of the box for the
@@ -264,9 +271,9 @@ impl Stage1 {
         if let Some(pdf) = &self.pdf {
             pdf.sample(self.config.train.bubble_points, rng, &mut picks);
         }
-        let mut n = 0;
+        let (mut n, pin) = (0, self.pin_points());
         for p in &picks {
-            if let Some(x) = self.images[p.image as usize].surface_point(p.pixel as usize) {
+            if let Some(x) = self.images[p.image as usize].depth_point(p.pixel as usize, pin) {
                 extra.extend_from_slice(&x);
                 n += 1;
             }
@@ -274,9 +281,14 @@ impl Stage1 {
         if w.inside > 0.0 {
             for p in &picks {
                 let im = &self.images[p.image as usize];
-                if im.surface_point(p.pixel as usize).is_some() {
-                    let t = im.depth[p.pixel as usize] + INSIDE_DEPTH;
-                    extra.extend_from_slice(&im.point_along(p.pixel as usize, t));
+                let pixel = p.pixel as usize;
+                if im.surface_point(pixel).is_some() {
+                    let t = im.depth[pixel] + INSIDE_DEPTH;
+                    extra.extend_from_slice(&if pin {
+                        im.given_point_along(pixel, t)
+                    } else {
+                        im.point_along(pixel, t)
+                    });
                 }
             }
         }
