@@ -102,8 +102,17 @@ fn presets_tag_thin_and_suspended_objects_by_their_geometry() {
                     let mut m = SceneMesh::default();
                     m.add_geometry(&shape.geometry, 0);
                     let (lo, hi) = m.shape_bounds(0);
-                    assert!((hi - lo).max_element() < 0.05, "{what}: {} is {:?}", shape.name, hi - lo);
-                    assert!(!has(object, tags::THIN) && !has(object, tags::SUSPENDED), "{what}: {}", shape.name);
+                    assert!(
+                        (hi - lo).max_element() < 0.05,
+                        "{what}: {} is {:?}",
+                        shape.name,
+                        hi - lo
+                    );
+                    assert!(
+                        !has(object, tags::THIN) && !has(object, tags::SUSPENDED),
+                        "{what}: {}",
+                        shape.name
+                    );
                 }
                 assert_eq!(
                     has(object, tags::EMITTER),
