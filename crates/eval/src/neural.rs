@@ -227,6 +227,7 @@ pub const THIN_OBJECT_TAGS: [&str; 2] = ["thin", "suspended"];
 /// Objects with this tag make up `geometry.small_objects` (scored at the thin objects'
 /// thresholds).
 pub const SMALL_OBJECT_TAGS: [&str; 1] = ["small"];
+pub use crate::mesh_metrics::THIN_OBJECT_THRESHOLDS;
 
 /// The recall of the object groups `eval` reports on their own: `geometry.thin_objects` and
 /// `geometry.small_objects` (None: the dataset has no object of the group).
@@ -235,7 +236,6 @@ pub struct GroupReports {
     pub thin: Option<ObjectGroupReport>,
     pub small: Option<ObjectGroupReport>,
 }
-pub use crate::mesh_metrics::THIN_OBJECT_THRESHOLDS;
 
 /// Mesh metrics of `pred` against `gt` (see [`crate::mesh_metrics::mesh_metrics`]), with the
 /// per-object recall named and tagged from `objects`, and the recall of the objects tagged thin or

@@ -224,17 +224,19 @@ impl<'g, F: FnMut(&[[f32; 3]], &mut [f32])> PlaneSource<'g, F> {
             // order, so the sampler's batches are what a serial sweep makes). Why: done serially,
             // it held the sweep for a sixth of the mesh's CPU time at 1024 on 2 cores.
             // Each task folds its rows into one list (rows in order within it, tasks in order in
-            // `listed`), so nothing is allocated per row.
+            // `listed`) with one band row view, so nothing is allocated per row.
             let listed: Vec<(Vec<usize>, Vec<[f32; 3]>)> = self.block_values[..total]
                 .par_chunks_mut(nx)
                 .enumerate()
                 .with_min_len(64)
                 .fold(
-                    || (Vec::new(), Vec::new()),
-                    |(mut targets, mut points), (row, values)| {
+                    || (Vec::new(), Vec::new(), band.map(|b| b.row_view())),
+                    |(mut targets, mut points, mut band_row), (row, values)| {
                         let flat0 = row * nx;
                         let (kk, j) = (k + flat0 / plane_len, (flat0 % plane_len) / nx);
-                        let band_row = band.map(|b| b.row(j, kk));
+                        if let Some(r) = band_row.as_mut() {
+                            r.move_to(j, kk);
+                        }
                         for (i, v) in values.iter_mut().enumerate() {
                             if let Some(row) = band_row.as_ref().filter(|r| !r.needs(i)) {
                                 *v = row.fill(i);
@@ -244,9 +246,10 @@ impl<'g, F: FnMut(&[[f32; 3]], &mut [f32])> PlaneSource<'g, F> {
                             points.push([q[0] as f32, q[1] as f32, q[2] as f32]);
                             targets.push(flat0 + i);
                         }
-                        (targets, points)
+                        (targets, points, band_row)
                     },
                 )
+                .map(|(targets, points, _)| (targets, points))
                 .collect();
             for (targets, points) in listed {
                 for (t, q) in targets.into_iter().zip(points) {

@@ -155,37 +155,22 @@ impl BandMask {
         self.active.iter().filter(|&&a| a).count() as f64 / self.active.len().max(1) as f64
     }
 
-    /// Row `j` of fine plane `k`: which of its samples need evaluating, and the fill of the
-    /// others. Why by row: asked sample by sample, the block lookups and the corner gathers of
-    /// the 95 % of samples that are filled took a sixth of the mesh's CPU time at 1024.
-    pub(crate) fn row(&self, j: usize, k: usize) -> BandRow<'_> {
-        let [bx, by, _] = self.blocks();
-        let (y, z) = (self.blocks_of[1][j], self.blocks_of[2][k]);
-        let active_x = (0..bx)
-            .map(|a| (z.0..=z.1).any(|c| (y.0..=y.1).any(|b| self.active[a + bx * (b as usize + by * c as usize)])))
-            .collect();
-        let (cx, cy) = (self.coarse[0].len(), self.coarse[1].len());
-        let (b1, b2) = (y.1 as usize, z.1 as usize);
-        let frac = |a: usize, b: usize, i: usize| {
-            let (lo, hi) = (self.coarse[a][b], self.coarse[a][b + 1]);
-            (i - lo) as f32 / (hi - lo) as f32
-        };
-        let (ty, tz) = (frac(1, b1, j), frac(2, b2, k));
-        // Per x corner column (coarse index x) and corner c's (dy, dz): the coarse value.
-        let corners = (0..cx)
-            .map(|x| std::array::from_fn(|c| self.values[x + cx * ((b1 + (c & 1)) + cy * (b2 + (c >> 1)))]))
-            .collect();
+    /// An empty row view, to be moved onto rows with [`BandRow::move_to`] (its buffers are
+    /// kept from row to row).
+    pub(crate) fn row_view(&self) -> BandRow<'_> {
         BandRow {
             mask: self,
-            active_x,
-            ty,
-            tz,
-            corners,
+            active_x: Vec::new(),
+            ty: 0.0,
+            tz: 0.0,
+            corners: Vec::new(),
         }
     }
 }
 
-/// One row of fine samples of a [`BandMask`] ([`BandMask::row`]).
+/// One row of fine samples of a [`BandMask`]: which of its samples need evaluating, and the fill
+/// of the others. Why by row: asked sample by sample, the block lookups and the corner gathers of
+/// the 95 % of samples that are filled took a sixth of the mesh's CPU time at 1024.
 pub(crate) struct BandRow<'m> {
     mask: &'m BandMask,
     /// Per x block: is any block holding this row's samples of it active?
@@ -197,6 +182,30 @@ pub(crate) struct BandRow<'m> {
 }
 
 impl BandRow<'_> {
+    /// Makes this the view of row `j` of fine plane `k`.
+    pub(crate) fn move_to(&mut self, j: usize, k: usize) {
+        let m = self.mask;
+        let [bx, by, _] = m.blocks();
+        let (y, z) = (m.blocks_of[1][j], m.blocks_of[2][k]);
+        self.active_x.clear();
+        self.active_x.extend(
+            (0..bx)
+                .map(|a| (z.0..=z.1).any(|c| (y.0..=y.1).any(|b| m.active[a + bx * (b as usize + by * c as usize)]))),
+        );
+        let (cx, cy) = (m.coarse[0].len(), m.coarse[1].len());
+        let (b1, b2) = (y.1 as usize, z.1 as usize);
+        let frac = |a: usize, b: usize, i: usize| {
+            let (lo, hi) = (m.coarse[a][b], m.coarse[a][b + 1]);
+            (i - lo) as f32 / (hi - lo) as f32
+        };
+        (self.ty, self.tz) = (frac(1, b1, j), frac(2, b2, k));
+        // Per x corner column (coarse index x) and corner c's (dy, dz): the coarse value.
+        self.corners.clear();
+        self.corners.extend(
+            (0..cx).map(|x| std::array::from_fn(|c| m.values[x + cx * ((b1 + (c & 1)) + cy * (b2 + (c >> 1)))])),
+        );
+    }
+
     /// Does fine sample i of the row lie in an active block?
     pub(crate) fn needs(&self, i: usize) -> bool {
         let x = self.mask.blocks_of[0][i];
@@ -353,7 +362,9 @@ mod tests {
         // A linear field far from its zero: no block active, and the fill is exact.
         assert_eq!(mask.active_fraction(), 0.0);
         let x = grid.point(17, 3, 5)[0] as f32;
-        assert!((mask.row(3, 5).fill(17) - (x + 10.0)).abs() < 1e-5);
-        assert!(!mask.row(3, 5).needs(17));
+        let mut row = mask.row_view();
+        row.move_to(3, 5);
+        assert!((row.fill(17) - (x + 10.0)).abs() < 1e-5);
+        assert!(!row.needs(17));
     }
 }

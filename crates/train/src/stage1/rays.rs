@@ -114,9 +114,13 @@ impl TrainImage {
         [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]
     }
 
-    /// The point at distance `t` along a pixel's ray at the given pose (no correction).
+    /// The point at distance `t` along a pixel's ray at the corrected pose, or with `given` at
+    /// the given one (no correction).
     #[inline]
-    pub fn given_point_along(&self, pixel: usize, t: f32) -> [f32; 3] {
+    pub fn point_at(&self, pixel: usize, t: f32, given: bool) -> [f32; 3] {
+        if !given {
+            return self.point_along(pixel, t);
+        }
         let (o, d) = (self.origin, self.dirs[pixel]);
         [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]
     }
@@ -124,13 +128,7 @@ impl TrainImage {
     /// The depth map's point of a pixel at the corrected pose, or with `given` at the given one.
     pub fn depth_point(&self, pixel: usize, given: bool) -> Option<[f32; 3]> {
         let t = self.depth[pixel];
-        (t > 0.0).then(|| {
-            if given {
-                self.given_point_along(pixel, t)
-            } else {
-                self.point_along(pixel, t)
-            }
-        })
+        (t > 0.0).then(|| self.point_at(pixel, t, given))
     }
 }
 

@@ -283,12 +283,7 @@ impl Stage1 {
                 let im = &self.images[p.image as usize];
                 let pixel = p.pixel as usize;
                 if im.surface_point(pixel).is_some() {
-                    let t = im.depth[pixel] + INSIDE_DEPTH;
-                    extra.extend_from_slice(&if pin {
-                        im.given_point_along(pixel, t)
-                    } else {
-                        im.point_along(pixel, t)
-                    });
+                    extra.extend_from_slice(&im.point_at(pixel, im.depth[pixel] + INSIDE_DEPTH, pin));
                 }
             }
         }
