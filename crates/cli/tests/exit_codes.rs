@@ -427,7 +427,7 @@ fn edit_bad_input_exits_2_and_good_specs_render() {
         (empty.clone(), vec!["--view", "99"], vec!["--view 99"]),
         (empty.clone(), vec!["--width", "20"], vec!["--width and --height"]),
         (empty.clone(), vec!["--split", "validation"], vec!["--split validation"]),
-        (empty.clone(), vec!["--composite", "ratio"], vec!["--composite", "ratio"]),
+        (empty.clone(), vec!["--composite", "product"], vec!["--composite", "product"]),
         (dir.path().join("absent.toml"), vec![], vec!["absent.toml"]),
     ];
     std::fs::write(dir.path().join("broken.ply"), b"ply\nformat nonsense\n").unwrap();
@@ -473,24 +473,27 @@ fn edit_bad_input_exits_2_and_good_specs_render() {
     );
     let png = i2sdf_data::imageio::read_image(&out.join(names.iter().find(|n| n.ends_with(".png")).unwrap())).unwrap();
     assert_eq!((png.width, png.height), (12, 10));
-    // The same edit by differential rendering (two path-traced passes and the radiance field).
-    std::fs::remove_dir_all(&out).unwrap();
-    let o = edit(
-        run,
-        &full,
-        &[
-            "--view",
-            "0",
-            "--width",
-            "12",
-            "--height",
-            "10",
-            "--composite",
-            "differential",
-        ],
-    );
-    assert_eq!(o.code, 0, "{}", o.stderr);
-    assert_eq!(std::fs::read_dir(&out).unwrap().count(), 3);
+    // The same edit by differential rendering and by its ratio form (two path-traced passes
+    // and the radiance field).
+    for composite in ["differential", "ratio"] {
+        std::fs::remove_dir_all(&out).unwrap();
+        let o = edit(
+            run,
+            &full,
+            &[
+                "--view",
+                "0",
+                "--width",
+                "12",
+                "--height",
+                "10",
+                "--composite",
+                composite,
+            ],
+        );
+        assert_eq!(o.code, 0, "{composite}: {}", o.stderr);
+        assert_eq!(std::fs::read_dir(&out).unwrap().count(), 3);
+    }
     // A failed write exits 1.
     let blocked = unwritable(dir.path(), "out");
     let o = i2sdf(&[
@@ -609,13 +612,20 @@ fn eval_scores_the_relit_sets() {
     assert_eq!(compared, tests.len() * 16, "9 PNGs and 7 EXRs per view");
     let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     let r = &m["relight"];
-    for key in ["psnr", "ssim", "psnr_differential", "ssim_differential"] {
+    for key in [
+        "psnr",
+        "ssim",
+        "psnr_differential",
+        "ssim_differential",
+        "psnr_ratio",
+        "ssim_ratio",
+    ] {
         assert!(r[key].is_number(), "relight.{key}: {r}");
     }
     for set in ["brighter", "mirror"] {
         let v = &r["sets"][set];
         assert!(
-            v["psnr"].is_number() && v["psnr_differential"].is_number(),
+            v["psnr"].is_number() && v["psnr_differential"].is_number() && v["psnr_ratio"].is_number(),
             "{set}: {v}"
         );
         assert_eq!(v["frames"], tests.len());

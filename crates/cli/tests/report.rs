@@ -209,9 +209,10 @@ fn relit_captions_are_evals_per_frame_figures() {
     assert_eq!(o.code, 0, "{}", o.stderr);
     let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&metrics).unwrap()).unwrap();
     let frame = &m["relight"]["sets"]["brighter"]["per_frame"][0];
-    let (traced, diff) = (
+    let (traced, diff, ratio) = (
         frame["psnr"].as_f64().unwrap(),
         frame["psnr_differential"].as_f64().unwrap(),
+        frame["psnr_ratio"].as_f64().unwrap(),
     );
 
     let caption = |text: &str, what: &str| -> String {
@@ -225,7 +226,7 @@ fn relit_captions_are_evals_per_frame_figures() {
     let o = report(&run, &out, &["--data", s(&data), "--metrics", s(&metrics)]);
     assert_eq!(o.code, 0, "{}", o.stderr);
     let (text, _) = check_page(&out);
-    for (what, figure) in [("path traced", traced), ("differential", diff)] {
+    for (what, figure) in [("path traced", traced), ("differential", diff), ("ratio", ratio)] {
         let shown = caption(&text, what);
         assert_eq!(
             shown,

@@ -1,10 +1,10 @@
 //! One edit rendered view after view, as `i2sdf edit` writes it: the spec applied to the
 //! recovered scene, its light gains, and each view's image formed as asked ([`Composite`]):
-//! the path-traced render as it is, or by differential rendering over stage 1's radiance field
-//! (see [`crate::differential`]).
+//! the path-traced render as it is, or over stage 1's radiance field by differential rendering or
+//! its ratio form (see [`crate::differential`]).
 
 use crate::apply::light_gains;
-use crate::differential::{differential_hdr, hdr_ldr_images, Composite};
+use crate::differential::{composite_hdr, hdr_ldr_images, Composite};
 use crate::recovered::{edit_images, EditSettings, RecoveredScene};
 use crate::scene::EditedScene;
 use glam::Vec3;
@@ -39,7 +39,7 @@ impl<'r, 'a> EditRenderer<'r, 'a> {
     ) -> Self {
         let edited = recovered.edited(spec, assets);
         let relight_only = spec.ops.iter().all(|op| matches!(op, EditOp::Relight(_)));
-        let unedited = (composite == Composite::Differential && !relight_only)
+        let unedited = (composite.over_capture() && !relight_only)
             .then(|| recovered.edited(&EditSpec::default(), &Default::default()));
         let gains = light_gains(spec, &edited);
         EditRenderer {
@@ -80,13 +80,14 @@ impl<'r, 'a> EditRenderer<'r, 'a> {
         let render = recovered.render(&self.edited, camera, settings, view, on_row);
         match self.composite {
             Composite::PathTraced => edit_images(&render, &self.gains, rm),
-            Composite::Differential => {
+            kind => {
                 let base = self
                     .unedited
                     .as_ref()
                     .map(|u| recovered.render(u, camera, settings, view, on_row));
                 let captured = recovered.captured(camera, self.volume);
-                let d = differential_hdr(&captured, &render, &self.gains, base.as_ref().unwrap_or(&render), rm);
+                let unedited = base.as_ref().unwrap_or(&render);
+                let d = composite_hdr(kind, &captured, &render, &self.gains, unedited, rm);
                 hdr_ldr_images(&d, render.width, render.height, rm)
             }
         }

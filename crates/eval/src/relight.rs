@@ -7,8 +7,9 @@
 //! Sets whose specs only relight share one render per camera: relighting is exact from the
 //! per-emitter radiance slots, so only the gains differ. With `volume` set, each set is also
 //! scored by differential rendering ([`i2sdf_edit::differential`]): stage 1's radiance field of
-//! the camera + the path-traced change, from the same renders (and, for a set that edits more
-//! than lights, the unedited render of the same paths).
+//! the camera + the path-traced change, and by its ratio form (the radiance field × the
+//! path-traced ratio), from the same renders (and, for a set that edits more than lights, the
+//! unedited render of the same paths).
 //!
 //! Each camera's paths are drawn with a view index fixed by the dataset alone (the order in which
 //! the relit sets first show the camera), so a frame's images do not depend on which other
@@ -21,7 +22,7 @@ use glam::Vec3;
 use i2sdf_data::edit_spec::{EditOp, EditSpec};
 use i2sdf_data::{Camera, DataError, Dataset, EditAssets, Frame, ImageF32, RelightSet, Split};
 use i2sdf_edit::{
-    differential_hdr, edit_images, hdr_ldr_images, light_gains, EditSettings, EditedScene, RecoveredScene,
+    differential_hdr, edit_images, hdr_ldr_images, light_gains, ratio_hdr, EditSettings, EditedScene, RecoveredScene,
 };
 use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::OpenedRun;
@@ -145,13 +146,14 @@ pub struct RelitScoring<'r, 'a> {
     pub frames_per_set: Option<usize>,
 }
 
-/// One scored relit frame, as it is scored: the path-traced image, the differential composite
-/// (with `volume`), the ground truth and the figures.
+/// One scored relit frame, as it is scored: the path-traced image, the differential and ratio
+/// composites (with `volume`), the ground truth and the figures.
 pub struct RelitFrame<'f> {
     pub set: usize,
     pub frame: &'f Frame,
     pub traced: &'f ImageF32,
     pub differential: Option<&'f ImageF32>,
+    pub ratio: Option<&'f ImageF32>,
     pub figures: &'f RelightFrameMetrics,
 }
 
@@ -186,6 +188,7 @@ pub fn score_relit_sets(
         let scores = eval.score_set(i, set, spec, assets, &mut baseline, on_frame)?;
         all.relit.extend(&scores.relit);
         all.differential.extend(&scores.differential);
+        all.ratio.extend(&scores.ratio);
         sets.insert(set_name(set, i), scores.metrics(set.frames.len()));
     }
     Ok(RelightMetrics {
@@ -199,6 +202,8 @@ pub fn score_relit_sets(
         }),
         psnr_differential: mean(&all.differential.psnr),
         ssim_differential: mean(&all.differential.ssim),
+        psnr_ratio: mean(&all.ratio.psnr),
+        ssim_ratio: mean(&all.ratio.ssim),
         settings: None,
     })
 }
@@ -241,13 +246,14 @@ impl Scores {
 }
 
 /// A set's scores: its relit images, the unedited render against the same truth (what doing
-/// nothing scores, relight-only sets), the differential composites (with `volume`), and each
-/// frame's figures.
+/// nothing scores, relight-only sets), the differential and ratio composites (with `volume`), and
+/// each frame's figures.
 #[derive(Default)]
 struct SetScores {
     relit: Scores,
     unedited: Scores,
     differential: Scores,
+    ratio: Scores,
     per_frame: Vec<RelightFrameMetrics>,
 }
 
@@ -260,6 +266,8 @@ impl SetScores {
             ssim_unedited: mean(&self.unedited.ssim),
             psnr_differential: mean(&self.differential.psnr),
             ssim_differential: mean(&self.differential.ssim),
+            psnr_ratio: mean(&self.ratio.psnr),
+            ssim_ratio: mean(&self.ratio.ssim),
             frames,
             per_frame: self.per_frame.clone(),
         }
@@ -324,6 +332,8 @@ pub struct EditedView {
     pub traced: ImageF32,
     /// Stage 1's radiance field + the path-traced change (with a `volume`).
     pub differential: Option<ImageF32>,
+    /// Stage 1's radiance field × the path-traced ratio (with a `volume`).
+    pub ratio: Option<ImageF32>,
 }
 
 /// `camera` seen with an edit: `edited` (None when the spec only relights: the unedited render
@@ -354,17 +364,22 @@ pub fn edited_view(
     let base = renders.unedited.get(&key).map(|(b, _)| b);
     let render = own.as_ref().or(base).expect("a render of the edited scene");
     let (_, traced) = edit_images(render, gains, rm);
-    let differential = match (scoring.volume, base) {
+    let (differential, ratio) = match (scoring.volume, base) {
         (Some(_), Some(base)) => {
-            let d = differential_hdr(&renders.captured[&key], render, gains, base, rm);
-            Some(hdr_ldr_images(&d, render.width, render.height, rm).1)
+            let captured = &renders.captured[&key];
+            let ldr = |hdr: Vec<Vec3>| hdr_ldr_images(&hdr, render.width, render.height, rm).1;
+            (
+                Some(ldr(differential_hdr(captured, render, gains, base, rm))),
+                Some(ldr(ratio_hdr(captured, render, gains, base, rm))),
+            )
         }
-        _ => None,
+        _ => (None, None),
     };
     EditedView {
         render: own,
         traced,
         differential,
+        ratio,
     }
 }
 
@@ -416,11 +431,17 @@ impl RelightEval<'_, '_, '_> {
                 name: f.name.clone(),
                 psnr: relit.0,
                 psnr_differential: None,
+                psnr_ratio: None,
             };
             if let Some(d) = &view.differential {
                 let s = scores_of(d, &f.rgb)?;
                 scores.differential.push(s);
                 figures.psnr_differential = s.0;
+            }
+            if let Some(r) = &view.ratio {
+                let s = scores_of(r, &f.rgb)?;
+                scores.ratio.push(s);
+                figures.psnr_ratio = s.0;
             }
             if relight_only {
                 let (base, _) = &self.renders.unedited[&key];
@@ -437,6 +458,7 @@ impl RelightEval<'_, '_, '_> {
                 frame: f,
                 traced: &view.traced,
                 differential: view.differential.as_ref(),
+                ratio: view.ratio.as_ref(),
                 figures: &figures,
             });
             scores.per_frame.push(figures);

@@ -2,7 +2,8 @@
 //! is `null`, never absent. Extra keys beyond the contract: `geometry.mesh.per_object_recall`
 //! (with the dataset's object names and tags), `geometry.thin_objects`, `material.pixels` and
 //! `material.albedo_scale`, `emitters.emission` and `emitters.matches`, `relight.unedited`,
-//! `relight.psnr_differential`/`ssim_differential` and the per-set `*_unedited`, `*_differential`,
+//! `relight.psnr_differential`/`ssim_differential`, `relight.psnr_ratio`/`ssim_ratio` and the per-set
+//! `*_unedited`, `*_differential`, `*_ratio`,
 //! and the top-level `notes`: sentences saying why figures are missing or not meaningful (always
 //! present, `[]` when there is nothing to say), e.g. [`zero_emitter_note`] when stage 2 found no
 //! emitters, [`no_lpips_note`] when no LPIPS weights were given.
@@ -262,6 +263,10 @@ pub struct RelightMetrics {
     /// radiance field + the path-traced change), over all their frames.
     pub psnr_differential: Option<f64>,
     pub ssim_differential: Option<f64>,
+    /// The same sets by the ratio composite (`i2sdf edit --composite ratio`: stage 1's radiance
+    /// field × the path-traced edited / unedited), over all their frames.
+    pub psnr_ratio: Option<f64>,
+    pub ssim_ratio: Option<f64>,
     /// How the sets were rendered (None when nothing was): a report rendering with the same
     /// settings shows the same images and figures.
     #[serde(default)]
@@ -288,18 +293,22 @@ pub struct RelightSetMetrics {
     /// By differential rendering (see [`RelightMetrics::psnr_differential`]).
     pub psnr_differential: Option<f64>,
     pub ssim_differential: Option<f64>,
+    /// By the ratio composite (see [`RelightMetrics::psnr_ratio`]).
+    pub psnr_ratio: Option<f64>,
+    pub ssim_ratio: Option<f64>,
     pub frames: usize,
     /// Each scored frame's figures, in the set's order.
     #[serde(default)]
     pub per_frame: Vec<RelightFrameMetrics>,
 }
 
-/// One relit frame's figures: path traced, and by differential rendering.
+/// One relit frame's figures: path traced, by differential rendering and by the ratio composite.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct RelightFrameMetrics {
     pub name: String,
     pub psnr: Option<f64>,
     pub psnr_differential: Option<f64>,
+    pub psnr_ratio: Option<f64>,
 }
 
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

@@ -166,6 +166,8 @@ const ROWS: &[Row] = &[
         "↑",
     ),
     row("relight SSIM, differential", "relight.ssim_differential", None, "↑"),
+    row("relight PSNR, ratio (dB)", "relight.psnr_ratio", None, "↑"),
+    row("relight SSIM, ratio", "relight.ssim_ratio", None, "↑"),
     row(
         "unedited render vs test images PSNR (dB)",
         "relight.unedited.psnr",
@@ -298,7 +300,7 @@ fn relight_sets(s: &mut String, m: &Value) {
     };
     s.push_str(
         "<h3>Relit sets (PSNR dB / SSIM)</h3><table><tr><th>set</th><th>frames</th><th>path traced</th>\
-         <th>differential</th><th>unedited (doing nothing)</th></tr>",
+         <th>differential</th><th>ratio</th><th>unedited (doing nothing)</th></tr>",
     );
     for (name, v) in sets {
         let pair = |p: &str, q: &str| {
@@ -310,11 +312,12 @@ fn relight_sets(s: &mut String, m: &Value) {
         };
         let _ = write!(
             s,
-            "<tr><td>{}</td><td class=\"num\">{}</td>{}{}{}</tr>",
+            "<tr><td>{}</td><td class=\"num\">{}</td>{}{}{}{}</tr>",
             esc(name),
             at(v, "frames").map_or("—".into(), |f| format!("{f}")),
             pair("psnr", "ssim"),
             pair("psnr_differential", "ssim_differential"),
+            pair("psnr_ratio", "ssim_ratio"),
             pair("psnr_unedited", "ssim_unedited")
         );
     }

@@ -2,7 +2,7 @@
 //! radiance field's view of the test camera (`render_volume_view`), stage 2's Monte Carlo
 //! re-render with its material maps (`rerender_view`), the recovered surface shaded by normal,
 //! and the relit sets and a mirror edit path traced by the edit renderer (`RecoveredScene`), with
-//! the differential composite beside them.
+//! the differential and ratio composites beside them.
 
 use crate::html::{colour_bar, esc, format_sig, grid_row, Assets, Cell};
 use crate::images::{abs_error, depth_display, depth_error, depth_far, normal_display, normal_error, ErrorMap};
@@ -279,7 +279,7 @@ fn psnr_caption(what: &str, img: &ImageF32, gt: &ImageF32) -> String {
     psnr_of(img, gt).map_or_else(|| what.to_string(), |p| format!("{what}, {} dB", format_sig(p)))
 }
 
-/// The dataset's relit sets, the first frame of each: GT | path traced | differential. The
+/// The dataset's relit sets, the first frame of each: GT | path traced | differential | ratio. The
 /// frames are rendered and scored by eval's relight scoring itself (`ctx.scoring` selects the
 /// first frame of each set), so with eval's settings the captions are the figures `eval` gives
 /// these frames (`relight.sets.NAME.per_frame` in its metrics).
@@ -319,7 +319,14 @@ pub fn relight_grid(
                 ),
                 None => Cell::missing("differential", "no radiance field settings"),
             };
-            Ok([gt, traced, diff])
+            let ratio = match f.ratio {
+                Some(r) => Cell::img(
+                    caption("ratio", f.figures.psnr_ratio),
+                    assets.png(&format!("{stem}_ratio"), r)?,
+                ),
+                None => Cell::missing("ratio", "no radiance field settings"),
+            };
+            Ok([gt, traced, diff, ratio])
         })();
         match cells {
             Ok(cells) => {

@@ -326,7 +326,11 @@ impl Default for SamplingConfig {
     fn default() -> Self {
         SamplingConfig {
             samples: 32,
-            coarse: 32,
+            // 64, not 32: the first pass's spacing is what the error bound starts from, and at
+            // 32 it missed surface. Seed 1, stage 1 with the defaults: test PSNR 32.30 → 33.43,
+            // F 0.972 → 0.977, for 7 % more stage-1 time (issue 26). Rendering a coarse-32 run
+            // at 64 alone gave 32.61: most of the gain is in training.
+            coarse: 64,
             // Half the first pass: the sampler's time from 25 % to 20 % of a step, at 0.7 cm
             // mean depth and 45 dB colour against a dense reference (issue 12).
             upsample: Some(16),

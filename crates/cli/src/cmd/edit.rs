@@ -5,7 +5,8 @@
 //! `RUN/emitters.json`'s `emission`: divide by the dataset's exposure for its HDR units) and a
 //! copy of the spec as `DIR/edit.toml`. An empty spec renders the unedited scene. Everything is
 //! checked (run, spec, its textures and meshes, the arguments) before anything is written.
-//! `--composite differential` forms the image by differential rendering (`i2sdf_edit::differential`).
+//! `--composite differential` forms the image by differential rendering, `--composite ratio` by
+//! its ratio form where the edit dims (`i2sdf_edit::differential`).
 
 use clap::Args as ClapArgs;
 use i2sdf_data::edit_spec::EditOp;
@@ -55,10 +56,11 @@ pub struct Args {
     /// Dataset (defaults to the one the run was trained on).
     #[arg(long)]
     pub data: Option<PathBuf>,
-    /// How the image is formed: `path-traced` (the edited scene's render as it is) or
+    /// How the image is formed: `path-traced` (the edited scene's render as it is),
     /// `differential` (stage 1's radiance field + the path-traced change, edited − unedited:
     /// the captured appearance where the edit leaves it; twice the path tracing unless the spec
-    /// only relights).
+    /// only relights) or `ratio` (as `differential`, but where the edit takes light away the
+    /// radiance field × edited / unedited: the captured material kept under a dimmed light).
     #[arg(long, default_value = "path-traced")]
     pub composite: String,
     /// A camera path instead of the split's views (as `render --path`): frames plus `NAME.gif`
