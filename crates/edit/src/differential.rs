@@ -43,7 +43,7 @@
 
 use glam::Vec3;
 use i2sdf_data::{ImageF32, Radiometry};
-use i2sdf_render::ViewRender;
+use i2sdf_render::{luminance, ViewRender};
 
 /// How `i2sdf edit` and the relight evaluation form the edited image.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -118,7 +118,8 @@ pub fn differential_hdr(
     unedited: &ViewRender,
     radiometry: &Radiometry,
 ) -> Vec<Vec3> {
-    over_capture(captured, edited, gains, unedited, radiometry, |c, e, u| c + e - u)
+    let (e, u) = (edited.hdr(gains), unedited.hdr(&vec![Vec3::ONE; unedited.emitters]));
+    over_capture(captured, edited, unedited, (&e, &u), radiometry, |c, e, u| c + e - u)
 }
 
 /// The ratio composite in linear HDR (image units), with the arguments of [`differential_hdr`]:
@@ -132,20 +133,15 @@ pub fn ratio_hdr(
     unedited: &ViewRender,
     radiometry: &Radiometry,
 ) -> Vec<Vec3> {
-    let u = unedited.hdr(&vec![Vec3::ONE; unedited.emitters]);
+    let (e, u) = (edited.hdr(gains), unedited.hdr(&vec![Vec3::ONE; unedited.emitters]));
     let mean = u.iter().map(|c| luminance(*c)).sum::<f32>() / u.len().max(1) as f32;
     let floor = Vec3::splat((RATIO_FLOOR * mean).max(f32::MIN_POSITIVE));
-    over_capture(captured, edited, gains, unedited, radiometry, |c, e, u| {
+    over_capture(captured, edited, unedited, (&e, &u), radiometry, |c, e, u| {
         let u = u.max(Vec3::ZERO);
         let w = u * u / (u * u + floor * floor);
         let ratio = w * (c * e / u.max(floor)) + (Vec3::ONE - w) * (c + e - u);
         Vec3::select(e.cmplt(u), ratio, c + e - u)
     })
-}
-
-/// Rec. 709 luminance of linear RGB.
-fn luminance(c: Vec3) -> f32 {
-    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
 }
 
 /// The composite `kind` in linear HDR (image units), with the arguments of [`differential_hdr`];
@@ -165,13 +161,14 @@ pub fn composite_hdr(
     }
 }
 
-/// Per pixel, `combine(captured, edited, unedited)` (linear, clamped at zero), or the edited
-/// render where the captured image cannot stand (see the module docs).
+/// Per pixel, `combine(captured, edited, unedited)` (linear, clamped at zero) of the captured
+/// image and the two renders' images `(e, u)`, or the edited render where the captured image
+/// cannot stand (see the module docs).
 fn over_capture(
     captured: &ImageF32,
     edited: &ViewRender,
-    gains: &[Vec3],
     unedited: &ViewRender,
+    (e, u): (&[Vec3], &[Vec3]),
     radiometry: &Radiometry,
     combine: impl Fn(Vec3, Vec3, Vec3) -> Vec3,
 ) -> Vec<Vec3> {
@@ -180,10 +177,8 @@ fn over_capture(
         (edited.width, edited.height, 3)
     );
     assert_eq!((unedited.width, unedited.height), (edited.width, edited.height));
-    let e = edited.hdr(gains);
-    let u = unedited.hdr(&vec![Vec3::ONE; unedited.emitters]);
     e.iter()
-        .zip(&u)
+        .zip(u)
         .enumerate()
         .map(|(i, (&e, &u))| {
             let c = &captured.data[3 * i..3 * i + 3];
