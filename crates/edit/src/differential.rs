@@ -107,45 +107,16 @@ fn same_surface(a: &ViewRender, b: &ViewRender, i: usize) -> bool {
         && (a.roughness[i] - b.roughness[i]).abs() <= 1e-5
 }
 
-/// The differential image in linear HDR (image units): `captured` is the radiance field's view
+/// The image `kind` forms, in linear HDR (image units): `captured` is the radiance field's view
 /// (display values, 3 channels), `edited` the edited scene's render with `gains`, `unedited` the
-/// unedited scene's render of the same camera, seed and view (all ones gains). For a relight
-/// only, `unedited` is `edited` itself.
-pub fn differential_hdr(
-    captured: &ImageF32,
-    edited: &ViewRender,
-    gains: &[Vec3],
-    unedited: &ViewRender,
-    radiometry: &Radiometry,
-) -> Vec<Vec3> {
-    let (e, u) = (edited.hdr(gains), unedited.hdr(&vec![Vec3::ONE; unedited.emitters]));
-    over_capture(captured, edited, unedited, (&e, &u), radiometry, |c, e, u| c + e - u)
-}
-
-/// The ratio composite in linear HDR (image units), with the arguments of [`differential_hdr`]:
-/// per channel where the edit dims (e < u), c · e / u where the model's light u is well above
-/// [`RATIO_FLOOR`] and the difference c + e − u where it is not, blended by u² / (u² + floor²)
-/// between; where the edit brightens, the difference.
-pub fn ratio_hdr(
-    captured: &ImageF32,
-    edited: &ViewRender,
-    gains: &[Vec3],
-    unedited: &ViewRender,
-    radiometry: &Radiometry,
-) -> Vec<Vec3> {
-    let (e, u) = (edited.hdr(gains), unedited.hdr(&vec![Vec3::ONE; unedited.emitters]));
-    let mean = u.iter().map(|c| luminance(*c)).sum::<f32>() / u.len().max(1) as f32;
-    let floor = Vec3::splat((RATIO_FLOOR * mean).max(f32::MIN_POSITIVE));
-    over_capture(captured, edited, unedited, (&e, &u), radiometry, |c, e, u| {
-        let u = u.max(Vec3::ZERO);
-        let w = u * u / (u * u + floor * floor);
-        let ratio = w * (c * e / u.max(floor)) + (Vec3::ONE - w) * (c + e - u);
-        Vec3::select(e.cmplt(u), ratio, c + e - u)
-    })
-}
-
-/// The composite `kind` in linear HDR (image units), with the arguments of [`differential_hdr`];
-/// for [`Composite::PathTraced`], the edited render with its gains.
+/// unedited scene's render of the same camera, seed and view (all ones gains; for a relight only,
+/// `edited` itself).
+///
+/// - [`Composite::PathTraced`]: the edited render with its gains.
+/// - [`Composite::Differential`]: c + e − u per pixel.
+/// - [`Composite::Ratio`]: per channel where the edit dims (e < u), c · e / u where the model's
+///   light u is well above [`RATIO_FLOOR`] and the difference where it is not, blended by
+///   u² / (u² + floor²) between; where the edit brightens, the difference.
 pub fn composite_hdr(
     kind: Composite,
     captured: &ImageF32,
@@ -154,11 +125,23 @@ pub fn composite_hdr(
     unedited: &ViewRender,
     radiometry: &Radiometry,
 ) -> Vec<Vec3> {
-    match kind {
-        Composite::PathTraced => edited.hdr(gains),
-        Composite::Differential => differential_hdr(captured, edited, gains, unedited, radiometry),
-        Composite::Ratio => ratio_hdr(captured, edited, gains, unedited, radiometry),
+    let e = edited.hdr(gains);
+    if kind == Composite::PathTraced {
+        return e;
     }
+    let u = unedited.hdr(&vec![Vec3::ONE; unedited.emitters]);
+    let images = (&e[..], &u[..]);
+    if kind == Composite::Differential {
+        return over_capture(captured, edited, unedited, images, radiometry, |c, e, u| c + e - u);
+    }
+    let mean = u.iter().map(|c| luminance(*c)).sum::<f32>() / u.len().max(1) as f32;
+    let floor = Vec3::splat((RATIO_FLOOR * mean).max(f32::MIN_POSITIVE));
+    over_capture(captured, edited, unedited, images, radiometry, |c, e, u| {
+        let u = u.max(Vec3::ZERO);
+        let w = u * u / (u * u + floor * floor);
+        let ratio = w * (c * e / u.max(floor)) + (Vec3::ONE - w) * (c + e - u);
+        Vec3::select(e.cmplt(u), ratio, c + e - u)
+    })
 }
 
 /// Per pixel, `combine(captured, edited, unedited)` (linear, clamped at zero) of the captured
@@ -226,22 +209,27 @@ mod tests {
         Radiometry::from_name("linear", None).unwrap()
     }
 
+    /// [`composite_hdr`] with linear radiometry.
+    fn composite(kind: Composite, c: &ImageF32, e: &ViewRender, gains: &[Vec3], u: &ViewRender) -> Vec<Vec3> {
+        composite_hdr(kind, c, e, gains, u, &linear())
+    }
+
     #[test]
     fn a_relight_adds_the_change_to_the_captured_image() {
         // The model under-estimates the light (0.2 where the capture says 0.4): doubling the
         // light adds the model's share once more, the captured 0.4 is kept.
         let v = view([0.2, 0.1], [0.5, 0.5]);
         let captured = ImageF32::from_data(2, 1, 3, vec![0.4; 6]);
-        let out = differential_hdr(&captured, &v, &[Vec3::splat(2.0)], &v, &linear());
+        let out = composite(Composite::Differential, &captured, &v, &[Vec3::splat(2.0)], &v);
         assert!((out[0] - Vec3::splat(0.6)).abs().max_element() < 1e-6, "{:?}", out[0]);
         assert!((out[1] - Vec3::splat(0.5)).abs().max_element() < 1e-6);
         // Turning it off where the model over-estimates clamps at zero, not below.
-        let out = differential_hdr(
+        let out = composite(
+            Composite::Differential,
             &captured,
             &view([0.6, 0.1], [0.5, 0.5]),
             &[Vec3::ZERO],
             &view([0.6, 0.1], [0.5, 0.5]),
-            &linear(),
         );
         assert_eq!(out[0], Vec3::ZERO);
         assert!((out[1] - Vec3::splat(0.3)).abs().max_element() < 1e-6);
@@ -253,12 +241,12 @@ mod tests {
         // Pixel 1's material was edited: it takes the edited render's 0.9.
         let edited = view([0.3, 0.9], [0.5, 0.1]);
         let mut captured = ImageF32::from_data(2, 1, 3, vec![0.4; 6]);
-        let out = differential_hdr(&captured, &edited, &[Vec3::ONE], &unedited, &linear());
+        let out = composite(Composite::Differential, &captured, &edited, &[Vec3::ONE], &unedited);
         assert!((out[0] - Vec3::splat(0.5)).abs().max_element() < 1e-6);
         assert_eq!(out[1], Vec3::splat(0.9));
         // A clipped capture says nothing about the radiance: the path tracer's stands.
         captured.data[0] = 1.0;
-        let out = differential_hdr(&captured, &edited, &[Vec3::ONE], &unedited, &linear());
+        let out = composite(Composite::Differential, &captured, &edited, &[Vec3::ONE], &unedited);
         assert_eq!(out[0], Vec3::splat(0.3));
     }
 
@@ -269,7 +257,7 @@ mod tests {
         // 0.15 only.
         let v = view([0.2, 0.2], [0.5, 0.5]);
         let captured = ImageF32::from_data(2, 1, 3, vec![0.4; 6]);
-        let out = ratio_hdr(&captured, &v, &[Vec3::splat(0.25)], &v, &linear());
+        let out = composite(Composite::Ratio, &captured, &v, &[Vec3::splat(0.25)], &v);
         let w = 1.0 / (1.0 + RATIO_FLOOR * RATIO_FLOOR);
         let expect = w * 0.1 + (1.0 - w) * 0.25;
         assert!(
@@ -278,7 +266,7 @@ mod tests {
             out[0]
         );
         assert!(out[0].x < 0.101, "nearly the ratio: {:?}", out[0]);
-        let d = differential_hdr(&captured, &v, &[Vec3::splat(0.25)], &v, &linear());
+        let d = composite(Composite::Differential, &captured, &v, &[Vec3::splat(0.25)], &v);
         assert!((d[0] - Vec3::splat(0.25)).abs().max_element() < 1e-6);
     }
 
@@ -288,8 +276,8 @@ mod tests {
         let v = view([0.2, 0.2], [0.5, 0.5]);
         let captured = ImageF32::from_data(2, 1, 3, vec![0.4; 6]);
         let gains = [Vec3::new(3.0, 1.0, 0.5)];
-        let out = ratio_hdr(&captured, &v, &gains, &v, &linear());
-        let d = differential_hdr(&captured, &v, &gains, &v, &linear());
+        let out = composite(Composite::Ratio, &captured, &v, &gains, &v);
+        let d = composite(Composite::Differential, &captured, &v, &gains, &v);
         assert_eq!(out[0].x, d[0].x);
         assert!(
             (out[0].y - 0.4).abs() < 1e-6,
@@ -304,8 +292,8 @@ mod tests {
         // Pixel 1: the model's light is 1e-5 of pixel 0's (a shadow it never saw lit).
         let v = view([1.0, 1e-5], [0.5, 0.5]);
         let captured = ImageF32::from_data(2, 1, 3, vec![0.4; 6]);
-        let out = ratio_hdr(&captured, &v, &[Vec3::splat(0.5)], &v, &linear());
-        let d = differential_hdr(&captured, &v, &[Vec3::splat(0.5)], &v, &linear());
+        let out = composite(Composite::Ratio, &captured, &v, &[Vec3::splat(0.5)], &v);
+        let d = composite(Composite::Differential, &captured, &v, &[Vec3::splat(0.5)], &v);
         assert!(
             (out[1] - d[1]).abs().max_element() < 1e-5,
             "{:?} against {:?}",
@@ -323,7 +311,7 @@ mod tests {
         v.emitters = 2;
         v.radiance = vec![Vec3::splat(0.3), Vec3::splat(0.05), Vec3::splat(0.1), Vec3::splat(0.6)];
         let captured = ImageF32::from_data(2, 1, 3, vec![0.4; 6]);
-        let out = ratio_hdr(&captured, &v, &[Vec3::splat(0.5); 2], &v, &linear());
+        let out = composite(Composite::Ratio, &captured, &v, &[Vec3::splat(0.5); 2], &v);
         for p in out {
             assert!((p - Vec3::splat(0.2)).abs().max_element() < 1e-3, "{p:?}");
         }

@@ -15,6 +15,6 @@ pub use recovered::{edit_images, recovered_lights, EditSettings, RecoveredScene,
 pub mod apply;
 pub use apply::{edited_scene, light_gains};
 pub mod differential;
-pub use differential::{composite_hdr, differential_hdr, hdr_ldr_images, ratio_hdr, Composite};
+pub use differential::{composite_hdr, hdr_ldr_images, Composite};
 pub mod renderer;
 pub use renderer::EditRenderer;

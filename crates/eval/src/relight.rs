@@ -22,7 +22,7 @@ use glam::Vec3;
 use i2sdf_data::edit_spec::{EditOp, EditSpec};
 use i2sdf_data::{Camera, DataError, Dataset, EditAssets, Frame, ImageF32, RelightSet, Split};
 use i2sdf_edit::{
-    differential_hdr, edit_images, hdr_ldr_images, light_gains, ratio_hdr, EditSettings, EditedScene, RecoveredScene,
+    composite_hdr, edit_images, hdr_ldr_images, light_gains, Composite, EditSettings, EditedScene, RecoveredScene,
 };
 use i2sdf_model::renderer::RenderSettings;
 use i2sdf_model::OpenedRun;
@@ -369,8 +369,15 @@ pub fn edited_view(
             let captured = &renders.captured[&key];
             let ldr = |hdr: Vec<Vec3>| hdr_ldr_images(&hdr, render.width, render.height, rm).1;
             (
-                Some(ldr(differential_hdr(captured, render, gains, base, rm))),
-                Some(ldr(ratio_hdr(captured, render, gains, base, rm))),
+                Some(ldr(composite_hdr(
+                    Composite::Differential,
+                    captured,
+                    render,
+                    gains,
+                    base,
+                    rm,
+                ))),
+                Some(ldr(composite_hdr(Composite::Ratio, captured, render, gains, base, rm))),
             )
         }
         _ => (None, None),
