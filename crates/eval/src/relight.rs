@@ -367,18 +367,11 @@ pub fn edited_view(
     let (differential, ratio) = match (scoring.volume, base) {
         (Some(_), Some(base)) => {
             let captured = &renders.captured[&key];
-            let ldr = |hdr: Vec<Vec3>| hdr_ldr_images(&hdr, render.width, render.height, rm).1;
-            (
-                Some(ldr(composite_hdr(
-                    Composite::Differential,
-                    captured,
-                    render,
-                    gains,
-                    base,
-                    rm,
-                ))),
-                Some(ldr(composite_hdr(Composite::Ratio, captured, render, gains, base, rm))),
-            )
+            let form = |kind| {
+                let hdr = composite_hdr(kind, captured, render, gains, base, rm);
+                hdr_ldr_images(&hdr, render.width, render.height, rm).1
+            };
+            (Some(form(Composite::Differential)), Some(form(Composite::Ratio)))
         }
         _ => (None, None),
     };
