@@ -304,6 +304,7 @@ mod tests {
             extent: [0.2; 3],
             radius: 0.2,
             points: 5,
+            sphere: None,
         }
     }
 

@@ -169,6 +169,7 @@ mod tests {
             extent: [0.5, 0.0, 0.5],
             radius: 0.4,
             points: 10,
+            sphere: None,
         };
         let fields = IntrinsicFields {
             material: MaterialField::new(&config, 8, 3),

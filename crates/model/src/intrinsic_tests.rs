@@ -59,6 +59,7 @@ fn table(s: &NeuralScene) -> EmitterTable {
             extent: [0.6, 0.05, 0.6],
             radius: 0.5,
             points: 10,
+            sphere: None,
         }],
         &[[4.0, 3.0, 2.0]],
     )

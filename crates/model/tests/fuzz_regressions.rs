@@ -102,6 +102,7 @@ fn stage2_metadata_describing_a_grid_the_file_lacks_is_refused() {
         extent: [0.1; 3],
         radius: 0.1,
         points: 1,
+        sphere: None,
     };
     let fields = IntrinsicFields {
         material: MaterialField::new(&material, 3, 0),

@@ -82,6 +82,7 @@ fn cached_and_live_estimators_agree() {
             extent: [0.3, 0.05, 0.3],
             radius: 0.2,
             points: 100,
+            sphere: None,
         }],
         &[[6.0, 5.0, 4.0]],
     );

@@ -416,6 +416,56 @@ pub fn cluster_emitters(marked: &MarkedPoints, settings: &ClusterSettings, rng: 
     EmitterClustering { clusters, k, left_out }
 }
 
+/// The sphere through `points`, `[x, y, z, r]`, by algebraic least squares (|p|² = 2 c·p + d,
+/// r² = d + |c|²), when there are at least [`SPHERE_MIN_POINTS`], their distances from it
+/// deviate from r by at most [`SPHERE_MAX_RMS`] of r (RMS) and r is within
+/// [`SPHERE_MAX_SPREAD`] of their spread: a bulb seen from one side, not a panel.
+pub fn fit_sphere(points: &[[f64; 3]]) -> Option<[f64; 4]> {
+    use glam::{DMat4, DVec3, DVec4};
+    if points.len() < SPHERE_MIN_POINTS {
+        return None;
+    }
+    // Centred on the points' mean, so that the normal equations stay well scaled.
+    let mean = points.iter().map(|p| DVec3::from_array(*p)).sum::<DVec3>() / points.len() as f64;
+    let (mut ata, mut atb) = (DMat4::ZERO, DVec4::ZERO);
+    for p in points {
+        let q = DVec3::from_array(*p) - mean;
+        let row = DVec4::new(2.0 * q.x, 2.0 * q.y, 2.0 * q.z, 1.0);
+        for (j, col) in [row.x, row.y, row.z, row.w].into_iter().enumerate() {
+            *ata.col_mut(j) += row * col;
+        }
+        atb += row * q.length_squared();
+    }
+    let x = ata.inverse() * atb;
+    let c = x.truncate();
+    let r2 = x.w + c.length_squared();
+    // Coplanar points: a singular system, or a sphere so large that it is the plane.
+    let spread = points
+        .iter()
+        .map(|p| (DVec3::from_array(*p) - mean).length())
+        .fold(0.0, f64::max);
+    if !(x.is_finite() && r2 > 0.0 && r2.sqrt() <= SPHERE_MAX_SPREAD * spread) {
+        return None;
+    }
+    let r = r2.sqrt();
+    let rms = (points
+        .iter()
+        .map(|p| ((DVec3::from_array(*p) - mean - c).length() - r).powi(2))
+        .sum::<f64>()
+        / points.len() as f64)
+        .sqrt();
+    let centre = mean + c;
+    (rms <= SPHERE_MAX_RMS * r).then_some([centre.x, centre.y, centre.z, r])
+}
+
+/// Fewest points [`fit_sphere`] fits.
+pub const SPHERE_MIN_POINTS: usize = 16;
+/// Largest RMS deviation from the fitted sphere, as a fraction of its radius.
+pub const SPHERE_MAX_RMS: f64 = 0.1;
+/// Largest fitted radius, as a multiple of the points' largest distance from their mean: a
+/// cap narrower than about 60° from its axis, or a plane, does not say where its centre is.
+pub const SPHERE_MAX_SPREAD: f64 = 2.0;
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -653,5 +703,38 @@ mod tests {
             cluster_emitters(&MarkedPoints::default(), &settings(), &mut rng),
             EmitterClustering::default()
         );
+    }
+
+    #[test]
+    fn a_sphere_is_fitted_to_its_seen_cap_and_not_to_a_panel() {
+        // A cap of 120° around +x of the sphere at (1, 2, 3), radius 0.1, with 0.5 % noise.
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
+        let cap: Vec<[f64; 3]> = (0..400)
+            .filter_map(|_| {
+                let d = glam::DVec3::new(
+                    rng.gen_range(-1.0..1.0),
+                    rng.gen_range(-1.0..1.0),
+                    rng.gen_range(-1.0..1.0),
+                );
+                let d = d.try_normalize()?;
+                (d.x > -0.5).then(|| {
+                    let r = 0.1 * (1.0 + 0.005 * rng.gen_range(-1.0..1.0));
+                    (glam::DVec3::new(1.0, 2.0, 3.0) + r * d).to_array()
+                })
+            })
+            .collect();
+        let s = fit_sphere(&cap).expect("a cap fits");
+        assert!(
+            (glam::DVec3::new(s[0], s[1], s[2]) - glam::DVec3::new(1.0, 2.0, 3.0)).length() < 0.003,
+            "{s:?}"
+        );
+        assert!((s[3] - 0.1).abs() < 0.003, "{s:?}");
+        // A flat panel of the same size: no sphere.
+        let panel: Vec<[f64; 3]> = (0..400)
+            .map(|_| [rng.gen_range(0.0..0.3), 2.5, rng.gen_range(0.0..0.2)])
+            .collect();
+        assert_eq!(fit_sphere(&panel), None);
+        // Too few points: none.
+        assert_eq!(fit_sphere(&cap[..SPHERE_MIN_POINTS - 1]), None);
     }
 }

@@ -4,7 +4,7 @@
 
 use super::{normalized, pixel_rng, refresh_selection, CachedPixel, PixelKind};
 use crate::config::Stage2Config;
-use crate::stage2::emitter_clusters::{cluster_emitters, ClusterSettings, MarkedPoints};
+use crate::stage2::emitter_clusters::{cluster_emitters, fit_sphere, ClusterSettings, MarkedPoints};
 use crate::stage2::shading::{trace_incident, DiffuseSums, ShadingPoint};
 use crate::stage2::surface_cache::{ShadingCache, SpecularBake};
 use crate::stage2::targets::TargetView;
@@ -169,8 +169,19 @@ pub(super) fn cluster_new_emitters(
             extent: c.extent.map(|e| e * s),
             radius: c.radius * s,
             points: c.members.len(),
+            sphere: fit_sphere(&c.members.iter().map(|&m| points.positions[m]).collect::<Vec<_>>()).map(|f| {
+                let w = to_world([f[0], f[1], f[2]]);
+                [w[0], w[1], w[2], f[3] * s]
+            }),
         })
         .collect();
+    for (k, e) in list.iter().enumerate() {
+        if let Some([x, y, z, r]) = e.sphere {
+            progress(&format!(
+                "emitter {k}: its points lie on a sphere of radius {r:.3} m about ({x:.2}, {y:.2}, {z:.2}) m"
+            ));
+        }
+    }
     let mut sum = vec![[0.0f64; 3]; clusters.len()];
     for (ci, c) in clusters.iter().enumerate() {
         for &m in &c.members {
@@ -363,6 +374,7 @@ mod tests {
                 extent: [0.1; 3],
                 radius: 0.1,
                 points: 1,
+                sphere: None,
             }],
             &[[1.0; 3]],
         );
