@@ -96,9 +96,8 @@ impl EmitterTable {
     /// Writes `RUN/emitters.json`, atomically:
     /// `{"emitters": [{"centre": [x,y,z], "extent": [dx,dy,dz], "radius": r, "points": n, "sphere":
     /// [x,y,z,r] or null, "emission": [r,g,b], "radiance": [r,g,b] or null}]}` — world units;
-    /// `emission` is L\[k\] in
-    /// image units, `radiance` = emission / exposure (the physical radiance) when the dataset
-    /// states its exposure, else null.
+    /// `emission` is L\[k\] in image units, `radiance` = emission / exposure (the physical
+    /// radiance) when the dataset states its exposure, else null.
     pub fn write_json(&self, path: &Path, exposure: Option<f64>) -> Result<(), DataError> {
         let entries: Vec<Value> = self
             .emitters
