@@ -71,7 +71,7 @@ fn a_stage2_run_exports_a_scene_that_reads_back() {
     // as marching cubes pads them
     let b = &dataset.bounds;
     let margin =
-        (i2sdf_model::marching_cubes::PAD_FRACTION + 1e-3) * (0..3).map(|i| b.max[i] - b.min[i]).fold(0.0f64, f64::max);
+        (i2sdf_model::sdf_mesh::PAD_FRACTION + 1e-3) * (0..3).map(|i| b.max[i] - b.min[i]).fold(0.0f64, f64::max);
     for p in &r.positions {
         for i in 0..3 {
             assert!(

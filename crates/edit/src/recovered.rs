@@ -43,7 +43,7 @@ pub const MESH_RESOLUTION: usize = 256;
 
 impl RecoveredSurface {
     /// Extracts the surface at `resolution` samples along the bounds' longest side (padded as
-    /// stage 2's bake, [`i2sdf_model::marching_cubes::PAD_FRACTION`]: walls on the bounds stay
+    /// stage 2's bake, [`i2sdf_model::sdf_mesh::PAD_FRACTION`]: walls on the bounds stay
     /// closed).
     ///
     /// With `cameras` (the training views), triangles inside an emitter's sphere that none of

@@ -38,7 +38,7 @@ pub fn culling_views(dataset: &Dataset) -> Vec<CullingView> {
 /// room (4.8 m long, 5.3 m with the pad) 256 gives 2.1 cm cells, wider than the chandelier's
 /// 1.2 cm arms: one trained SDF that holds the arms scored 0.22 recall at 2 cm at 256, 0.44 at 512
 /// and 0.55 at 1024 (5 mm cells; measured with the 1 % pad `eval` had before its mesh took
-/// [`i2sdf_model::marching_cubes::PAD_FRACTION`]). The narrow band ([`i2sdf_model::marching_cubes::NarrowBand`]) makes 1024 affordable.
+/// [`i2sdf_model::sdf_mesh::PAD_FRACTION`]). The narrow band ([`i2sdf_model::marching_cubes::NarrowBand`]) makes 1024 affordable.
 pub const MESH_RESOLUTION: usize = 1024;
 
 /// Options of [`evaluate`].

@@ -23,7 +23,6 @@
 //! values are linearized by the dataset's transfer ([`Radiometry`]).
 
 use crate::emitters::EmitterTable;
-use crate::marching_cubes::{extract_mesh, voxel_size};
 use crate::material_field::{
     brdf_of_channels, MaterialBackbone, MaterialField, MaterialInferWorkspace, MATERIAL_CHANNELS,
 };
@@ -32,6 +31,7 @@ use crate::query::SceneQuery;
 use crate::raycast::{CastSettings, Hit as CastHit, SdfCaster, CAST_CHUNK};
 use crate::renderer::sphere_exit;
 use crate::scene::NeuralScene;
+use crate::sdf_mesh::{extract_mesh, voxel_size};
 use glam::{DVec3, Vec3};
 use i2sdf_data::{Bounds, Camera, DataError, Radiometry};
 use i2sdf_render::{
@@ -96,7 +96,7 @@ pub struct BakedSurface {
 
 impl BakedSurface {
     /// The marching-cubes mesh of `scene`'s SDF over `bounds` (world units, padded by
-    /// [`PAD_FRACTION`](crate::marching_cubes::PAD_FRACTION)) at `resolution` samples along the
+    /// [`PAD_FRACTION`](crate::sdf_mesh::PAD_FRACTION)) at `resolution` samples along the
     /// longest side, in a BVH ([`FrozenScene::bake`]).
     ///
     /// Not simplified, unlike the edit renderer's surface: simplified by a tenth of a voxel
@@ -194,7 +194,7 @@ impl<'a> FrozenScene<'a> {
     }
 
     /// Bakes the frozen SDF for ray casting: its marching-cubes mesh over `bounds` (world units;
-    /// each side padded by [`PAD_FRACTION`](crate::marching_cubes::PAD_FRACTION) at both ends, so walls are not clipped) at
+    /// each side padded by [`PAD_FRACTION`](crate::sdf_mesh::PAD_FRACTION) at both ends, so walls are not clipped) at
     /// `resolution` samples along the longest side, in the render crate's BVH. From then on
     /// [`FrozenScene::cast`] (and the [`Geometry`] adapter) intersect the BVH first and refine
     /// each hit onto the SDF by one Newton step along the ray (one batched SDF + gradient query

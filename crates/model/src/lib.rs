@@ -5,8 +5,8 @@
 //! run directory and a trained run opened for inference ([`OpenedRun`]) with its image products
 //! ([`images`]); the volume renderer ([`renderer`]) with VolSDF's density, compositing and
 //! error-bounded sampler beside it ([`volume`]); inference queries ([`SceneQuery`]), the ray
-//! caster of the trained SDF ([`raycast`]) and marching cubes of its zero level set
-//! ([`marching_cubes()`]).
+//! caster of the trained SDF ([`raycast`]), marching cubes ([`marching_cubes()`]) and the mesh of
+//! the SDF's zero level set ([`sdf_mesh`]).
 
 pub mod config;
 pub mod emitters;
@@ -27,12 +27,13 @@ pub mod raycast;
 pub mod renderer;
 pub mod run_dir;
 pub mod scene;
+pub mod sdf_mesh;
 pub mod volume;
 
 pub use config::{Backbone, ModelConfig};
 pub use emitters::{Emitter, EmitterTable};
 pub use intrinsic::{emitter_cone_lights, emitter_lights, rerender_view, FrozenScene, LabelledHit, NeuralMaterial};
-pub use marching_cubes::{extract_mesh, marching_cubes, voxel_size, McGrid, McOptions, TRACED_SIMPLIFY_VOXELS};
+pub use marching_cubes::{marching_cubes, McGrid, McOptions};
 pub use material_field::{
     MaterialBackbone, MaterialConfig, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
 };
@@ -40,3 +41,4 @@ pub use opened_run::{BakeRecord, InferenceConfig, OpenedRun};
 pub use query::SceneQuery;
 pub use run_dir::{RunDir, RunInfo, StageProgress};
 pub use scene::{Beta, GroupSpec, LrClass, NeuralScene, ParamBlock, SceneGrads, SceneModule, Update};
+pub use sdf_mesh::{extract_mesh, voxel_size, TRACED_SIMPLIFY_VOXELS};

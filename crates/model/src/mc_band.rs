@@ -25,7 +25,7 @@ pub struct NarrowBand {
 }
 
 impl NarrowBand {
-    /// The band [`extract_mesh`](crate::marching_cubes::extract_mesh) uses for an SDF at
+    /// The band [`extract_mesh`](crate::sdf_mesh::extract_mesh) uses for an SDF at
     /// `resolution`: a coarse grid of about 256 samples along the longest side, and twice the
     /// eikonal slope as the bound, since a trained SDF is only near 1-Lipschitz. At 1024 a step of
     /// 4 beat 8 and 2 on the default room's trained run (49.8 s against 66.9 and 54.4 s, meshes

@@ -146,7 +146,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         None => None,
     };
     // A mesh resolution that cannot fit is refused now, not after the views are rendered.
-    i2sdf_model::marching_cubes::sdf_grid(&run.scene, &dataset.bounds, args.mesh_resolution)?.check_fits(
+    i2sdf_model::sdf_mesh::sdf_grid(&run.scene, &dataset.bounds, args.mesh_resolution)?.check_fits(
         &i2sdf_model::McOptions::for_sdf(args.mesh_resolution),
         i2sdf_model::memory::MachineMemory::read().map(|m| m.available),
     )?;
