@@ -54,6 +54,39 @@ pub fn relight_frames(dataset: &Dataset) -> usize {
     dataset.relight.iter().map(|s| s.frames.len()).sum()
 }
 
+/// True when `spec` only relights: its frames are the unedited render with gains.
+fn relights_only(spec: &EditSpec) -> bool {
+    spec.ops.iter().all(|op| matches!(op, EditOp::Relight(_)))
+}
+
+/// The rows [`relight_metrics`] path traces (its `on_row` calls, for a progress bar's total):
+/// [`rendered_rows`] of the sets' specs.
+pub fn relight_rows(dataset: &Dataset, differential: bool) -> Result<usize, DataError> {
+    Ok(rendered_rows(&dataset.relight, &read_specs(dataset)?, differential))
+}
+
+/// The rows the relit sets' frames cost: one unedited render per camera, shared by the sets that
+/// only relight (and, with `differential`, the base of every set's composites), and one render of
+/// its own for each frame of a set that edits more than light (what [`RelightEval::score_set`]
+/// and [`edited_view`] render). Counting every frame instead made eval's bar stop at a quarter on
+/// the built-in rooms, whose four sets share their cameras.
+fn rendered_rows(sets: &[RelightSet], specs: &[(EditSpec, EditAssets)], differential: bool) -> usize {
+    let mut cameras = HashSet::new();
+    let mut rows = 0;
+    for (set, (spec, _)) in sets.iter().zip(specs) {
+        let relight_only = relights_only(spec);
+        for f in &set.frames {
+            if (relight_only || differential) && cameras.insert(camera_key(f)) {
+                rows += f.camera.height;
+            }
+            if !relight_only {
+                rows += f.camera.height;
+            }
+        }
+    }
+    rows
+}
+
 /// A camera's identity for sharing renders between sets (exact pose and intrinsics).
 fn camera_key(f: &Frame) -> Vec<u64> {
     f.camera.key()
@@ -407,7 +440,7 @@ impl RelightEval<'_, '_, '_> {
         baseline: &mut Baseline,
         on_frame: &mut dyn FnMut(RelitFrame),
     ) -> Result<SetScores, DataError> {
-        let relight_only = spec.ops.iter().all(|op| matches!(op, EditOp::Relight(_)));
+        let relight_only = relights_only(spec);
         let own = (!relight_only).then(|| self.scoring.recovered.edited(spec, assets));
         let gains = light_gains(spec, own.as_ref().unwrap_or(&self.unedited_scene));
         let rm = &self.scoring.recovered.radiometry;
@@ -473,6 +506,46 @@ mod tests {
     use i2sdf_model::intrinsic_io::IntrinsicFields;
     use i2sdf_model::material_field::{MaterialConfig, MaterialField};
     use i2sdf_model::{EmitterTable, InferenceConfig, ModelConfig, NeuralScene};
+
+    /// Sets that only relight share one render per camera; a set that edits more renders each
+    /// frame again, and without composites its cameras need no unedited render of their own.
+    #[test]
+    fn rows_count_each_render_once() {
+        let dir = tempfile::tempdir().unwrap();
+        i2sdf_data::fixture::write_native(dir.path(), &i2sdf_data::fixture::FixtureOptions::default());
+        let dataset = i2sdf_data::load(dir.path()).unwrap();
+        let frames: Vec<Frame> = dataset.split(Split::Test).cloned().collect();
+        let other: Vec<Frame> = dataset.split(Split::Train).take(1).cloned().collect();
+        let h = frames[0].camera.height;
+        assert!(frames.len() == 2 && frames.iter().chain(&other).all(|f| f.camera.height == h));
+        let set = |frames: &[Frame]| RelightSet {
+            spec: dir.path().join("unused.toml"),
+            frames: frames.to_vec(),
+        };
+        let relight = EditSpec {
+            ops: vec![EditOp::Relight(i2sdf_data::edit_spec::RelightOp {
+                at: [0.0; 3],
+                scale: 2.0,
+                color: [1.0; 3],
+            })],
+        };
+        let spec = |s: &EditSpec| (s.clone(), EditAssets::default());
+        let sets = [set(&frames), set(&frames), set(&other)];
+        let specs = [spec(&relight), spec(&relight), spec(&relight)];
+        assert_eq!(
+            rendered_rows(&sets, &specs, true),
+            3 * h,
+            "two cameras shared, one more"
+        );
+        let insert = EditSpec::from_toml_str(
+            "[[op]]\nkind = \"insert\"\nsphere = { centre = [0.0, 0.0, 0.0], radius = 0.1 }\n",
+            std::path::Path::new("insert.toml"),
+        )
+        .unwrap();
+        let specs = [spec(&relight), spec(&insert), spec(&insert)];
+        assert_eq!(rendered_rows(&sets, &specs, true), (3 + 2 + 1) * h);
+        assert_eq!(rendered_rows(&sets, &specs, false), (2 + 2 + 1) * h);
+    }
 
     /// Without emitters nothing is rendered (the spec is not even read: it does not exist) and
     /// every figure is null, each set keeping its frame count.

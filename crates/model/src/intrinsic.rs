@@ -314,15 +314,12 @@ impl<'a> FrozenScene<'a> {
             .par_chunks_mut(CAST_CHUNK)
             .zip(rays.par_chunks(CAST_CHUNK))
             .for_each(|(t, rays)| {
-                let mut stack = Vec::with_capacity(64);
-                for (t, r) in t.iter_mut().zip(rays) {
+                let ray = |i: usize| {
+                    let r = &rays[i];
                     let (lo, hi) = self.segment(r);
-                    if hi > lo {
-                        if let Some(h) = baked.bvh.intersect(r.origin, r.dir, lo, hi, &mut stack) {
-                            *t = h.t;
-                        }
-                    }
-                }
+                    (hi > lo).then_some((r.origin, r.dir, lo, hi))
+                };
+                baked.bvh.intersect_each(rays.len(), ray, |i, h| t[i] = h.t);
             });
         // 2. One SDF + gradient query at every BVH hit, then one Newton step along the ray. At
         // the hits inside an emitter's sphere the same query keeps the feature z for F_e.

@@ -13,6 +13,11 @@
 //! On the synthetic room's ground-truth render, which spends three quarters of its time in
 //! traversal (160×120, 6 views, 64 spp), the binary tree took 14.05 s and this one 8.25 s, at a
 //! bench iteration of ~100 ms.
+//!
+//! This file builds the tree and lays it out; [`traversal`] walks it (one ray, or a batch
+//! interleaved so that the rays' cache misses overlap).
+
+mod traversal;
 
 use glam::Vec3;
 use i2sdf_data::TriangleMesh;
@@ -210,144 +215,6 @@ impl Bvh {
         }
         deepest
     }
-
-    /// Closest hit with t in (t_min, t_max). `stack` is scratch space (any contents; reuse one
-    /// per thread or batch).
-    pub fn intersect(&self, origin: Vec3, dir: Vec3, t_min: f32, t_max: f32, stack: &mut Vec<u32>) -> Option<BvhHit> {
-        if self.packs.is_empty() {
-            return None;
-        }
-        let ray = RayConsts::new(origin, dir);
-        let mut best = t_max;
-        let mut hit: Option<(f32, u32, f32, f32)> = None;
-        // Entries are (entry distance bits, node) pairs, so that a popped node the best hit has
-        // since ruled out is skipped without touching its boxes.
-        stack.clear();
-        let mut node = 0u32;
-        let mut near = [0f32; WIDTH];
-        loop {
-            let nd = &self.nodes[node as usize];
-            let mut mask = nd.slab(&ray, t_min, best, &mut near);
-            // Leaves first, whatever their order: each hit shortens `best`, which prunes the
-            // inner children below.
-            let mut leaves = mask & nd.leaf_mask;
-            while leaves != 0 {
-                let i = leaves.trailing_zeros() as usize;
-                leaves &= leaves - 1;
-                let first = nd.index[i];
-                for k in first..first + nd.count[i] {
-                    let (mut lanes, t, u, v) = self.packs[k as usize].intersect(&ray, t_min, best);
-                    while lanes != 0 {
-                        let lane = lanes.trailing_zeros() as usize;
-                        lanes &= lanes - 1;
-                        if t[lane] < best {
-                            best = t[lane];
-                            hit = Some((t[lane], k * PACK as u32 + lane as u32, u[lane], v[lane]));
-                        }
-                    }
-                }
-            }
-            mask &= !nd.leaf_mask;
-            // The inner children still in front of the best hit, nearest last on the stack.
-            let mut order = [(0f32, 0u32); WIDTH];
-            let mut n = 0;
-            while mask != 0 {
-                let i = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                if near[i] <= best * (1.0 + 4.0 * f32::EPSILON) {
-                    // Insertion sort, farthest first.
-                    let mut j = n;
-                    while j > 0 && order[j - 1].0 < near[i] {
-                        order[j] = order[j - 1];
-                        j -= 1;
-                    }
-                    order[j] = (near[i], nd.index[i]);
-                    n += 1;
-                }
-            }
-            if n > 0 {
-                for &(t, c) in &order[..n - 1] {
-                    stack.push(t.to_bits());
-                    stack.push(c);
-                }
-                node = order[n - 1].1;
-                continue;
-            }
-            // Pop the next node that the best hit has not already ruled out.
-            loop {
-                let Some(next) = stack.pop() else {
-                    return hit.map(|(t, k, u, v)| BvhHit {
-                        t,
-                        triangle: self.lane_triangle[k as usize],
-                        u,
-                        v,
-                    });
-                };
-                let t = f32::from_bits(stack.pop().expect("stack entries come in pairs"));
-                if t <= best * (1.0 + 4.0 * f32::EPSILON) {
-                    node = next;
-                    break;
-                }
-            }
-        }
-    }
-
-    /// True when anything lies on the ray within (t_min, t_max). `stack` as in [`Bvh::intersect`].
-    pub fn occluded(&self, origin: Vec3, dir: Vec3, t_min: f32, t_max: f32, stack: &mut Vec<u32>) -> bool {
-        if self.packs.is_empty() {
-            return false;
-        }
-        let ray = RayConsts::new(origin, dir);
-        let mut near = [0f32; WIDTH];
-        stack.clear();
-        stack.push(0);
-        while let Some(node) = stack.pop() {
-            let nd = &self.nodes[node as usize];
-            let mask = nd.slab(&ray, t_min, t_max, &mut near);
-            let mut leaves = mask & nd.leaf_mask;
-            while leaves != 0 {
-                let i = leaves.trailing_zeros() as usize;
-                leaves &= leaves - 1;
-                let first = nd.index[i];
-                for k in first..first + nd.count[i] {
-                    if self.packs[k as usize].intersect(&ray, t_min, t_max).0 != 0 {
-                        return true;
-                    }
-                }
-            }
-            let mut inner = mask & !nd.leaf_mask;
-            while inner != 0 {
-                let i = inner.trailing_zeros() as usize;
-                inner &= inner - 1;
-                stack.push(nd.index[i]);
-            }
-        }
-        false
-    }
-}
-
-/// A ray's origin, direction and reciprocal direction, per axis.
-struct RayConsts {
-    origin: [f32; 3],
-    dir: [f32; 3],
-    inv: [f32; 3],
-}
-
-impl RayConsts {
-    /// A direction component under 1e-20 in size is taken as ±1e-20 for the reciprocal: a ray
-    /// that lies in a box's face plane (a zero component, the origin on the plane) then meets
-    /// that slab on [0, ∞) instead of making 0·∞ = NaN, which the box test's min and max would
-    /// drop and the box with it (a ray along +z through a sphere's pole missed it).
-    fn new(origin: Vec3, dir: Vec3) -> Self {
-        let safe = dir
-            .to_array()
-            .map(|d| if d.abs() < 1e-20 { 1e-20f32.copysign(d) } else { d });
-        RayConsts {
-            origin: origin.to_array(),
-            dir: dir.to_array(),
-            inv: safe.map(|d| 1.0 / d),
-        }
-    }
 }
 
 /// Triangles per pack: a leaf's triangle tests run [`PACK`] at a time, one lane each.
@@ -369,56 +236,6 @@ impl TriPack {
         e1: [[0.0; PACK]; 3],
         e2: [[0.0; PACK]; 3],
     };
-
-    /// [`intersect_tri`] in every lane, with the same operations in the same order (so the
-    /// same results): bit `lane` of the mask is set where the ray meets that triangle within
-    /// (t_min, t_max), with its t and barycentrics.
-    #[inline(always)]
-    fn intersect(&self, ray: &RayConsts, t_min: f32, t_max: f32) -> (u32, [f32; PACK], [f32; PACK], [f32; PACK]) {
-        let (o, d) = (ray.origin, ray.dir);
-        let (mut ts, mut us, mut vs) = ([0f32; PACK], [0f32; PACK], [0f32; PACK]);
-        let mut mask = 0u32;
-        for l in 0..PACK {
-            let e1 = [self.e1[0][l], self.e1[1][l], self.e1[2][l]];
-            let e2 = [self.e2[0][l], self.e2[1][l], self.e2[2][l]];
-            let p = cross(d, e2);
-            let det = dot(e1, p);
-            let inv_det = 1.0 / det;
-            let s = [o[0] - self.p0[0][l], o[1] - self.p0[1][l], o[2] - self.p0[2][l]];
-            let u = dot(s, p) * inv_det;
-            let q = cross(s, e1);
-            let v = dot(d, q) * inv_det;
-            let t = dot(e2, q) * inv_det;
-            let ok = det.abs() >= 1e-12
-                && u >= -EDGE_EPS
-                && u <= 1.0 + EDGE_EPS
-                && v >= -EDGE_EPS
-                && u + v <= 1.0 + EDGE_EPS
-                && t > t_min
-                && t < t_max;
-            mask |= (ok as u32) << l;
-            ts[l] = t;
-            us[l] = u;
-            vs[l] = v;
-        }
-        (mask, ts, us, vs)
-    }
-}
-
-/// glam's `Vec3::cross`, operation for operation.
-#[inline(always)]
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [
-        a[1] * b[2] - b[1] * a[2],
-        a[2] * b[0] - b[2] * a[0],
-        a[0] * b[1] - b[0] * a[1],
-    ]
-}
-
-/// glam's `Vec3::dot`, operation for operation.
-#[inline(always)]
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    (a[0] * b[0]) + (a[1] * b[1]) + (a[2] * b[2])
 }
 
 impl WideNode {
@@ -435,48 +252,6 @@ impl WideNode {
 
     fn is_inner(&self, i: usize) -> bool {
         (self.used_mask & !self.leaf_mask) & (1 << i) != 0
-    }
-
-    /// The slab test of all [`WIDTH`] children at once (the loop vectorizes: one lane per
-    /// child): bit i of the result is set when the ray meets child i within (t_min, t_max),
-    /// and `near[i]` is where it enters. [`RayConsts::new`] keeps 0·∞ out of it.
-    #[inline(always)]
-    fn slab(&self, ray: &RayConsts, t_min: f32, t_max: f32, near: &mut [f32; WIDTH]) -> u32 {
-        let mut far = [0f32; WIDTH];
-        for i in 0..WIDTH {
-            let mut t0 = t_min;
-            let mut t1 = t_max;
-            for a in 0..3 {
-                let x = (self.lo[a][i] - ray.origin[a]) * ray.inv[a];
-                let y = (self.hi[a][i] - ray.origin[a]) * ray.inv[a];
-                t0 = t0.max(x.min(y));
-                t1 = t1.min(x.max(y));
-            }
-            near[i] = t0;
-            far[i] = t1 * (1.0 + 4.0 * f32::EPSILON);
-        }
-        let mask = le_mask(&*near, &far);
-        mask & self.used_mask
-    }
-}
-
-/// Bit i set where `a[i] <= b[i]`. With AVX, one compare and a move-mask: the compiler's own
-/// version of the loop stored the lanes and read them back at other offsets, a store-forwarding
-/// stall that cost an eighth of the traversal's time.
-#[inline(always)]
-fn le_mask(a: &[f32; WIDTH], b: &[f32; WIDTH]) -> u32 {
-    #[cfg(target_feature = "avx")]
-    const _: () = assert!(WIDTH == 8, "one 256-bit vector of f32 lanes");
-    #[cfg(target_feature = "avx")]
-    // SAFETY: AVX is enabled at compile time; the loads read exactly the two 8-float arrays.
-    unsafe {
-        use std::arch::x86_64::*;
-        let le = _mm256_cmp_ps::<_CMP_LE_OQ>(_mm256_loadu_ps(a.as_ptr()), _mm256_loadu_ps(b.as_ptr()));
-        _mm256_movemask_ps(le) as u32
-    }
-    #[cfg(not(target_feature = "avx"))]
-    {
-        (0..WIDTH).fold(0, |m, i| m | (((a[i] <= b[i]) as u32) << i))
     }
 }
 
@@ -677,7 +452,7 @@ mod tests {
     use rand::{Rng, SeedableRng};
 
     /// Random spheres, boxes and loose triangles.
-    fn clutter(rng: &mut impl Rng) -> TriangleMesh {
+    pub(super) fn clutter(rng: &mut impl Rng) -> TriangleMesh {
         let mut parts = Vec::new();
         for _ in 0..40 {
             let c = Vec3::new(
@@ -707,7 +482,7 @@ mod tests {
         TriangleMesh::concat(&parts)
     }
 
-    fn brute_force(mesh: &TriangleMesh, o: Vec3, d: Vec3, t_max: f32) -> Option<(f32, u32)> {
+    pub(super) fn brute_force(mesh: &TriangleMesh, o: Vec3, d: Vec3, t_max: f32) -> Option<(f32, u32)> {
         (0..mesh.faces.len())
             .filter_map(|f| {
                 let tri = Tri {
@@ -718,77 +493,6 @@ mod tests {
                 intersect_tri(&tri, o, d, 0.0, t_max).map(|h| (h.0, f as u32))
             })
             .min_by(|a, b| a.0.total_cmp(&b.0))
-    }
-
-    fn check_against_brute_force(mesh: &TriangleMesh, bvh: &Bvh, rays: usize, rng: &mut impl Rng) {
-        let mut stack = Vec::new();
-        for _ in 0..rays {
-            let o = Vec3::new(
-                rng.gen_range(-4.0..4.0),
-                rng.gen_range(-4.0..4.0),
-                rng.gen_range(-4.0..4.0),
-            );
-            let d = Vec3::new(
-                rng.gen_range(-1.0..1.0),
-                rng.gen_range(-1.0..1.0),
-                rng.gen_range(-1.0..1.0),
-            )
-            .normalize();
-            // Unbounded rays too: an empty slot of a wide node must not pass the box test there.
-            let t_max = if rng.gen_bool(0.2) {
-                f32::INFINITY
-            } else {
-                rng.gen_range(0.5..20.0)
-            };
-            let brute = brute_force(mesh, o, d, t_max);
-            let fast = bvh.intersect(o, d, 0.0, t_max, &mut stack);
-            assert_eq!(brute.map(|b| b.1), fast.map(|h| h.triangle));
-            assert_eq!(brute.is_some(), bvh.occluded(o, d, 0.0, t_max, &mut stack));
-        }
-    }
-
-    #[test]
-    fn bvh_agrees_with_brute_force() {
-        let mut rng = rand_pcg::Pcg32::seed_from_u64(3);
-        let mesh = clutter(&mut rng);
-        let bvh = Bvh::build(&mesh);
-        check_against_brute_force(&mesh, &bvh, 2000, &mut rng);
-    }
-
-    /// Rays along an axis through vertices on a box's face plane (0·∞ in the slab test) still
-    /// find the sphere they cross.
-    #[test]
-    fn axis_aligned_rays_in_face_planes_hit() {
-        let mut mesh = TriangleMesh::unit_icosphere(3);
-        mesh.positions
-            .iter_mut()
-            .for_each(|p| *p = (Vec3::new(3.0, 0.0, 5.0) + 0.5 * Vec3::from(*p)).to_array());
-        let bvh = Bvh::build(&mesh);
-        let mut stack = Vec::new();
-        for (o, d) in [
-            (Vec3::new(3.0, 0.0, 0.0), Vec3::Z),
-            (Vec3::new(3.0, 0.0, 9.0), -Vec3::Z),
-            (Vec3::new(0.0, 0.0, 5.0), Vec3::X),
-            (Vec3::new(3.0, -4.0, 5.0), Vec3::Y),
-        ] {
-            let brute = brute_force(&mesh, o, d, f32::INFINITY);
-            assert!(brute.is_some());
-            let hit = bvh.intersect(o, d, 0.0, f32::INFINITY, &mut stack);
-            assert_eq!(hit.map(|h| h.t), brute.map(|b| b.0), "{o} {d}");
-            assert!(bvh.occluded(o, d, 0.0, f32::INFINITY, &mut stack), "{o} {d}");
-        }
-    }
-
-    /// Traversal has no depth limit: a chain tree 700 binary levels deep, about a hundred wide
-    /// ones (the old fixed 64-entry stack overflowed past 64 levels), answers like brute force.
-    #[test]
-    fn traversal_of_a_tree_deeper_than_any_fixed_stack() {
-        let mut rng = rand_pcg::Pcg32::seed_from_u64(5);
-        let mut mesh = clutter(&mut rng);
-        mesh.faces.truncate(700);
-        let bvh = Bvh::build_with(&mesh, Strategy::Chain);
-        assert!(bvh.depth() >= 90, "depth {}", bvh.depth());
-        check_against_brute_force(&mesh, &bvh, 500, &mut rng);
     }
 
     /// 1.2M triangles of a degenerate distribution (every sliver through one axis, centroids on

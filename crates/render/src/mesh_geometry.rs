@@ -1,7 +1,7 @@
 //! [`Geometry`] of a triangle mesh: the [`Bvh`] plus, per triangle, its outward unit normal and
 //! the surface label that materials and lights key on (a synthetic room's shape index).
 
-use crate::bvh::Bvh;
+use crate::bvh::{Bvh, BvhHit};
 use crate::geometry::{Geometry, Hit, Ray};
 use glam::Vec3;
 use i2sdf_data::TriangleMesh;
@@ -55,47 +55,50 @@ impl MeshGeometry {
         self.normals[t as usize]
     }
 
-    fn hit_one(&self, r: &Ray, stack: &mut Vec<u32>) -> Option<Hit> {
-        self.bvh.intersect(r.origin, r.dir, r.t_min, r.t_max, stack).map(|h| {
-            let facet = self.normals[h.triangle as usize];
-            let normal = match &self.smooth {
-                None => facet,
-                Some((vn, faces)) => {
-                    let [a, b, c] = faces[h.triangle as usize].map(|i| vn[i as usize]);
-                    let n = (a * (1.0 - h.u - h.v) + b * h.u + c * h.v).normalize_or_zero();
-                    if n.dot(facet) > 0.0 {
-                        n
-                    } else {
-                        facet
-                    }
+    /// The hit of a ray on the BVH's triangle, with its shading normal.
+    fn hit_of(&self, h: BvhHit) -> Hit {
+        let facet = self.normals[h.triangle as usize];
+        let normal = match &self.smooth {
+            None => facet,
+            Some((vn, faces)) => {
+                let [a, b, c] = faces[h.triangle as usize].map(|i| vn[i as usize]);
+                let n = (a * (1.0 - h.u - h.v) + b * h.u + c * h.v).normalize_or_zero();
+                if n.dot(facet) > 0.0 {
+                    n
+                } else {
+                    facet
                 }
-            };
-            Hit {
-                t: h.t,
-                normal,
-                surface: self.surface_of[h.triangle as usize],
-                prim: h.triangle,
             }
-        })
+        };
+        Hit {
+            t: h.t,
+            normal,
+            surface: self.surface_of[h.triangle as usize],
+            prim: h.triangle,
+        }
     }
 }
 
 impl Geometry for MeshGeometry {
     fn intersect(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
         assert_eq!(rays.len(), hits.len());
-        // One traversal stack for the whole batch.
-        let mut stack = Vec::with_capacity(64);
-        for (r, h) in rays.iter().zip(hits) {
-            *h = self.hit_one(r, &mut stack);
-        }
+        hits.fill(None);
+        let ray = |i: usize| {
+            let r = &rays[i];
+            Some((r.origin, r.dir, r.t_min, r.t_max))
+        };
+        self.bvh
+            .intersect_each(rays.len(), ray, |i, h| hits[i] = Some(self.hit_of(h)));
     }
 
     fn occluded(&self, rays: &[Ray], occluded: &mut [bool]) {
         assert_eq!(rays.len(), occluded.len());
-        let mut stack = Vec::with_capacity(64);
-        for (r, o) in rays.iter().zip(occluded) {
-            *o = self.bvh.occluded(r.origin, r.dir, r.t_min, r.t_max, &mut stack);
-        }
+        occluded.fill(false);
+        let ray = |i: usize| {
+            let r = &rays[i];
+            Some((r.origin, r.dir, r.t_min, r.t_max))
+        };
+        self.bvh.occluded_each(rays.len(), ray, |i| occluded[i] = true);
     }
 }
 

@@ -16,7 +16,7 @@ use i2sdf_edit::EditSettings;
 use i2sdf_eval::intrinsic::{intrinsic_metrics_with_progress, IntrinsicOptions};
 use i2sdf_eval::neural::{evaluate_keeping_test_images, EvalOptions, ViewSplits};
 use i2sdf_eval::progress::EvalProgress;
-use i2sdf_eval::relight::{relight_frames, relight_metrics, RelightOptions};
+use i2sdf_eval::relight::{relight_frames, relight_metrics, relight_rows, RelightOptions};
 use i2sdf_model::images::{stage1_maps_of, stage2_maps_of, write_maps, STAGE1_MAPS, STAGE2_MAPS};
 use std::path::PathBuf;
 use std::sync::RwLock;
@@ -222,12 +222,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             report.relight = relight_metrics(&run, &dataset, &relight, &captured, &|| {})?;
             report.note_no_emitters();
         } else if relight_frames(&dataset) > 0 {
-            let rows: usize = dataset
-                .relight
-                .iter()
-                .flat_map(|s| &s.frames)
-                .map(|f| f.camera.height)
-                .sum();
+            let rows = relight_rows(&dataset, relight.differential)?;
             let bar = crate::progress::Step::new("relit sets: path tracing", rows as u64, "rows");
             report.relight = relight_metrics(&run, &dataset, &relight, &captured, &|| bar.inc(1))?;
             bar.finish();
