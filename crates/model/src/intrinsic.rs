@@ -636,11 +636,20 @@ impl RadianceField for FrozenScene<'_> {
 pub struct NeuralMaterial<'f, 'a> {
     pub field: &'f MaterialField,
     pub frozen: &'f FrozenScene<'a>,
+    /// Query workspaces kept between calls (the field is borrowed, so its weights cannot change
+    /// while this lives). Why: a path tracer asks for materials once per bounce per batch of
+    /// paths, and a fresh workspace zeroed its buffers and transposed the MLP's weights each
+    /// time (2–3 % of the edit renderer's time in `perf`).
+    workspaces: Mutex<Vec<MaterialInferWorkspace>>,
 }
 
 impl<'f, 'a> NeuralMaterial<'f, 'a> {
     pub fn new(field: &'f MaterialField, frozen: &'f FrozenScene<'a>) -> Self {
-        NeuralMaterial { field, frozen }
+        NeuralMaterial {
+            field,
+            frozen,
+            workspaces: Mutex::new(Vec::new()),
+        }
     }
 }
 
@@ -659,8 +668,10 @@ impl Material for NeuralMaterial<'_, '_> {
             MaterialBackbone::HashGrid => Vec::new(),
         };
         let mut m = vec![0.0; world.len() * MATERIAL_CHANNELS];
-        self.field
-            .infer_with(&norm, &features, &mut MaterialInferWorkspace::default(), &mut m);
+        let pooled = self.workspaces.lock().unwrap().pop();
+        let mut ws = pooled.unwrap_or_else(MaterialInferWorkspace::for_fixed_weights);
+        self.field.infer_with(&norm, &features, &mut ws, &mut m);
+        self.workspaces.lock().unwrap().push(ws);
         for (o, c) in out.iter_mut().zip(m.chunks_exact(MATERIAL_CHANNELS)) {
             *o = brdf_of_channels(c);
         }

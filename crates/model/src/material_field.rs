@@ -172,6 +172,19 @@ pub struct MaterialInferWorkspace {
     mlp: MlpInferWorkspace,
 }
 
+impl MaterialInferWorkspace {
+    /// A workspace for a field whose weights do not change while it is used (kept beside a
+    /// shared borrow of it): the MLP's transposed weights are made once per task, not per call
+    /// ([`MlpInferWorkspace::for_fixed_weights`]).
+    pub fn for_fixed_weights() -> Self {
+        MaterialInferWorkspace {
+            enc: Vec::new(),
+            input: Vec::new(),
+            mlp: MlpInferWorkspace::for_fixed_weights(),
+        }
+    }
+}
+
 /// logit(p) = ln(p / (1 − p)).
 fn logit(p: f32) -> f32 {
     (p / (1.0 - p)).ln()
