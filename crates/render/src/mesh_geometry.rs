@@ -118,10 +118,16 @@ impl Geometry for MeshGeometry {
             let r = &rays[i];
             Some((r.origin, r.dir, r.t_min, r.t_max))
         };
+        hits.fill(None);
+        if !self.bvh.interleaves() {
+            // A mesh that fits the caches: its shading lines are there too.
+            self.bvh
+                .intersect_each(rays.len(), ray, |i, h| hits[i] = Some(self.hit_of(h)));
+            return;
+        }
         // The BVH's hits first, then their shading, each line asked for a few hits ahead.
         let mut found = Vec::with_capacity(rays.len());
         self.bvh.intersect_each(rays.len(), ray, |i, h| found.push((i, h)));
-        hits.fill(None);
         for (k, &(i, h)) in found.iter().enumerate() {
             if let Some(&(_, ahead)) = found.get(k + SHADING_AHEAD) {
                 self.prefetch_shading(ahead.triangle);

@@ -18,7 +18,7 @@ impl Bvh {
             return None;
         }
         let mut walk = ClosestWalk::start(origin, dir, t_min, t_max, std::mem::take(stack));
-        while self.closest_step(&mut walk) {}
+        while self.closest_step::<false>(&mut walk) {}
         let hit = self.closest_hit(&walk);
         *stack = walk.stack;
         hit
@@ -32,12 +32,18 @@ impl Bvh {
         }
         let mut walk = AnyWalk::start(origin, dir, t_min, t_max, std::mem::take(stack));
         let blocked = loop {
-            if let Some(blocked) = self.any_step(&mut walk) {
+            if let Some(blocked) = self.any_step::<false>(&mut walk) {
                 break blocked;
             }
         };
         *stack = walk.stack;
         blocked
+    }
+
+    /// Whether [`Bvh::intersect_each`] walks its batches interleaved (the tree is larger than
+    /// the caches hold: [`super::INTERLEAVE_BYTES`]).
+    pub fn interleaves(&self) -> bool {
+        self.interleave
     }
 
     /// [`Bvh::intersect`] for rays `0..n`: `ray(i)` gives ray i's (origin, dir, t_min, t_max),
@@ -48,7 +54,8 @@ impl Bvh {
     /// it picks), and on a mesh larger than L2 each waits on memory: a 90k-triangle room took
     /// ~670 ns a ray at ~12 nodes a ray. Here [`LANES`] rays are walked in turn, one node each,
     /// and the node a ray will visit next is prefetched while the others take their step, so
-    /// their misses overlap.
+    /// their misses overlap. A tree that fits the caches is walked one ray after the other
+    /// ([`super::INTERLEAVE_BYTES`]).
     pub fn intersect_each(
         &self,
         n: usize,
@@ -56,6 +63,15 @@ impl Bvh {
         mut found: impl FnMut(usize, BvhHit),
     ) {
         if self.packs.is_empty() {
+            return;
+        }
+        if !self.interleave {
+            let mut stack = Vec::with_capacity(64);
+            for i in 0..n {
+                if let Some(h) = ray(i).and_then(|(o, d, t0, t1)| self.intersect(o, d, t0, t1, &mut stack)) {
+                    found(i, h);
+                }
+            }
             return;
         }
         let mut next = 0;
@@ -82,7 +98,7 @@ impl Bvh {
                 k = 0;
             }
             let (i, walk) = &mut lanes[k];
-            if self.closest_step(walk) {
+            if self.closest_step::<true>(walk) {
                 k += 1;
                 continue;
             }
@@ -109,6 +125,15 @@ impl Bvh {
         if self.packs.is_empty() {
             return;
         }
+        if !self.interleave {
+            let mut stack = Vec::with_capacity(64);
+            for i in 0..n {
+                if ray(i).is_some_and(|(o, d, t0, t1)| self.occluded(o, d, t0, t1, &mut stack)) {
+                    blocked(i);
+                }
+            }
+            return;
+        }
         let mut next = 0;
         let mut start = |stack: Vec<u32>| -> Option<(usize, AnyWalk)> {
             while next < n {
@@ -133,7 +158,7 @@ impl Bvh {
                 k = 0;
             }
             let (i, walk) = &mut lanes[k];
-            match self.any_step(walk) {
+            match self.any_step::<true>(walk) {
                 None => {
                     k += 1;
                     continue;
@@ -157,19 +182,21 @@ impl Bvh {
     /// the leaves are done, by stacking the inner children still in front of the best hit
     /// (nearest last) and moving to the nearest, or by popping the next stacked node the best
     /// hit has not ruled out; the node moved to is prefetched. False when the walk is over.
+    /// Without `DEFER` (one ray alone) a node's leaves are tested in its visit, unprefetched.
     #[inline(always)]
-    fn closest_step(&self, walk: &mut ClosestWalk) -> bool {
+    fn closest_step<const DEFER: bool>(&self, walk: &mut ClosestWalk) -> bool {
         if walk.leaves.is_empty() {
             let nd = &self.nodes[walk.node as usize];
             let mut near = [0f32; WIDTH];
             let mask = nd.slab(&walk.ray, walk.t_min, walk.best, &mut near);
             walk.inner.clear();
             walk.leaves.clear();
-            self.children(nd, mask, &near, &mut walk.inner, &mut walk.leaves);
-            if !walk.leaves.is_empty() {
+            self.children::<DEFER>(nd, mask, &near, &mut walk.inner, &mut walk.leaves);
+            if DEFER && !walk.leaves.is_empty() {
                 return true;
             }
-        } else {
+        }
+        if !walk.leaves.is_empty() {
             // Leaves first, whatever their order: each hit shortens `best`, which prunes the
             // inner children below.
             for &(first, count) in walk.leaves.iter() {
@@ -228,13 +255,22 @@ impl Bvh {
     /// ones' entry distances and nodes into `inner`, in slot order; the leaves' first pack and
     /// pack count into `leaves`, their packs prefetched.
     #[inline(always)]
-    fn children(&self, nd: &WideNode, mask: u32, near: &[f32; WIDTH], inner: &mut Children, leaves: &mut Leaves) {
+    fn children<const PREFETCH: bool>(
+        &self,
+        nd: &WideNode,
+        mask: u32,
+        near: &[f32; WIDTH],
+        inner: &mut Children,
+        leaves: &mut Leaves,
+    ) {
         let mut m = mask & nd.leaf_mask;
         while m != 0 {
             let i = m.trailing_zeros() as usize;
             m &= m - 1;
             leaves.push((nd.index[i], nd.count[i]));
-            self.prefetch_packs(nd.index[i], nd.count[i]);
+            if PREFETCH {
+                self.prefetch_packs(nd.index[i], nd.count[i]);
+            }
         }
         let mut m = mask & !nd.leaf_mask;
         while m != 0 {
@@ -259,17 +295,18 @@ impl Bvh {
     /// triangle lies on the ray. Then the inner children are stacked and the next node popped
     /// and prefetched (None: go on), or Some(false) when none is left.
     #[inline(always)]
-    fn any_step(&self, walk: &mut AnyWalk) -> Option<bool> {
+    fn any_step<const DEFER: bool>(&self, walk: &mut AnyWalk) -> Option<bool> {
         if walk.leaves.is_empty() {
             let nd = &self.nodes[walk.node as usize];
             let mut near = [0f32; WIDTH];
             let mask = nd.slab(&walk.ray, walk.t_min, walk.t_max, &mut near);
             walk.inner.clear();
-            self.children(nd, mask, &near, &mut walk.inner, &mut walk.leaves);
-            if !walk.leaves.is_empty() {
+            self.children::<DEFER>(nd, mask, &near, &mut walk.inner, &mut walk.leaves);
+            if DEFER && !walk.leaves.is_empty() {
                 return None;
             }
-        } else {
+        }
+        if !walk.leaves.is_empty() {
             for &(first, count) in walk.leaves.iter() {
                 for k in first..first + count {
                     if self.packs[k as usize].intersect(&walk.ray, walk.t_min, walk.t_max).0 != 0 {
@@ -678,9 +715,13 @@ mod tests {
     fn batches_agree_with_one_ray_at_a_time() {
         let mut rng = rand_pcg::Pcg32::seed_from_u64(5);
         let mesh = clutter(&mut rng);
-        let bvh = Bvh::build(&mesh);
+        let mut bvh = Bvh::build(&mesh);
         let mut stack = Vec::new();
-        for n in [1, 3, LANES, LANES + 1, 500] {
+        for (interleave, n) in [false, true]
+            .into_iter()
+            .flat_map(|i| [1, 3, LANES, LANES + 1, 500].map(|n| (i, n)))
+        {
+            bvh.interleave = interleave;
             let rays: Vec<(Vec3, Vec3, f32, f32)> = (0..n)
                 .map(|_| {
                     let o = Vec3::new(
