@@ -74,44 +74,11 @@ impl Bvh {
             }
             return;
         }
-        let mut next = 0;
-        let mut start = |stack: Vec<u32>| -> Option<(usize, ClosestWalk)> {
-            while next < n {
-                let i = next;
-                next += 1;
-                if let Some((o, d, t0, t1)) = ray(i) {
-                    return Some((i, ClosestWalk::start(o, d, t0, t1, stack)));
-                }
+        self.walk_interleaved::<ClosestWalk>(n, ray, |i, hit| {
+            if let Some(h) = hit {
+                found(i, h);
             }
-            None
-        };
-        let mut lanes: Vec<(usize, ClosestWalk)> = Vec::with_capacity(LANES);
-        while lanes.len() < LANES {
-            match start(Vec::with_capacity(64)) {
-                Some(lane) => lanes.push(lane),
-                None => break,
-            }
-        }
-        let mut k = 0;
-        while !lanes.is_empty() {
-            if k >= lanes.len() {
-                k = 0;
-            }
-            let (i, walk) = &mut lanes[k];
-            if self.closest_step::<true>(walk) {
-                k += 1;
-                continue;
-            }
-            if let Some(hit) = self.closest_hit(walk) {
-                found(*i, hit);
-            }
-            match start(std::mem::take(&mut walk.stack)) {
-                Some(lane) => lanes[k] = lane,
-                None => {
-                    lanes.swap_remove(k);
-                }
-            }
-        }
+        });
     }
 
     /// [`Bvh::occluded`] for rays `0..n`, interleaved as [`Bvh::intersect_each`]: `ray(i)` as
@@ -134,18 +101,34 @@ impl Bvh {
             }
             return;
         }
+        self.walk_interleaved::<AnyWalk>(n, ray, |i, hit| {
+            if hit {
+                blocked(i);
+            }
+        });
+    }
+
+    /// Walks rays `0..n` (`ray(i)`: as in [`Bvh::intersect_each`]) [`LANES`] at a time, each in
+    /// turn one step ([`Walk::step`]), a finished ray's lane taking the next ray; `done(i,
+    /// answer)` for every ray walked.
+    fn walk_interleaved<W: Walk>(
+        &self,
+        n: usize,
+        ray: impl Fn(usize) -> Option<(Vec3, Vec3, f32, f32)>,
+        mut done: impl FnMut(usize, W::Answer),
+    ) {
         let mut next = 0;
-        let mut start = |stack: Vec<u32>| -> Option<(usize, AnyWalk)> {
+        let mut start = |stack: Vec<u32>| -> Option<(usize, W)> {
             while next < n {
                 let i = next;
                 next += 1;
                 if let Some((o, d, t0, t1)) = ray(i) {
-                    return Some((i, AnyWalk::start(o, d, t0, t1, stack)));
+                    return Some((i, W::start(o, d, t0, t1, stack)));
                 }
             }
             None
         };
-        let mut lanes: Vec<(usize, AnyWalk)> = Vec::with_capacity(LANES);
+        let mut lanes: Vec<(usize, W)> = Vec::with_capacity(LANES);
         while lanes.len() < LANES {
             match start(Vec::with_capacity(64)) {
                 Some(lane) => lanes.push(lane),
@@ -158,15 +141,12 @@ impl Bvh {
                 k = 0;
             }
             let (i, walk) = &mut lanes[k];
-            match self.any_step::<true>(walk) {
-                None => {
-                    k += 1;
-                    continue;
-                }
-                Some(true) => blocked(*i),
-                Some(false) => {}
-            }
-            match start(std::mem::take(&mut walk.stack)) {
+            let Some(answer) = walk.step(self) else {
+                k += 1;
+                continue;
+            };
+            done(*i, answer);
+            match start(walk.take_stack()) {
                 Some(lane) => lanes[k] = lane,
                 None => {
                     lanes.swap_remove(k);
@@ -185,6 +165,8 @@ impl Bvh {
     /// Without `DEFER` (one ray alone) a node's leaves are tested in its visit, unprefetched.
     #[inline(always)]
     fn closest_step<const DEFER: bool>(&self, walk: &mut ClosestWalk) -> bool {
+        // The node's visit is written out here and in `any_step`: shared as one helper, the
+        // closest-hit walk of one ray lost 16 % (`bvh_bench`, the synthetic room).
         if walk.leaves.is_empty() {
             let nd = &self.nodes[walk.node as usize];
             let mut near = [0f32; WIDTH];
@@ -405,6 +387,45 @@ type Leaves = Few<(u32, u32)>;
 /// (`examples/bvh_bench.rs`, closest hits): 4 → 1.63 Mrays/s, 8 → 2.35, 12 → 2.58, 16 → 2.60;
 /// on the same room simplified to 90k triangles, which fits the caches better, all within 4 %.
 const LANES: usize = 12;
+
+/// A ray's traversal, a step at a time, as [`Bvh::walk_interleaved`] drives it.
+trait Walk: Sized {
+    /// What the finished walk answers.
+    type Answer;
+    fn start(origin: Vec3, dir: Vec3, t_min: f32, t_max: f32, stack: Vec<u32>) -> Self;
+    /// One step, deferring leaves to the next (the walk is interleaved): None while it goes on.
+    fn step(&mut self, bvh: &Bvh) -> Option<Self::Answer>;
+    /// The walk's stack, for the next walk to reuse.
+    fn take_stack(&mut self) -> Vec<u32>;
+}
+
+impl Walk for ClosestWalk {
+    type Answer = Option<BvhHit>;
+    fn start(origin: Vec3, dir: Vec3, t_min: f32, t_max: f32, stack: Vec<u32>) -> Self {
+        ClosestWalk::start(origin, dir, t_min, t_max, stack)
+    }
+    #[inline(always)]
+    fn step(&mut self, bvh: &Bvh) -> Option<Option<BvhHit>> {
+        (!bvh.closest_step::<true>(self)).then(|| bvh.closest_hit(self))
+    }
+    fn take_stack(&mut self) -> Vec<u32> {
+        std::mem::take(&mut self.stack)
+    }
+}
+
+impl Walk for AnyWalk {
+    type Answer = bool;
+    fn start(origin: Vec3, dir: Vec3, t_min: f32, t_max: f32, stack: Vec<u32>) -> Self {
+        AnyWalk::start(origin, dir, t_min, t_max, stack)
+    }
+    #[inline(always)]
+    fn step(&mut self, bvh: &Bvh) -> Option<bool> {
+        bvh.any_step::<true>(self)
+    }
+    fn take_stack(&mut self) -> Vec<u32> {
+        std::mem::take(&mut self.stack)
+    }
+}
 
 /// One ray's closest-hit traversal: the ray, the best hit so far, the node to visit next and
 /// the stacked (entry distance bits, node) pairs, so that a popped node the best hit has since
