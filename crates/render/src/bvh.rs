@@ -15,8 +15,9 @@
 //! bench iteration of ~100 ms.
 //!
 //! This file builds the tree and lays it out; [`traversal`] walks it (one ray, or a batch
-//! interleaved so that the rays' cache misses overlap).
+//! interleaved so that the rays' cache misses overlap) on the per-node tests of [`kernels`].
 
+mod kernels;
 mod traversal;
 
 use glam::Vec3;
