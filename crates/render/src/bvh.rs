@@ -14,8 +14,8 @@
 //! traversal (160×120, 6 views, 64 spp), the binary tree took 14.05 s and this one 8.25 s, at a
 //! bench iteration of ~100 ms.
 //!
-//! This file builds the tree and lays it out; [`traversal`] walks it (one ray, or a batch
-//! interleaved so that the rays' cache misses overlap) on the per-node tests of [`kernels`].
+//! This file builds the tree and lays it out; `traversal` walks it (one ray, or a batch
+//! interleaved so that the rays' cache misses overlap) on the per-node tests of `kernels`.
 
 mod kernels;
 mod traversal;

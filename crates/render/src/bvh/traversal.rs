@@ -42,7 +42,7 @@ impl Bvh {
     }
 
     /// Whether [`Bvh::intersect_each`] walks its batches interleaved (the tree is larger than
-    /// the caches hold: [`super::INTERLEAVE_BYTES`]).
+    /// the caches hold: `INTERLEAVE_BYTES`).
     pub fn interleaves(&self) -> bool {
         self.interleave
     }
@@ -53,10 +53,10 @@ impl Bvh {
     ///
     /// Why batched: one ray's traversal is a chain of dependent loads (node, then the child
     /// it picks), and on a mesh larger than L2 each waits on memory: a 90k-triangle room took
-    /// ~670 ns a ray at ~12 nodes a ray. Here [`LANES`] rays are walked in turn, one node each,
+    /// ~670 ns a ray at ~12 nodes a ray. Here `LANES` rays are walked in turn, one node each,
     /// and the node a ray will visit next is prefetched while the others take their step, so
     /// their misses overlap. A tree that fits the caches is walked one ray after the other
-    /// ([`super::INTERLEAVE_BYTES`]).
+    /// (`INTERLEAVE_BYTES`).
     pub fn intersect_each(
         &self,
         n: usize,
