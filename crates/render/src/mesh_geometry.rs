@@ -1,7 +1,7 @@
 //! [`Geometry`] of a triangle mesh: the [`Bvh`] plus, per triangle, its outward unit normal and
 //! the surface label that materials and lights key on (a synthetic room's shape index).
 
-use crate::bvh::{Bvh, BvhHit};
+use crate::bvh::{prefetch, Bvh, BvhHit};
 use crate::geometry::{Geometry, Hit, Ray};
 use glam::Vec3;
 use i2sdf_data::TriangleMesh;
@@ -96,19 +96,6 @@ impl MeshGeometry {
             prim: h.triangle,
         }
     }
-
-    /// Asks for triangle `t`'s shading line ahead of its read (a hint).
-    #[inline]
-    fn prefetch_shading(&self, t: u32) {
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: a prefetch is a hint that never faults, whatever the address.
-        unsafe {
-            let p = self.shading.as_ptr().wrapping_add(t as usize) as *const i8;
-            std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p);
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        let _ = t;
-    }
 }
 
 impl Geometry for MeshGeometry {
@@ -130,7 +117,7 @@ impl Geometry for MeshGeometry {
         self.bvh.intersect_each(rays.len(), ray, |i, h| found.push((i, h)));
         for (k, &(i, h)) in found.iter().enumerate() {
             if let Some(&(_, ahead)) = found.get(k + SHADING_AHEAD) {
-                self.prefetch_shading(ahead.triangle);
+                prefetch(self.shading.as_ptr().wrapping_add(ahead.triangle as usize));
             }
             hits[i] = Some(self.hit_of(h));
         }
@@ -150,6 +137,7 @@ impl Geometry for MeshGeometry {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bvh::tests::random_ray;
     use crate::geometry::intersect_one;
     use rand::{Rng, SeedableRng};
 
@@ -177,17 +165,8 @@ mod tests {
         let geo = MeshGeometry::new(&mesh, labels.clone());
         let rays: Vec<Ray> = (0..3000)
             .map(|_| {
-                let o = Vec3::new(
-                    rng.gen_range(-3.0..3.0),
-                    rng.gen_range(-3.0..3.0),
-                    rng.gen_range(-3.0..3.0),
-                );
-                let d = Vec3::new(
-                    rng.gen_range(-1.0..1.0),
-                    rng.gen_range(-1.0..1.0),
-                    rng.gen_range(-1.0..1.0),
-                );
-                Ray::new(o, d.normalize(), rng.gen_range(0.0..0.1), rng.gen_range(0.5..8.0))
+                let (o, d) = random_ray(&mut rng, 3.0);
+                Ray::new(o, d, rng.gen_range(0.0..0.1), rng.gen_range(0.5..8.0))
             })
             .collect();
         let mut hits = vec![None; rays.len()];

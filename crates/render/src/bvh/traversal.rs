@@ -8,7 +8,7 @@
 //! reads next, so that the cache misses of one ray overlap the others' work.
 
 use super::kernels::RayConsts;
-use super::{Bvh, BvhHit, TriPack, WideNode, PACK, WIDTH};
+use super::{prefetch, Bvh, BvhHit, TriPack, WideNode, PACK, WIDTH};
 use glam::Vec3;
 
 impl Bvh {
@@ -333,18 +333,6 @@ impl Bvh {
     }
 }
 
-/// Asks for the cache line at `p` (a hint: it never faults; nothing on other targets).
-#[inline(always)]
-fn prefetch(p: *const i8) {
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: a prefetch is a hint that never faults, whatever the address.
-    unsafe {
-        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p);
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = p;
-}
-
 /// A small vector of at most [`WIDTH`] items on the stack (a node's children).
 #[derive(Clone, Copy)]
 struct Few<T: Copy + Default> {
@@ -489,7 +477,7 @@ impl AnyWalk {
 
 #[cfg(test)]
 mod tests {
-    use super::super::tests::{brute_force, clutter};
+    use super::super::tests::{brute_force, clutter, random_ray};
     use super::super::Strategy;
     use super::*;
     use i2sdf_data::TriangleMesh;
@@ -498,17 +486,7 @@ mod tests {
     fn check_against_brute_force(mesh: &TriangleMesh, bvh: &Bvh, rays: usize, rng: &mut impl Rng) {
         let mut stack = Vec::new();
         for _ in 0..rays {
-            let o = Vec3::new(
-                rng.gen_range(-4.0..4.0),
-                rng.gen_range(-4.0..4.0),
-                rng.gen_range(-4.0..4.0),
-            );
-            let d = Vec3::new(
-                rng.gen_range(-1.0..1.0),
-                rng.gen_range(-1.0..1.0),
-                rng.gen_range(-1.0..1.0),
-            )
-            .normalize();
+            let (o, d) = random_ray(rng, 4.0);
             // Unbounded rays too: an empty slot of a wide node must not pass the box test there.
             let t_max = if rng.gen_bool(0.2) {
                 f32::INFINITY
@@ -546,22 +524,13 @@ mod tests {
             bvh.interleave = interleave;
             let rays: Vec<(Vec3, Vec3, f32, f32)> = (0..n)
                 .map(|_| {
-                    let o = Vec3::new(
-                        rng.gen_range(-4.0..4.0),
-                        rng.gen_range(-4.0..4.0),
-                        rng.gen_range(-4.0..4.0),
-                    );
-                    let d = Vec3::new(
-                        rng.gen_range(-1.0..1.0),
-                        rng.gen_range(-1.0..1.0),
-                        rng.gen_range(-1.0..1.0),
-                    );
+                    let (o, d) = random_ray(&mut rng, 4.0);
                     let t_max = if rng.gen_bool(0.2) {
                         f32::INFINITY
                     } else {
                         rng.gen_range(0.5..20.0)
                     };
-                    (o, d.normalize(), rng.gen_range(0.0..0.3), t_max)
+                    (o, d, rng.gen_range(0.0..0.3), t_max)
                 })
                 .collect();
             let skipped = |i: usize| i % 7 == 3;
