@@ -128,38 +128,54 @@ pub fn sample_surface(mesh: &TriangleMesh, n: usize, seed: u64) -> (Vec<[f32; 3]
 
 /// [`sample_surface`], calling `on_done(k)` as each batch of `k` of the `n` points is drawn (all
 /// `n` at once for a mesh without area).
-fn sample_reporting(mesh: &TriangleMesh, n: usize, seed: u64, on_done: &dyn Fn(u64)) -> (Vec<[f32; 3]>, Vec<u32>) {
-    let mut cdf = Vec::with_capacity(mesh.num_faces());
-    let mut total = 0.0f64;
-    for f in 0..mesh.num_faces() {
-        total += mesh.face_area(f);
-        cdf.push(total);
-    }
+fn sample_reporting(
+    mesh: &TriangleMesh,
+    n: usize,
+    seed: u64,
+    on_done: &(dyn Fn(u64) + Sync),
+) -> (Vec<[f32; 3]>, Vec<u32>) {
+    let areas: Vec<f64> = (0..mesh.num_faces())
+        .into_par_iter()
+        .map(|f| mesh.face_area(f))
+        .collect();
+    let cdf: Vec<f64> = areas
+        .iter()
+        .scan(0.0f64, |total, a| {
+            *total += a;
+            Some(*total)
+        })
+        .collect();
+    let total = cdf.last().copied().unwrap_or(0.0);
     if total <= 0.0 || !total.is_finite() || n == 0 {
         on_done(n as u64);
         return (Vec::new(), Vec::new());
     }
+    // The uniforms are drawn in one stream (the samples do not depend on the thread count);
+    // the searches in the CDF, a cache miss per step on a large mesh, run in parallel.
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
-    let mut points = Vec::with_capacity(n);
-    let mut faces = Vec::with_capacity(n);
-    for k in 0..n {
-        if k > 0 && k % REPORT_BATCH == 0 {
-            on_done(REPORT_BATCH as u64);
-        }
-        let target = rng.gen::<f64>() * total;
-        let f = cdf.partition_point(|&c| c <= target).min(cdf.len() - 1);
-        // Uniform on the triangle: barycentrics (1 − √r1, √r1 (1 − r2), √r1 r2).
-        let (r1, r2): (f64, f64) = (rng.gen(), rng.gen());
-        let s = r1.sqrt();
-        let w = [1.0 - s, s * (1.0 - r2), s * r2];
-        let tri = mesh.triangle(f);
-        points.push(std::array::from_fn(|a| {
-            (w[0] * tri[0][a] as f64 + w[1] * tri[1][a] as f64 + w[2] * tri[2][a] as f64) as f32
-        }));
-        faces.push(f as u32);
-    }
-    on_done(((n - 1) % REPORT_BATCH + 1) as u64);
-    (points, faces)
+    let uniforms: Vec<[f64; 3]> = (0..n).map(|_| [rng.gen(), rng.gen(), rng.gen()]).collect();
+    uniforms
+        .par_chunks(REPORT_BATCH)
+        .flat_map_iter(|batch| {
+            let drawn: Vec<([f32; 3], u32)> = batch
+                .iter()
+                .map(|&[u, r1, r2]| {
+                    let target = u * total;
+                    let f = cdf.partition_point(|&c| c <= target).min(cdf.len() - 1);
+                    // Uniform on the triangle: barycentrics (1 − √r1, √r1 (1 − r2), √r1 r2).
+                    let s = r1.sqrt();
+                    let w = [1.0 - s, s * (1.0 - r2), s * r2];
+                    let tri = mesh.triangle(f);
+                    let p = std::array::from_fn(|a| {
+                        (w[0] * tri[0][a] as f64 + w[1] * tri[1][a] as f64 + w[2] * tri[2][a] as f64) as f32
+                    });
+                    (p, f as u32)
+                })
+                .collect();
+            on_done(batch.len() as u64);
+            drawn
+        })
+        .unzip()
 }
 
 #[derive(Clone, Debug)]

@@ -126,7 +126,9 @@ pub fn read_specs(dataset: &Dataset) -> Result<Vec<(EditSpec, EditAssets)>, Data
 /// The relight section of the report; all null without relit sets. `captured` may hold the
 /// radiance field's images of some cameras rendered with the run's render settings (eval's test
 /// views), which the differential composites then use instead of rendering them again. `on_row`
-/// is called after each rendered row.
+/// is called after each rendered row. `prepared`: the recovered scene the sets are traced in,
+/// built by the caller (`RecoveredScene::of_run` at `options.mesh_resolution`) beside other
+/// work; None builds it here when there is something to render.
 ///
 /// Without emitters (stage 2 found none) nothing is rendered and every figure is null, each set
 /// listed with its frame count only: the edit renderer's light comes from the recovered emitters
@@ -134,10 +136,11 @@ pub fn read_specs(dataset: &Dataset) -> Result<Vec<(EditSpec, EditAssets)>, Data
 /// composite the radiance field's image unchanged; scoring those would report numbers that say
 /// nothing about relighting. The report says why with
 /// [`crate::report::EvalReport::note_no_emitters`].
-pub fn relight_metrics(
-    run: &OpenedRun,
+pub fn relight_metrics<'a>(
+    run: &'a OpenedRun,
     dataset: &Dataset,
     options: &RelightOptions,
+    prepared: Option<RecoveredScene<'a>>,
     captured: &[(Camera, ImageF32)],
     on_row: &(dyn Fn() + Sync),
 ) -> Result<RelightMetrics, DataError> {
@@ -148,7 +151,10 @@ pub fn relight_metrics(
         return Ok(frame_counts_only(dataset));
     }
     let specs = read_specs(dataset)?;
-    let recovered = RecoveredScene::of_run(run, dataset, options.mesh_resolution)?;
+    let recovered = match prepared {
+        Some(r) => r,
+        None => RecoveredScene::of_run(run, dataset, options.mesh_resolution)?,
+    };
     let scoring = RelitScoring {
         recovered: &recovered,
         volume: options.differential.then_some(&run.config.render),
@@ -595,7 +601,7 @@ mod tests {
         let on_row = || {
             rows.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         };
-        let m = relight_metrics(&run, &dataset, &RelightOptions::default(), &[], &on_row).unwrap();
+        let m = relight_metrics(&run, &dataset, &RelightOptions::default(), None, &[], &on_row).unwrap();
         assert_eq!(rows.into_inner(), 0, "nothing rendered");
         let sets = m.sets.clone().unwrap();
         assert_eq!(sets.keys().collect::<Vec<_>>(), ["lamp_dim"]);

@@ -78,6 +78,7 @@ pub fn render_view(scene: &Scene, cam: &Camera, settings: &ViewSettings, on_row:
     let pixels_per_tile = (TILE_PATHS / spp as usize).max(1);
     let rows: Vec<RowBuffers> = (0..h)
         .into_par_iter()
+        .with_max_len(1)
         .map(|y| {
             let mut row = RowBuffers::new(w, ne);
             let mut paths = Vec::with_capacity(pixels_per_tile * spp as usize);
