@@ -99,6 +99,7 @@ impl RecoveredSurface {
         let (mesh, labels, kept) =
             i2sdf_render::simplify::simplify_labelled(&mesh, &labels, i2sdf_model::TRACED_SIMPLIFY_VOXELS * voxel);
         let normals: Vec<Vec3> = kept.iter().map(|&v| normals[v as usize]).collect();
+        let (mesh, labels, normals) = fitted_bulbs(mesh, labels, normals, frozen.emitters);
         for (t, &l) in labels.iter().enumerate() {
             if l > 0 {
                 emitter_faces[l as usize - 1].push(t as u32);
@@ -123,6 +124,61 @@ impl RecoveredSurface {
         }
         base
     }
+}
+
+/// Each emitter with a fitted sphere (stage 2's `fit_sphere`: a bulb seen from one side) becomes
+/// that sphere, emitting L\[k\] all round as [`FrozenScene::cast`] sees it: the surface within
+/// [`i2sdf_model::intrinsic::BULB_CLEARANCE`] radii of its centre that faces away from the centre
+/// (the recovered bulb, seen side and unseen side; a wall or ceiling near it faces the light and
+/// stays) is replaced by an icosphere of the fitted radius labelled as the emitter.
+fn fitted_bulbs(
+    mesh: TriangleMesh,
+    labels: Vec<u32>,
+    mut normals: Vec<Vec3>,
+    table: &EmitterTable,
+) -> (TriangleMesh, Vec<u32>, Vec<Vec3>) {
+    let spheres: Vec<(u32, Vec3, f32)> = table
+        .emitters
+        .iter()
+        .enumerate()
+        .filter_map(|(k, e)| e.bulb().map(|(c, r)| (k as u32 + 1, c, r)))
+        .collect();
+    if spheres.is_empty() {
+        return (mesh, labels, normals);
+    }
+    let TriangleMesh {
+        mut positions, faces, ..
+    } = mesh;
+    let (mut kept_faces, mut kept_labels) = (Vec::with_capacity(faces.len()), Vec::with_capacity(faces.len()));
+    for (f, &l) in faces.iter().zip(&labels) {
+        let p = f.map(|i| Vec3::from(positions[i as usize]));
+        let centroid = (p[0] + p[1] + p[2]) / 3.0;
+        let n = (p[1] - p[0]).cross(p[2] - p[0]);
+        let cleared = spheres.iter().any(|&(_, c, r)| {
+            (centroid - c).length() < i2sdf_model::intrinsic::BULB_CLEARANCE * r && n.dot(centroid - c) > 0.0
+        });
+        if !cleared {
+            kept_faces.push(*f);
+            kept_labels.push(l);
+        }
+    }
+    let unit = TriangleMesh::unit_icosphere(3);
+    for &(label, centre, r) in &spheres {
+        let base = positions.len() as u32;
+        for p in &unit.positions {
+            let n = Vec3::from(*p).normalize();
+            positions.push((centre + r * n).to_array());
+            normals.push(n);
+        }
+        kept_faces.extend(unit.faces.iter().map(|f| f.map(|i| i + base)));
+        kept_labels.extend(std::iter::repeat(label).take(unit.faces.len()));
+    }
+    let mesh = TriangleMesh {
+        positions,
+        faces: kept_faces,
+        face_object_ids: None,
+    };
+    (mesh, kept_labels, normals)
 }
 
 /// An emitter whose triangles' area-weighted normals sum to at most this fraction of its area
@@ -323,6 +379,58 @@ pub fn edit_images(v: &ViewRender, gains: &[Vec3], radiometry: &Radiometry) -> (
 mod tests {
     use super::*;
     use i2sdf_render::Visibility;
+
+    /// A bulb with a fitted sphere: the recovered bulb (a coarse ball about the centre, larger
+    /// than the sphere, partly labelled) goes, a wall within the clearance that faces the bulb
+    /// stays, and the sphere comes in whole with the emitter's label and radial normals.
+    #[test]
+    fn a_fitted_bulb_replaces_the_recovered_one() {
+        let c = Vec3::new(0.5, 1.8, -0.4);
+        let r = 0.1;
+        let mut mesh = TriangleMesh::unit_icosphere(1);
+        for p in &mut mesh.positions {
+            *p = (c + 0.13 * Vec3::from(*p)).to_array();
+        }
+        let blob = mesh.faces.len();
+        // A wall 0.15 from the centre, facing it (normal −x).
+        let base = mesh.positions.len() as u32;
+        for (y, z) in [(-0.2, -0.2), (0.2, -0.2), (0.2, 0.2), (-0.2, 0.2)] {
+            mesh.positions.push((c + Vec3::new(0.15, y, z)).to_array());
+        }
+        mesh.faces.push([base, base + 2, base + 1]);
+        mesh.faces.push([base, base + 3, base + 2]);
+        for f in &mesh.faces[blob..] {
+            let p = f.map(|i| Vec3::from(mesh.positions[i as usize]));
+            assert!((p[1] - p[0]).cross(p[2] - p[0]).x < 0.0, "the wall faces the bulb");
+        }
+        let labels: Vec<u32> = (0..mesh.faces.len())
+            .map(|t| if t < blob && t % 2 == 0 { 1 } else { 0 })
+            .collect();
+        let normals = vec![Vec3::Y; mesh.positions.len()];
+        let table = EmitterTable::new(
+            vec![i2sdf_model::emitters::Emitter {
+                centre: c.as_dvec3().to_array(),
+                extent: [0.2; 3],
+                radius: 0.15,
+                points: 10,
+                sphere: Some([c.x as f64, c.y as f64, c.z as f64, r as f64]),
+            }],
+            &[[5.0; 3]],
+        );
+        let (out, labels, normals) = fitted_bulbs(mesh, labels, normals, &table);
+        let sphere = TriangleMesh::unit_icosphere(3).faces.len();
+        assert_eq!(out.faces.len(), 2 + sphere, "the ball went, the wall stayed");
+        assert_eq!(&labels[..2], &[0, 0]);
+        assert!(labels[2..].iter().all(|&l| l == 1));
+        assert_eq!(normals.len(), out.positions.len());
+        for f in &out.faces[2..] {
+            for &i in f {
+                let p = Vec3::from(out.positions[i as usize]);
+                assert!(((p - c).length() - r).abs() < 1e-5);
+                assert!((normals[i as usize] - (p - c) / r).length() < 1e-4);
+            }
+        }
+    }
 
     /// Whether the light's samples (from either side, the first that carries light) are
     /// directions whose first hit decides, rather than points on the emitter.

@@ -40,6 +40,20 @@ pub struct Emitter {
     pub sphere: Option<[f64; 4]>,
 }
 
+/// Largest fitted radius of a bulb, as a multiple of its cluster's bounding radius: the seen
+/// side of a bulb spans its sphere (the built-in rooms' bulbs: 0.5–0.8); a slightly curved
+/// panel fits a sphere far larger than itself (1.8 on seed 7's ceiling panel).
+pub const BULB_MAX_RADIUS: f64 = 1.25;
+
+impl Emitter {
+    /// The emitter as a bulb: its fitted sphere (centre, radius; world units) where it has one
+    /// no larger than [`BULB_MAX_RADIUS`] times the cluster's bounding radius.
+    pub fn bulb(&self) -> Option<(glam::Vec3, f32)> {
+        let [x, y, z, r] = self.sphere?;
+        (r <= BULB_MAX_RADIUS * self.radius).then(|| (glam::DVec3::new(x, y, z).as_vec3(), r as f32))
+    }
+}
+
 /// The K emitters and their learnable emissions L\[k\].
 #[derive(Clone, Debug, PartialEq)]
 pub struct EmitterTable {

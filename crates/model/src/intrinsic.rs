@@ -408,12 +408,23 @@ impl<'a> FrozenScene<'a> {
     /// refined hit: light samples all end on an emitter, and that second query was a fifth of
     /// a test-view re-render's time.
     pub fn cast(&self, rays: &[Ray], out: &mut [Option<LabelledHit>]) {
+        self.cast_with_bulbs(rays, out, true)
+    }
+
+    /// [`FrozenScene::cast`], with or without the fitted bulbs' step (rays sent on past a
+    /// recovered bulb are cast without it: they start outside its clearance ball).
+    fn cast_with_bulbs(&self, rays: &[Ray], out: &mut [Option<LabelledHit>], bulbs: bool) {
         assert_eq!(rays.len(), out.len());
         let features = self.cast_unlabelled(rays, out, !self.emitters.is_empty());
         if self.emitters.is_empty() {
             return;
         }
+        let decided = match bulbs {
+            true => self.fitted_bulb_hits(rays, out),
+            false => vec![false; rays.len()],
+        };
         let (idx, cluster): (Vec<usize>, Vec<u32>) = (0..out.len())
+            .filter(|&i| !decided[i])
             .filter_map(|i| {
                 let h = out[i].as_ref()?;
                 let k = self.emitters.index(h.position.as_dvec3(), self.index_margin)?;
@@ -447,6 +458,64 @@ impl<'a> FrozenScene<'a> {
                 out[i].as_mut().unwrap().emitter = Some(k);
             }
         }
+    }
+
+    /// Each emitter with a fitted sphere ([`crate::emitters::Emitter::sphere`]: a bulb seen from
+    /// one side) is that sphere, emitting all round: a ray that meets the sphere before any
+    /// other surface, or whose hit lies on the recovered bulb (within [`BULB_CLEARANCE`] radii
+    /// of the centre, facing away from it: the seen side and the unseen side stage 1 left),
+    /// hits the sphere and its emitter; one that hits the recovered bulb but misses the sphere
+    /// goes on from where it leaves the clearance ball. Returns which hits are decided here
+    /// (their label included).
+    fn fitted_bulb_hits(&self, rays: &[Ray], out: &mut [Option<LabelledHit>]) -> Vec<bool> {
+        let mut decided = vec![false; rays.len()];
+        let spheres: Vec<(u32, Vec3, f32)> = self
+            .emitters
+            .emitters
+            .iter()
+            .enumerate()
+            .filter_map(|(k, e)| e.bulb().map(|(c, r)| (k as u32, c, r)))
+            .collect();
+        if spheres.is_empty() {
+            return decided;
+        }
+        let mut again = Vec::new();
+        for (i, ray) in rays.iter().enumerate() {
+            for &(k, c, r) in &spheres {
+                let on_bulb = out[i].is_some_and(|h| {
+                    (h.position - c).length() < BULB_CLEARANCE * r && h.normal.dot(h.position - c) > 0.0
+                });
+                match sphere_entry(ray, c, r) {
+                    Some(t) if on_bulb || out[i].map_or(true, |h| t < h.t) => {
+                        let position = ray.origin + t * ray.dir;
+                        out[i] = Some(LabelledHit {
+                            t,
+                            position,
+                            normal: (position - c) / r,
+                            emitter: Some(k),
+                        });
+                        decided[i] = true;
+                    }
+                    None if on_bulb => {
+                        // Past the recovered bulb: from where the ray leaves the clearance ball.
+                        let exit = ball_exit(ray, c, BULB_CLEARANCE * r).unwrap_or(ray.t_min);
+                        again.push((i, Ray::new(ray.origin, ray.dir, exit.max(ray.t_min), ray.t_max)));
+                    }
+                    _ => continue,
+                }
+                break;
+            }
+        }
+        if !again.is_empty() {
+            let rays2: Vec<Ray> = again.iter().map(|&(_, r)| r).collect();
+            let mut out2 = vec![None; rays2.len()];
+            self.cast_with_bulbs(&rays2, &mut out2, false);
+            for (&(i, _), h) in again.iter().zip(out2) {
+                out[i] = h;
+                decided[i] = true;
+            }
+        }
+        decided
     }
 
     /// Runs `f` with a query from the pool ([`FrozenScene::queries`]), returned to it after.
@@ -608,6 +677,15 @@ impl Geometry for FrozenScene<'_> {
     fn occluded(&self, rays: &[Ray], occluded: &mut [bool]) {
         let rays = self.gapped(rays);
         let rays = &rays[..];
+        if self.emitters.emitters.iter().any(|e| e.bulb().is_some()) {
+            // A fitted bulb stands in for the recovered one: only the labelled cast knows.
+            let mut hits = vec![None; rays.len()];
+            self.cast(rays, &mut hits);
+            for (o, h) in occluded.iter_mut().zip(hits) {
+                *o = h.is_some();
+            }
+            return;
+        }
         if self.baked.is_some() {
             let mut hits = vec![None; rays.len()];
             self.cast_unlabelled(rays, &mut hits, false);
@@ -738,6 +816,31 @@ pub fn rerender_view(
         },
     };
     render_view(&scene, cam, &settings, on_row)
+}
+
+/// How far about a bulb's fitted sphere, in radii, the recovered surface facing away from its
+/// centre is the bulb's own ([`FrozenScene::cast`]): stage 1 leaves the unseen side where its
+/// bubble points put it (on the default room up to 1.6 radii out, towards the corner walls).
+pub const BULB_CLEARANCE: f32 = 1.7;
+
+/// Where `ray` enters the sphere (c, r) within its segment (None: it misses it, or starts inside).
+fn sphere_entry(ray: &Ray, c: Vec3, r: f32) -> Option<f32> {
+    let oc = ray.origin - c;
+    let b = oc.dot(ray.dir);
+    let disc = b * b - (oc.length_squared() - r * r);
+    if disc < 0.0 {
+        return None;
+    }
+    let t = -b - disc.sqrt();
+    (t > ray.t_min && t < ray.t_max).then_some(t)
+}
+
+/// Where `ray`'s line leaves the sphere (c, r), if it meets it.
+fn ball_exit(ray: &Ray, c: Vec3, r: f32) -> Option<f32> {
+    let oc = ray.origin - c;
+    let b = oc.dot(ray.dir);
+    let disc = b * b - (oc.length_squared() - r * r);
+    (disc >= 0.0).then(|| -b + disc.sqrt())
 }
 
 #[cfg(test)]

@@ -490,3 +490,70 @@ fn kept_features_give_the_same_emitter_probability() {
     f.emitter_prob(&points, &mut queried);
     assert_eq!(from_z, queried);
 }
+
+/// An emitter with a fitted sphere (a bulb) is that sphere in the labelled cast: a ray that
+/// meets it first hits it (its emitter, the radial normal, the analytic distance); every other
+/// ray hits what it hit without the sphere. F_e labels nothing here (threshold above 1).
+#[test]
+fn a_fitted_bulb_is_its_sphere() {
+    let s = scene();
+    let c = centre() + Vec3::new(0.3, 0.2, -0.1);
+    let r = 0.15f32;
+    let table_with = |sphere: Option<[f64; 4]>| {
+        EmitterTable::new(
+            vec![Emitter {
+                centre: c.as_dvec3().to_array(),
+                extent: [0.3; 3],
+                radius: 0.2,
+                points: 10,
+                sphere,
+            }],
+            &[[4.0, 3.0, 2.0]],
+        )
+    };
+    let (bulb, plain) = (
+        table_with(Some([c.x as f64, c.y as f64, c.z as f64, r as f64])),
+        table_with(None),
+    );
+    let rays = rays(2000);
+    let cast = |t: &EmitterTable| {
+        let mut f = frozen_scene(&s, t);
+        f.emitter_threshold = 1.0;
+        let mut hits = vec![None; rays.len()];
+        f.cast(&rays, &mut hits);
+        hits
+    };
+    let (with, without) = (cast(&bulb), cast(&plain));
+    let mut on_bulb = 0;
+    for ((ray, w), p) in rays.iter().zip(&with).zip(&without) {
+        let (w, p) = (w.unwrap(), p.unwrap());
+        match sphere_entry(ray, c, r) {
+            Some(t) => {
+                on_bulb += 1;
+                assert!((w.t - t).abs() < 1e-5 && w.emitter == Some(0), "{w:?} against {t}");
+                assert!((w.normal - (w.position - c) / r).length() < 1e-5);
+                assert!(((w.position - c).length() - r).abs() < 1e-5);
+            }
+            None => assert_eq!(w, p),
+        }
+    }
+    assert!(on_bulb > 20 && on_bulb < rays.len() / 2, "{on_bulb} rays on the bulb");
+}
+
+/// The ray-sphere entry and the ball's exit: a ray through the centre enters at d − r and leaves
+/// at d + r; a ray past the sphere, one that starts inside and one whose segment ends before it
+/// have no entry.
+#[test]
+fn sphere_entry_and_exit() {
+    let c = Vec3::new(0.0, 0.0, 5.0);
+    let ray = Ray::new(Vec3::ZERO, Vec3::Z, 0.0, f32::INFINITY);
+    assert!((sphere_entry(&ray, c, 1.0).unwrap() - 4.0).abs() < 1e-5);
+    assert!((ball_exit(&ray, c, 1.0).unwrap() - 6.0).abs() < 1e-5);
+    let past = Ray::new(Vec3::new(2.0, 0.0, 0.0), Vec3::Z, 0.0, f32::INFINITY);
+    assert_eq!(sphere_entry(&past, c, 1.0), None);
+    assert_eq!(ball_exit(&past, c, 1.0), None);
+    let inside = Ray::new(c, Vec3::Z, 0.0, f32::INFINITY);
+    assert_eq!(sphere_entry(&inside, c, 1.0), None);
+    let short = Ray::new(Vec3::ZERO, Vec3::Z, 0.0, 3.5);
+    assert_eq!(sphere_entry(&short, c, 1.0), None);
+}

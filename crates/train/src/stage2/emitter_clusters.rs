@@ -463,8 +463,9 @@ pub const SPHERE_MIN_POINTS: usize = 16;
 /// Largest RMS deviation from the fitted sphere, as a fraction of its radius.
 pub const SPHERE_MAX_RMS: f64 = 0.1;
 /// Largest fitted radius, as a multiple of the points' largest distance from their mean: a
-/// cap narrower than about 60° from its axis, or a plane, does not say where its centre is.
-pub const SPHERE_MAX_SPREAD: f64 = 2.0;
+/// cap narrower than about 50° from its axis, or a plane, does not say where its centre is (seed
+/// 7's ceiling panel fitted a sphere 1.8 times its spread at 2.0).
+pub const SPHERE_MAX_SPREAD: f64 = 1.25;
 
 #[cfg(test)]
 mod tests {

@@ -169,10 +169,14 @@ pub(super) fn cluster_new_emitters(
             extent: c.extent.map(|e| e * s),
             radius: c.radius * s,
             points: c.members.len(),
-            sphere: fit_sphere(&c.members.iter().map(|&m| points.positions[m]).collect::<Vec<_>>()).map(|f| {
-                let w = to_world([f[0], f[1], f[2]]);
-                [w[0], w[1], w[2], f[3] * s]
-            }),
+            sphere: c2
+                .fit_bulbs
+                .then(|| fit_sphere(&c.members.iter().map(|&m| points.positions[m]).collect::<Vec<_>>()))
+                .flatten()
+                .map(|f| {
+                    let w = to_world([f[0], f[1], f[2]]);
+                    [w[0], w[1], w[2], f[3] * s]
+                }),
         })
         .collect();
     for (k, e) in list.iter().enumerate() {
