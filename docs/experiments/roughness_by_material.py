@@ -10,22 +10,8 @@ Pixels of emitters (the mask) are left out. Needs numpy, Pillow and OpenEXR.
 import sys
 
 import numpy as np
-import OpenEXR
+from exr_maps import gray, read
 from PIL import Image
-
-
-def read(path):
-    with OpenEXR.File(path) as f:
-        ch = f.channels()
-        if "RGB" in ch:
-            return ch["RGB"].pixels.astype(np.float32)
-        if "Y" in ch:
-            return ch["Y"].pixels.astype(np.float32)
-        return np.stack([ch[c].pixels for c in "RGB" if c in ch], -1).astype(np.float32)
-
-
-def gray(a):
-    return a.mean(-1) if a.ndim == 3 else a
 
 
 room, maps = sys.argv[1], sys.argv[2]

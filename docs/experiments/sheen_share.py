@@ -11,21 +11,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import OpenEXR
-
-
-def read(path):
-    with OpenEXR.File(str(path)) as f:
-        ch = f.channels()
-        if "RGB" in ch:
-            return ch["RGB"].pixels.astype(np.float32)
-        if "Y" in ch:
-            return ch["Y"].pixels.astype(np.float32)
-        return np.stack([ch[c].pixels for c in "RGB" if c in ch], -1).astype(np.float32)
-
-
-def gray(a):
-    return a.mean(-1) if a.ndim == 3 else a
+from exr_maps import gray, read
 
 
 room, noks = Path(sys.argv[1]), Path(sys.argv[2])

@@ -5,8 +5,9 @@
 //! `cargo run --release -p i2sdf-edit --example bulb_power -- RUN ROOM [K]`: K is the recovered
 //! emitter (default 1, the built-in rooms' bulb); its true emitter is the dataset's emitter whose
 //! box is nearest, a sphere (centre and radius from its box) when it is one. Prints
-//! - for a spherical true emitter, the direct irradiance at 0.4 m from its centre in nine
-//!   directions, facing it, over that of the unoccluded true sphere;
+//! - for a spherical true emitter, in nine directions from its centre: the direct irradiance at
+//!   0.4 m, facing it, over that of the unoccluded true sphere, and where the recovered SDF's
+//!   surface lies along the direction with F_e there;
 //! - over the test views' pixels, the direct light at the first hit, recovered over true (each
 //!   scene's own geometry and emitter, the recovered emission rescaled to the true one, so that
 //!   only geometry and labels differ).
@@ -130,8 +131,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let x = centre + 0.4 * d;
             let got = irradiance(light, geometry, &is_recovered, x, -d, 2048) / exposure * true_l / recovered_l;
             let want = std::f32::consts::PI * true_l * (r / 0.4).powi(2);
+            // Where the recovered SDF crosses zero along d from the true centre, and F_e there.
+            let pts: Vec<Vec3> = (0..60).map(|i| centre + d * (i as f32 * 0.005)).collect();
+            let sdf = recovered.frozen.sdf_gradient(&pts);
+            let mut fe = vec![0.0; pts.len()];
+            recovered.frozen.emitter_prob(&pts, &mut fe);
+            let crossing = (1..pts.len()).find(|&i| sdf[i - 1].0 < 0.0 && sdf[i].0 >= 0.0);
+            let surface = crossing.map_or("no surface within 0.3 m".to_string(), |i| {
+                format!("recovered surface at {:.3} m, F_e {:.2}", i as f32 * 0.005, fe[i])
+            });
             println!(
-                "  at 0.4 m towards {:+.2?}: recovered / true sphere {:.2}",
+                "  towards {:+.2?}: direct light at 0.4 m, recovered / true sphere {:.2}; {surface}",
                 d.to_array(),
                 got / want
             );
