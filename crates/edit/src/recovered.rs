@@ -15,6 +15,7 @@ use crate::scene::{BaseLights, EditedScene};
 use glam::{DVec3, Vec3};
 use i2sdf_data::edit_spec::EditSpec;
 use i2sdf_data::{Bounds, Camera, DataError, Dataset, EditAssets, ImageF32, Radiometry, TriangleMesh};
+use i2sdf_model::emitters::on_recovered_bulb;
 use i2sdf_model::images::render_volume_view;
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::observed::ObservedViews;
@@ -128,7 +129,7 @@ impl RecoveredSurface {
 
 /// Each emitter with a fitted sphere (stage 2's `fit_sphere`: a bulb seen from one side) becomes
 /// that sphere, emitting L\[k\] all round as [`FrozenScene::cast`] sees it: the surface within
-/// [`i2sdf_model::intrinsic::BULB_CLEARANCE`] radii of its centre that faces away from the centre
+/// [`i2sdf_model::emitters::BULB_CLEARANCE`] radii of its centre that faces away from the centre
 /// (the recovered bulb, seen side and unseen side; a wall or ceiling near it faces the light and
 /// stays) is replaced by an icosphere of the fitted radius labelled as the emitter.
 fn fitted_bulbs(
@@ -137,12 +138,7 @@ fn fitted_bulbs(
     mut normals: Vec<Vec3>,
     table: &EmitterTable,
 ) -> (TriangleMesh, Vec<u32>, Vec<Vec3>) {
-    let spheres: Vec<(u32, Vec3, f32)> = table
-        .emitters
-        .iter()
-        .enumerate()
-        .filter_map(|(k, e)| e.bulb().map(|(c, r)| (k as u32 + 1, c, r)))
-        .collect();
+    let spheres = table.bulbs();
     if spheres.is_empty() {
         return (mesh, labels, normals);
     }
@@ -154,16 +150,14 @@ fn fitted_bulbs(
         let p = f.map(|i| Vec3::from(positions[i as usize]));
         let centroid = (p[0] + p[1] + p[2]) / 3.0;
         let n = (p[1] - p[0]).cross(p[2] - p[0]);
-        let cleared = spheres.iter().any(|&(_, c, r)| {
-            (centroid - c).length() < i2sdf_model::intrinsic::BULB_CLEARANCE * r && n.dot(centroid - c) > 0.0
-        });
+        let cleared = spheres.iter().any(|&(_, c, r)| on_recovered_bulb(c, r, centroid, n));
         if !cleared {
             kept_faces.push(*f);
             kept_labels.push(l);
         }
     }
     let unit = TriangleMesh::unit_icosphere(3);
-    for &(label, centre, r) in &spheres {
+    for &(k, centre, r) in &spheres {
         let base = positions.len() as u32;
         for p in &unit.positions {
             let n = Vec3::from(*p).normalize();
@@ -171,7 +165,7 @@ fn fitted_bulbs(
             normals.push(n);
         }
         kept_faces.extend(unit.faces.iter().map(|f| f.map(|i| i + base)));
-        kept_labels.extend(std::iter::repeat(label).take(unit.faces.len()));
+        kept_labels.extend(std::iter::repeat(k as u32 + 1).take(unit.faces.len()));
     }
     let mesh = TriangleMesh {
         positions,

@@ -134,17 +134,14 @@ fn sample_reporting(
     seed: u64,
     on_done: &(dyn Fn(u64) + Sync),
 ) -> (Vec<[f32; 3]>, Vec<u32>) {
-    let areas: Vec<f64> = (0..mesh.num_faces())
+    // The areas in parallel, then their running sum in place (the same sums as one loop).
+    let mut cdf: Vec<f64> = (0..mesh.num_faces())
         .into_par_iter()
         .map(|f| mesh.face_area(f))
         .collect();
-    let cdf: Vec<f64> = areas
-        .iter()
-        .scan(0.0f64, |total, a| {
-            *total += a;
-            Some(*total)
-        })
-        .collect();
+    for i in 1..cdf.len() {
+        cdf[i] += cdf[i - 1];
+    }
     let total = cdf.last().copied().unwrap_or(0.0);
     if total <= 0.0 || !total.is_finite() || n == 0 {
         on_done(n as u64);

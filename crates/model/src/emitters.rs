@@ -45,6 +45,11 @@ pub struct Emitter {
 /// panel fits a sphere far larger than itself (1.8 on seed 7's ceiling panel).
 pub const BULB_MAX_RADIUS: f64 = 1.25;
 
+/// How far about a bulb's fitted sphere, in radii, the recovered surface facing away from its
+/// centre is the bulb's own: stage 1 leaves the unseen side where its bubble points put it (on
+/// the default room up to 1.6 radii out, towards the corner walls).
+pub const BULB_CLEARANCE: f32 = 1.7;
+
 impl Emitter {
     /// The emitter as a bulb: its fitted sphere (centre, radius; world units) where it has one
     /// no larger than [`BULB_MAX_RADIUS`] times the cluster's bounding radius.
@@ -52,6 +57,13 @@ impl Emitter {
         let [x, y, z, r] = self.sphere?;
         (r <= BULB_MAX_RADIUS * self.radius).then(|| (glam::DVec3::new(x, y, z).as_vec3(), r as f32))
     }
+}
+
+/// Whether a surface point (with its outward normal, any length) is part of the recovered bulb
+/// about the sphere (`centre`, `r`): within [`BULB_CLEARANCE`] radii of the centre and facing
+/// away from it. A wall or ceiling next to the bulb faces the light and is not.
+pub fn on_recovered_bulb(centre: glam::Vec3, r: f32, point: glam::Vec3, outward: glam::Vec3) -> bool {
+    (point - centre).length() < BULB_CLEARANCE * r && outward.dot(point - centre) > 0.0
 }
 
 /// The K emitters and their learnable emissions L\[k\].
@@ -64,6 +76,13 @@ pub struct EmitterTable {
 }
 
 impl EmitterTable {
+    /// The emitters that are bulbs ([`Emitter::bulb`]): index, centre and radius.
+    pub fn bulbs(&self) -> Vec<(usize, glam::Vec3, f32)> {
+        (self.emitters.iter().enumerate())
+            .filter_map(|(k, e)| e.bulb().map(|(c, r)| (k, c, r)))
+            .collect()
+    }
+
     /// `emission[k]` is L\[k\] (linear HDR, image units); values below [`MIN_EMISSION`] are raised
     /// to it.
     pub fn new(emitters: Vec<Emitter>, emission: &[[f32; 3]]) -> Self {

@@ -23,6 +23,7 @@
 //! values are linearized by the dataset's transfer ([`Radiometry`]).
 
 use crate::emitters::EmitterTable;
+use crate::emitters::{on_recovered_bulb, BULB_CLEARANCE};
 use crate::material_field::{
     brdf_of_channels, MaterialBackbone, MaterialField, MaterialInferWorkspace, MATERIAL_CHANNELS,
 };
@@ -463,28 +464,20 @@ impl<'a> FrozenScene<'a> {
     /// Each emitter with a fitted sphere ([`crate::emitters::Emitter::sphere`]: a bulb seen from
     /// one side) is that sphere, emitting all round: a ray that meets the sphere before any
     /// other surface, or whose hit lies on the recovered bulb (within [`BULB_CLEARANCE`] radii
-    /// of the centre, facing away from it: the seen side and the unseen side stage 1 left),
+    /// of the centre, facing away from it, [`on_recovered_bulb`]: the seen side and the unseen side stage 1 left),
     /// hits the sphere and its emitter; one that hits the recovered bulb but misses the sphere
     /// goes on from where it leaves the clearance ball. Returns which hits are decided here
     /// (their label included).
     fn fitted_bulb_hits(&self, rays: &[Ray], out: &mut [Option<LabelledHit>]) -> Vec<bool> {
         let mut decided = vec![false; rays.len()];
-        let spheres: Vec<(u32, Vec3, f32)> = self
-            .emitters
-            .emitters
-            .iter()
-            .enumerate()
-            .filter_map(|(k, e)| e.bulb().map(|(c, r)| (k as u32, c, r)))
-            .collect();
+        let spheres = self.emitters.bulbs();
         if spheres.is_empty() {
             return decided;
         }
         let mut again = Vec::new();
         for (i, ray) in rays.iter().enumerate() {
             for &(k, c, r) in &spheres {
-                let on_bulb = out[i].is_some_and(|h| {
-                    (h.position - c).length() < BULB_CLEARANCE * r && h.normal.dot(h.position - c) > 0.0
-                });
+                let on_bulb = out[i].is_some_and(|h| on_recovered_bulb(c, r, h.position, h.normal));
                 match sphere_entry(ray, c, r) {
                     Some(t) if on_bulb || out[i].map_or(true, |h| t < h.t) => {
                         let position = ray.origin + t * ray.dir;
@@ -492,13 +485,13 @@ impl<'a> FrozenScene<'a> {
                             t,
                             position,
                             normal: (position - c) / r,
-                            emitter: Some(k),
+                            emitter: Some(k as u32),
                         });
                         decided[i] = true;
                     }
                     None if on_bulb => {
                         // Past the recovered bulb: from where the ray leaves the clearance ball.
-                        let exit = ball_exit(ray, c, BULB_CLEARANCE * r).unwrap_or(ray.t_min);
+                        let exit = sphere_exit((ray.origin - c).to_array(), ray.dir.to_array(), BULB_CLEARANCE * r);
                         again.push((i, Ray::new(ray.origin, ray.dir, exit.max(ray.t_min), ray.t_max)));
                     }
                     _ => continue,
@@ -677,10 +670,11 @@ impl Geometry for FrozenScene<'_> {
     fn occluded(&self, rays: &[Ray], occluded: &mut [bool]) {
         let rays = self.gapped(rays);
         let rays = &rays[..];
-        if self.emitters.emitters.iter().any(|e| e.bulb().is_some()) {
-            // A fitted bulb stands in for the recovered one: only the labelled cast knows.
+        if !self.emitters.bulbs().is_empty() {
+            // A fitted bulb stands in for the recovered one (no emitter labels needed).
             let mut hits = vec![None; rays.len()];
-            self.cast(rays, &mut hits);
+            self.cast_unlabelled(rays, &mut hits, false);
+            self.fitted_bulb_hits(rays, &mut hits);
             for (o, h) in occluded.iter_mut().zip(hits) {
                 *o = h.is_some();
             }
@@ -818,11 +812,6 @@ pub fn rerender_view(
     render_view(&scene, cam, &settings, on_row)
 }
 
-/// How far about a bulb's fitted sphere, in radii, the recovered surface facing away from its
-/// centre is the bulb's own ([`FrozenScene::cast`]): stage 1 leaves the unseen side where its
-/// bubble points put it (on the default room up to 1.6 radii out, towards the corner walls).
-pub const BULB_CLEARANCE: f32 = 1.7;
-
 /// Where `ray` enters the sphere (c, r) within its segment (None: it misses it, or starts inside).
 fn sphere_entry(ray: &Ray, c: Vec3, r: f32) -> Option<f32> {
     let oc = ray.origin - c;
@@ -833,14 +822,6 @@ fn sphere_entry(ray: &Ray, c: Vec3, r: f32) -> Option<f32> {
     }
     let t = -b - disc.sqrt();
     (t > ray.t_min && t < ray.t_max).then_some(t)
-}
-
-/// Where `ray`'s line leaves the sphere (c, r), if it meets it.
-fn ball_exit(ray: &Ray, c: Vec3, r: f32) -> Option<f32> {
-    let oc = ray.origin - c;
-    let b = oc.dot(ray.dir);
-    let disc = b * b - (oc.length_squared() - r * r);
-    (disc >= 0.0).then(|| -b + disc.sqrt())
 }
 
 #[cfg(test)]

@@ -540,18 +540,17 @@ fn a_fitted_bulb_is_its_sphere() {
     assert!(on_bulb > 20 && on_bulb < rays.len() / 2, "{on_bulb} rays on the bulb");
 }
 
-/// The ray-sphere entry and the ball's exit: a ray through the centre enters at d − r and leaves
-/// at d + r; a ray past the sphere, one that starts inside and one whose segment ends before it
-/// have no entry.
+/// The ray-sphere entry and the clearance ball's exit (the renderer's `sphere_exit`, about the
+/// centre): a ray through the centre enters at d − r and leaves at d + r; a ray past the sphere,
+/// one that starts inside and one whose segment ends before it have no entry.
 #[test]
 fn sphere_entry_and_exit() {
     let c = Vec3::new(0.0, 0.0, 5.0);
     let ray = Ray::new(Vec3::ZERO, Vec3::Z, 0.0, f32::INFINITY);
     assert!((sphere_entry(&ray, c, 1.0).unwrap() - 4.0).abs() < 1e-5);
-    assert!((ball_exit(&ray, c, 1.0).unwrap() - 6.0).abs() < 1e-5);
+    assert!((sphere_exit((-c).to_array(), [0.0, 0.0, 1.0], 1.0) - 6.0).abs() < 1e-5);
     let past = Ray::new(Vec3::new(2.0, 0.0, 0.0), Vec3::Z, 0.0, f32::INFINITY);
     assert_eq!(sphere_entry(&past, c, 1.0), None);
-    assert_eq!(ball_exit(&past, c, 1.0), None);
     let inside = Ray::new(c, Vec3::Z, 0.0, f32::INFINITY);
     assert_eq!(sphere_entry(&inside, c, 1.0), None);
     let short = Ray::new(Vec3::ZERO, Vec3::Z, 0.0, 3.5);
