@@ -170,7 +170,7 @@ fn bright_pixels(frame: &Frame, threshold: Option<f32>) -> Vec<bool> {
 }
 
 /// The 8-connected pieces of `set` (pixel indices, row-major), each in scan order.
-fn components(set: &[bool], width: usize, height: usize) -> Vec<Vec<usize>> {
+pub fn components(set: &[bool], width: usize, height: usize) -> Vec<Vec<usize>> {
     let mut seen = vec![false; set.len()];
     let mut out = Vec::new();
     let mut stack = Vec::new();

@@ -145,6 +145,11 @@ pub struct Stage2Config {
     /// +1.35 dB, the bulb alone relit +1.5 and +1.4 dB (differential); on seed 1 the relit sets
     /// lost 0.3–0.8 dB (docs/results.md).
     pub fit_bulbs: bool,
+    /// Lights that no surface carries (stage 1 built no surface for them: a clipped bulb the
+    /// depth sensor missed) are triangulated from the pieces of the emitter masks that no
+    /// emitter explains, as spheres (`stage2::emitter_triangulation`). Needs emitter masks
+    /// (given or found). On the default room's phone capture it recovers the bulb stage 1 lost.
+    pub triangulate_emitters: bool,
     /// Radius (normalized units) over which the diffuse irradiance of cached pixels with similar
     /// normals is averaged (0: each pixel's own samples only).
     pub irradiance_radius: f32,
@@ -217,6 +222,7 @@ impl Default for Stage2Config {
             input_normals: true,
             label_unobserved: false,
             fit_bulbs: true,
+            triangulate_emitters: true,
             samples: 16,
             emitter_sampling: true,
             lr_grid: 1e-2,

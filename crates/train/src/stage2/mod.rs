@@ -25,6 +25,7 @@ use crate::config::TrainConfig;
 use crate::driver::{StepOutcome, TrainStage};
 pub mod emission_from_shading;
 pub mod emitter_clusters;
+pub mod emitter_triangulation;
 pub mod losses;
 mod mixture;
 mod setup;
@@ -216,7 +217,8 @@ impl Stage2 {
                 (m, e, k)
             }
             None => {
-                let (emitters, k) = setup::cluster_new_emitters(&scene, views, &cast, &c2, &mut rng, progress);
+                let (emitters, k) =
+                    setup::cluster_new_emitters(&scene, views, radiometry, &cast, &c2, &mut rng, progress);
                 let material = MaterialField::new(&config.material, scene.feature_dim(), seed.wrapping_add(17));
                 (material, emitters, k)
             }
@@ -237,7 +239,9 @@ impl Stage2 {
             observers.as_deref(),
         );
         let observed = frozen.observed.clone();
-        let pixels = setup::label_pixels(&cast, views, &c2, &emitters, frozen.index_margin, progress);
+        let mut cast = cast;
+        let on_sphere = setup::recast_through_bulbs(&frozen, &mut cast);
+        let pixels = setup::label_pixels(&cast, &on_sphere, views, &c2, &emitters, frozen.index_margin, progress);
         // 4. Incident radiance of every surface pixel, traced once.
         let (mut cache, own, surface) = setup::trace_cache(&frozen, &pixels, &c2, seed, resume_at, progress);
         drop(frozen);

@@ -4,13 +4,14 @@
 
 use super::{normalized, pixel_rng, refresh_selection, CachedPixel, PixelKind};
 use crate::config::Stage2Config;
-use crate::stage2::emitter_clusters::{cluster_emitters, fit_sphere, ClusterSettings, MarkedPoints};
+use crate::stage2::emitter_clusters::{cluster_emitters, fit_sphere, ClusterSettings, MarkedPoints, SPHERE_MAX_RADIUS};
+use crate::stage2::emitter_triangulation::{disc_angle, is_compact, triangulate, MaskPiece, Triangulated};
 use crate::stage2::shading::{trace_incident, DiffuseSums, ShadingPoint};
 use crate::stage2::surface_cache::{ShadingCache, SpecularBake};
 use crate::stage2::targets::TargetView;
 use glam::{DVec3, Vec3};
 use i2sdf_data::{DataError, Radiometry};
-use i2sdf_model::emitters::{Emitter, EmitterTable};
+use i2sdf_model::emitters::{Emitter, EmitterTable, BULB_CLEARANCE};
 use i2sdf_model::intrinsic::{FrozenScene, LabelledHit};
 use i2sdf_model::{BakeRecord, NeuralScene};
 use i2sdf_render::Ray;
@@ -114,6 +115,7 @@ pub(super) fn bake_record(points: &[Vec3], views: &[TargetView], c2: &Stage2Conf
 pub(super) fn cluster_new_emitters(
     scene: &NeuralScene,
     views: &[TargetView],
+    radiometry: Radiometry,
     cast: &Cast,
     c2: &Stage2Config,
     rng: &mut Pcg64,
@@ -196,8 +198,250 @@ pub(super) fn cluster_new_emitters(
             }
         }
     }
-    let init: Vec<[f32; 3]> = sum.iter().map(|s| s.map(|v| (v as f32).max(1e-3))).collect();
+    let mut list = list;
+    let mut init: Vec<[f32; 3]> = sum.iter().map(|s| s.map(|v| (v as f32).max(1e-3))).collect();
+    if has_masks && c2.triangulate_emitters && c2.fit_bulbs {
+        let kept = EmitterTable::new(list.clone(), &init);
+        let small = SPHERE_MAX_RADIUS * s;
+        for (e, l) in triangulate_missed_lights(scene, views, &kept, small, radiometry, c2) {
+            let [x, y, z, r] = e.sphere.expect("a triangulated light is a sphere");
+            let centre = DVec3::new(x, y, z);
+            let sphere = format!("a sphere of radius {r:.3} m about ({x:.2}, {y:.2}, {z:.2}) m");
+            // A small emitter whose points fit no sphere (a rough bulb) takes the one its masks give.
+            match kept
+                .index(centre, r)
+                .filter(|&k| list[k].sphere.is_none() && list[k].radius <= small)
+            {
+                Some(k) => {
+                    progress(&format!(
+                        "emitter {k}: its points fit no sphere; its {} mask pixels give {sphere}",
+                        e.points
+                    ));
+                    list[k].sphere = e.sphere;
+                    list[k].radius = list[k].radius.max(r);
+                }
+                None => {
+                    progress(&format!(
+                        "emitter {}: no surface carries it; triangulated from {} mask pixels: {sphere}",
+                        list.len(),
+                        e.points
+                    ));
+                    list.push(e);
+                    init.push(l);
+                }
+            }
+        }
+    }
     (EmitterTable::new(list, &init), k)
+}
+
+/// A mask piece counts as explained when at least this share of its pixels' hits lie on a
+/// clustered emitter.
+const EXPLAINED_SHARE: f64 = 0.5;
+
+/// The lights stage 1 built no surface for, triangulated from the pieces of the training
+/// views' emitter masks that the clustered emitters (`kept`) do not explain
+/// ([`emitter_triangulation`](super::emitter_triangulation)), each as a bulb (its sphere set)
+/// with its initial L (the mean target of its pieces' pixels). An emitter no larger than
+/// `small` (world) whose points fit no sphere (a rough bulb: the second room's capture) explains
+/// no piece, so its pieces are triangulated too; the caller gives it the sphere they agree on.
+/// A proposal is kept when
+/// - the centroid rays of at least `stage2.emitter_mask_agreement` of its pieces meet no
+///   surface before it (a light's mirror image in a glossy floor lies behind the floor), and
+/// - of the training views that see its centre unoccluded, at least that share mark it in
+///   their masks (within a pixel).
+fn triangulate_missed_lights(
+    scene: &NeuralScene,
+    views: &[TargetView],
+    kept: &EmitterTable,
+    small: f64,
+    radiometry: Radiometry,
+    c2: &Stage2Config,
+) -> Vec<(Emitter, [f32; 3])> {
+    let none = EmitterTable::new(Vec::new(), &[]);
+    let frozen = FrozenScene::new(scene, &none, radiometry);
+    let cast_all = |rays: &[Ray]| {
+        let mut hits = vec![None; rays.len()];
+        frozen.cast(rays, &mut hits);
+        hits
+    };
+    // A small emitter whose points fit no sphere explains nothing: its pieces are triangulated.
+    let rough_small = |e: &Emitter| e.sphere.is_none() && e.radius <= small;
+    // 1. Every mask piece, and which of them no clustered emitter explains.
+    let mut pieces = Vec::new();
+    for (v, view) in views.iter().enumerate() {
+        let Some(mask) = &view.emitter_mask else { continue };
+        let cam = &view.camera;
+        let g = cam.ray_generator();
+        let pixel_ray = |p: usize| {
+            let (x, y) = ((p % cam.width) as f32 + 0.5, (p / cam.width) as f32 + 0.5);
+            Ray::new(g.origin, g.dir(x, y), 0.0, f32::INFINITY)
+        };
+        for piece in i2sdf_data::emitter_detect::components(mask, cam.width, cam.height) {
+            if !is_compact_piece(&piece, cam.width) {
+                continue;
+            }
+            let hits = cast_all(&piece.iter().map(|&p| pixel_ray(p)).collect::<Vec<_>>());
+            let explained = hits
+                .iter()
+                .filter(|h| {
+                    h.is_some_and(|h| {
+                        kept.index(h.position.as_dvec3(), frozen.index_margin)
+                            .is_some_and(|k| !rough_small(&kept.emitters[k]))
+                    })
+                })
+                .count();
+            if explained as f64 >= EXPLAINED_SHARE * piece.len() as f64 {
+                continue;
+            }
+            let n = piece.len() as f32;
+            let (u, w) = piece.iter().fold((0.0f32, 0.0f32), |(u, w), &p| {
+                (u + (p % cam.width) as f32 + 0.5, w + (p / cam.width) as f32 + 0.5)
+            });
+            pieces.push(MaskPiece {
+                view: v,
+                origin: cam.center(),
+                dir: g.dir(u / n, w / n).as_dvec3(),
+                angle: disc_angle(
+                    piece.len(),
+                    piece.iter().filter(|&&p| view.saturated[p] == 0b111).count(),
+                    cam.fx,
+                    cam.fy,
+                ),
+                pixels: piece.iter().map(|&p| p as u32).collect(),
+            });
+        }
+    }
+    if pieces.is_empty() {
+        return Vec::new();
+    }
+    // Where each piece's centroid ray first meets the surface.
+    let centroid_rays: Vec<Ray> = pieces
+        .iter()
+        .map(|p| Ray::new(p.origin.as_vec3(), p.dir.as_vec3(), 0.0, f32::INFINITY))
+        .collect();
+    let surface_t: Vec<f64> = cast_all(&centroid_rays)
+        .iter()
+        .map(|h| h.map_or(f64::INFINITY, |h| h.t as f64))
+        .collect();
+    // 2. Triangulated, each proposal tested against the surface and the other views' masks.
+    let agreement = c2.emitter_mask_agreement as f64;
+    let clearance = BULB_CLEARANCE as f64;
+    let mut accept = |light: &Triangulated| {
+        let (c, r) = (light.centre, light.radius);
+        // A new light's centre is in free space; a rough bulb's (a small emitter stage 1 built)
+        // lies inside its surface. The highlight of a light in a glossy ball triangulates
+        // consistently too, to its virtual image half the ball's radius inside it (the second
+        // room's chandelier balls).
+        let rough_bulb = kept.index(c, r).is_some_and(|k| rough_small(&kept.emitters[k]));
+        if !rough_bulb && frozen.sdf_gradient(&[c.as_vec3()])[0].0 < 0.0 {
+            return false;
+        }
+        let in_front = light
+            .pieces
+            .iter()
+            .filter(|&&i| surface_t[i] >= (c - pieces[i].origin).dot(pieces[i].dir) - clearance * r)
+            .count();
+        if (in_front as f64) < agreement * light.pieces.len() as f64 {
+            return false;
+        }
+        let seen: Vec<(usize, usize, Ray, f64)> = (views.iter().enumerate())
+            .filter_map(|(v, view)| {
+                let cam = &view.camera;
+                let (u, w, _) = cam.project(c)?;
+                let (x, y) = (u.floor(), w.floor());
+                if x < 0.0 || y < 0.0 || x >= cam.width as f64 || y >= cam.height as f64 {
+                    return None;
+                }
+                let (x, y) = (x as usize, y as usize);
+                let o = cam.center();
+                let dir = (c - o).normalize().as_vec3();
+                Some((
+                    v,
+                    y * cam.width + x,
+                    Ray::new(o.as_vec3(), dir, 0.0, f32::INFINITY),
+                    (c - o).length(),
+                ))
+            })
+            .collect();
+        let hits = cast_all(&seen.iter().map(|s| s.2).collect::<Vec<_>>());
+        let (mut agree, mut seeing) = (0usize, 0usize);
+        for ((v, p, _, dist), h) in seen.iter().zip(&hits) {
+            if h.is_some_and(|h| (h.t as f64) < dist - clearance * r) {
+                continue; // occluded in this view
+            }
+            let view = &views[*v];
+            let Some(mask) = &view.emitter_mask else { continue };
+            let w = view.camera.width;
+            let (x, y) = (p % w, p / w);
+            let marked = (y.saturating_sub(1)..=(y + 1).min(view.camera.height - 1))
+                .any(|j| (x.saturating_sub(1)..=(x + 1).min(w - 1)).any(|i| mask[j * w + i]));
+            seeing += 1;
+            agree += marked as usize;
+        }
+        seeing >= c2.emitter_min_views && agree as f64 >= agreement * seeing as f64
+    };
+    let found = triangulate(&pieces, c2.emitter_min_views, &mut accept);
+    found
+        .iter()
+        .map(|light| {
+            let (c, r) = (light.centre, light.radius);
+            let (mut sum, mut n) = ([0.0f64; 3], 0usize);
+            for &i in &light.pieces {
+                for &p in &pieces[i].pixels {
+                    let t = views[pieces[i].view].rgb[p as usize];
+                    for a in 0..3 {
+                        sum[a] += t[a] as f64;
+                    }
+                    n += 1;
+                }
+            }
+            let emitter = Emitter {
+                centre: c.to_array(),
+                extent: [2.0 * r; 3],
+                radius: r,
+                points: n,
+                sphere: Some([c.x, c.y, c.z, r]),
+            };
+            (emitter, sum.map(|s| ((s / n.max(1) as f64) as f32).max(1e-3)))
+        })
+        .collect()
+}
+
+fn is_compact_piece(piece: &[usize], width: usize) -> bool {
+    is_compact(&piece.iter().map(|&p| p as u32).collect::<Vec<_>>(), width)
+}
+
+/// The cached rays that meet a bulb's clearance ball, cast again into the labelled scene
+/// (`frozen`, the emitters known), so that the cache sees each bulb as every renderer does
+/// (`FrozenScene::cast`): on its sphere, with the recovered bulb cast through. Returns, per
+/// cached ray, whether it now ends on a bulb's sphere.
+pub(super) fn recast_through_bulbs(frozen: &FrozenScene<'_>, cast: &mut Cast) -> Vec<bool> {
+    let mut on_sphere = vec![false; cast.rays.len()];
+    let bulbs = frozen.emitters.bulbs();
+    if bulbs.is_empty() {
+        return on_sphere;
+    }
+    let near = |ray: &Ray| {
+        bulbs.iter().any(|&(_, c, r)| {
+            let oc = c - ray.origin;
+            let t = oc.dot(ray.dir).max(0.0);
+            (oc - t * ray.dir).length() < BULB_CLEARANCE * r
+        })
+    };
+    let idx: Vec<usize> = (0..cast.rays.len()).filter(|&i| near(&cast.rays[i])).collect();
+    let rays: Vec<Ray> = idx.iter().map(|&i| cast.rays[i]).collect();
+    let mut hits = vec![None; rays.len()];
+    frozen.cast(&rays, &mut hits);
+    for (&i, h) in idx.iter().zip(hits) {
+        on_sphere[i] = h.is_some_and(|h| {
+            h.emitter.is_some_and(|k| {
+                (bulbs.iter()).any(|&(b, c, r)| b == k as usize && ((h.position - c).length() - r).abs() < 1e-3 * r)
+            })
+        });
+        cast.hits[i] = h;
+    }
+    on_sphere
 }
 
 /// Each hit pixel's kind (an emitter by the dataset's mask where it has one, else by F_e; a
@@ -208,6 +452,7 @@ pub(super) fn cluster_new_emitters(
 /// than the SDF's gradient at edges), else the SDF's.
 pub(super) fn label_pixels(
     cast: &Cast,
+    on_sphere: &[bool],
     views: &[TargetView],
     c2: &Stage2Config,
     emitters: &EmitterTable,
@@ -240,7 +485,14 @@ pub(super) fn label_pixels(
         }
         let normal = given.map(|n| n.normalize()).unwrap_or(h.normal);
         let normal = if normal.dot(to_cam) < 0.0 { -normal } else { normal };
-        let kind = if is_emitter {
+        let kind = if on_sphere.get(i).copied().unwrap_or(false) {
+            // On a bulb's sphere: its emitter where the mask (or F_e) agrees; else the rim of
+            // the sphere the images do not show as light, neither emitter nor a surface.
+            match (is_emitter, h.emitter) {
+                (true, Some(k)) => PixelKind::Emitter(k),
+                _ => continue,
+            }
+        } else if is_emitter {
             match emitters.index(h.position.as_dvec3(), index_margin) {
                 Some(k) => PixelKind::Emitter(k as u32),
                 None => continue,
@@ -391,11 +643,57 @@ mod tests {
             normal: None,
         };
         let c2 = Stage2Config::default();
-        let pixels = label_pixels(&cast, &[view], &c2, &emitters, 0.05, &|_| {});
+        let pixels = label_pixels(&cast, &[], &[view], &c2, &emitters, 0.05, &|_| {});
         let kinds: Vec<(u32, PixelKind)> = pixels.iter().map(|p| (p.pixel, p.kind)).collect();
         assert_eq!(
             kinds,
             [(0, PixelKind::Surface { index: 0 }), (2, PixelKind::Emitter(0))]
+        );
+    }
+
+    /// A cached ray that ends on a bulb's sphere is that bulb's emitter pixel where the mask
+    /// marks it, and is dropped where it does not (the sphere's rim, neither light nor surface);
+    /// the other pixels are labelled as before.
+    #[test]
+    fn pixels_on_a_bulb_sphere_are_its_light_or_dropped() {
+        let hit = |x: f32, emitter: Option<u32>| LabelledHit {
+            t: 1.0,
+            position: Vec3::new(x, 0.0, 1.0),
+            normal: Vec3::new(0.0, 0.0, -1.0),
+            emitter,
+        };
+        let cast = Cast {
+            order: vec![(0, 0), (0, 1), (0, 2)],
+            rays: vec![Ray::new(Vec3::ZERO, Vec3::Z, 0.0, 10.0); 3],
+            hits: vec![Some(hit(0.0, Some(0))), Some(hit(0.1, Some(0))), Some(hit(3.0, None))],
+            hit_idx: vec![0, 1, 2],
+            points: vec![Vec3::ZERO; 3],
+            emitter_prob: vec![0.0; 3],
+        };
+        let emitters = EmitterTable::new(
+            vec![Emitter {
+                centre: [0.0, 0.0, 1.1],
+                extent: [0.2; 3],
+                radius: 0.1,
+                points: 1,
+                sphere: Some([0.0, 0.0, 1.1, 0.1]),
+            }],
+            &[[1.0; 3]],
+        );
+        let view = TargetView {
+            camera: i2sdf_data::fixture::cameras(&Default::default())[0].clone(),
+            rgb: vec![[0.5; 3]; 3],
+            saturated: vec![0; 3],
+            emitter_mask: Some(vec![true, false, false]),
+            material_mask: None,
+            normal: None,
+        };
+        let c2 = Stage2Config::default();
+        let pixels = label_pixels(&cast, &[true, true, false], &[view], &c2, &emitters, 0.05, &|_| {});
+        let kinds: Vec<(u32, PixelKind)> = pixels.iter().map(|p| (p.pixel, p.kind)).collect();
+        assert_eq!(
+            kinds,
+            [(0, PixelKind::Emitter(0)), (2, PixelKind::Surface { index: 0 })]
         );
     }
 }
