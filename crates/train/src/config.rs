@@ -424,6 +424,10 @@ pub struct PoseConfig {
     /// depth and are aligned. The SDF is then anchored to the capture's own fusion of its depth,
     /// so that it cannot follow the cameras when they drift together (measured, docs/results.md).
     pub pin_points: bool,
+    /// With depth: follow the rendering losses' gradient with Adam (`lr_rotation`,
+    /// `lr_translation`), as without depth, instead of aligning each view to the SDF. Meant with
+    /// `pin_points`, which keeps the SDF from following the cameras (measured, docs/results.md).
+    pub follow_gradient: bool,
 }
 
 impl Default for PoseConfig {
@@ -448,6 +452,7 @@ impl Default for PoseConfig {
             photometric_weight: 0.0,
             photometric_points: 512,
             pin_points: false,
+            follow_gradient: false,
         }
     }
 }

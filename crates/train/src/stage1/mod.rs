@@ -419,7 +419,7 @@ impl Stage1 {
         if !poses.active(self.iteration) {
             return;
         }
-        if !self.no_depth {
+        if !self.no_depth && !self.config.pose.follow_gradient {
             let p = &self.config.pose;
             let (every, rounds, damping) = (p.align_every, p.align_rounds, p.align_damping);
             if self.iteration % every != 0 {

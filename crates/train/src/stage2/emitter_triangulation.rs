@@ -192,20 +192,18 @@ pub fn triangulate(
     found
 }
 
-/// The angular radius (radians) of a mask piece of `area` pixels, `clipped` of them saturated in
-/// every channel, for a camera whose focal lengths are `fx`, `fy` pixels: the radius of the disc
-/// of that area, over the focal length. A mask found from LDR images takes every pixel the light
-/// touches enough to saturate one channel, partly covered rim pixels included, so its disc is
-/// about half a pixel too large; the clipped pixels are the ones it covers wholly, half a pixel
-/// too small. Where some are clipped the radius is the mean of the two discs' (on the default
-/// room's capture the whole piece gave the bulb 1.10 times its radius); else (a dataset's mask,
-/// which marks pixel centres, or HDR targets) the whole piece's.
-pub fn disc_angle(area: usize, clipped: usize, fx: f64, fy: f64) -> f64 {
-    let radius = |a: usize| (a as f64 / std::f64::consts::PI).sqrt();
-    let r = match clipped {
-        0 => radius(area),
-        c => 0.5 * (radius(area) + radius(c.min(area))),
-    };
+/// The angular radius (radians) of a mask piece of `area` pixels, for a camera whose focal
+/// lengths are `fx`, `fy` pixels: the radius of the disc of that area, over the focal length.
+/// A piece of `clipped` (saturated) LDR pixels takes every pixel the light touches enough to
+/// saturate, partly covered rim pixels included: a light far brighter than white saturates a
+/// pixel it covers a tenth of, so the piece is its disc grown by about half a pixel, which is
+/// taken off (on the default room's capture the whole piece gave the bulb 1.10 times its
+/// radius). Counting only the pixels saturated in every channel instead gave 0.69 times: JPEG's
+/// halved chroma keeps a warm light's blue under saturation over much of its disc. A dataset's
+/// mask marks pixel centres, as do HDR targets' pieces: the disc of the area as it is.
+pub fn disc_angle(area: usize, clipped: bool, fx: f64, fy: f64) -> f64 {
+    let r = (area as f64 / std::f64::consts::PI).sqrt();
+    let r = if clipped { (r - 0.5).max(0.5) } else { r };
     r / (fx * fy).sqrt()
 }
 
@@ -348,10 +346,10 @@ mod tests {
         assert!(!is_compact(&sliver, w));
         assert!(is_compact(&[5], w));
         assert!(!is_compact(&[], w));
-        // 12 px of area over f = 100 px: a disc of radius √(12/π) px; with 3 of them clipped,
-        // the mean of that and √(3/π).
-        let r = |a: f64| (a / std::f64::consts::PI).sqrt();
-        assert!((disc_angle(12, 0, 100.0, 100.0) - r(12.0) / 100.0).abs() < 1e-15);
-        assert!((disc_angle(12, 3, 100.0, 100.0) - 0.5 * (r(12.0) + r(3.0)) / 100.0).abs() < 1e-15);
+        // 12 px of area over f = 100 px: a disc of radius √(12/π) px; clipped, half a pixel less.
+        let r = (12.0 / std::f64::consts::PI).sqrt();
+        assert!((disc_angle(12, false, 100.0, 100.0) - r / 100.0).abs() < 1e-15);
+        assert!((disc_angle(12, true, 100.0, 100.0) - (r - 0.5) / 100.0).abs() < 1e-15);
+        assert!((disc_angle(1, true, 100.0, 100.0) - 0.5 / 100.0).abs() < 1e-15);
     }
 }

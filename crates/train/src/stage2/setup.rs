@@ -304,7 +304,7 @@ fn triangulate_missed_lights(
                 dir: g.dir(u / n, w / n).as_dvec3(),
                 angle: disc_angle(
                     piece.len(),
-                    piece.iter().filter(|&&p| view.saturated[p] == 0b111).count(),
+                    2 * piece.iter().filter(|&&p| view.saturated[p] != 0).count() >= piece.len(),
                     cam.fx,
                     cam.fy,
                 ),
