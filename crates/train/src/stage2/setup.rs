@@ -606,24 +606,29 @@ mod tests {
     use super::*;
     use crate::stage2::PixelKind;
 
+    /// Three pixels of view 0, each hit at (x, 0, 1) facing the camera, with its label.
+    fn three_pixel_cast(hits: [(f32, Option<u32>); 3]) -> Cast {
+        let hit = |(x, emitter): (f32, Option<u32>)| LabelledHit {
+            t: 1.0,
+            position: Vec3::new(x, 0.0, 1.0),
+            normal: Vec3::new(0.0, 0.0, -1.0),
+            emitter,
+        };
+        Cast {
+            order: vec![(0, 0), (0, 1), (0, 2)],
+            rays: vec![Ray::new(Vec3::ZERO, Vec3::Z, 0.0, 10.0); 3],
+            hits: hits.map(|h| Some(hit(h))).to_vec(),
+            hit_idx: vec![0, 1, 2],
+            points: vec![Vec3::ZERO; 3],
+            emitter_prob: vec![0.0; 3],
+        }
+    }
+
     /// A surface pixel the dataset's material mask marks non-GGX is not fitted; an emitter pixel
     /// is, whatever the mask says (emission is not a material).
     #[test]
     fn material_masked_surface_pixels_are_dropped() {
-        let hit = |x: f32| LabelledHit {
-            t: 1.0,
-            position: Vec3::new(x, 0.0, 1.0),
-            normal: Vec3::new(0.0, 0.0, -1.0),
-            emitter: None,
-        };
-        let cast = Cast {
-            order: vec![(0, 0), (0, 1), (0, 2)],
-            rays: vec![Ray::new(Vec3::ZERO, Vec3::Z, 0.0, 10.0); 3],
-            hits: vec![Some(hit(0.0)), Some(hit(0.1)), Some(hit(0.2))],
-            hit_idx: vec![0, 1, 2],
-            points: vec![Vec3::ZERO; 3],
-            emitter_prob: vec![0.0; 3],
-        };
+        let cast = three_pixel_cast([(0.0, None), (0.1, None), (0.2, None)]);
         let emitters = EmitterTable::new(
             vec![Emitter {
                 centre: [0.2, 0.0, 1.0],
@@ -656,20 +661,7 @@ mod tests {
     /// the other pixels are labelled as before.
     #[test]
     fn pixels_on_a_bulb_sphere_are_its_light_or_dropped() {
-        let hit = |x: f32, emitter: Option<u32>| LabelledHit {
-            t: 1.0,
-            position: Vec3::new(x, 0.0, 1.0),
-            normal: Vec3::new(0.0, 0.0, -1.0),
-            emitter,
-        };
-        let cast = Cast {
-            order: vec![(0, 0), (0, 1), (0, 2)],
-            rays: vec![Ray::new(Vec3::ZERO, Vec3::Z, 0.0, 10.0); 3],
-            hits: vec![Some(hit(0.0, Some(0))), Some(hit(0.1, Some(0))), Some(hit(3.0, None))],
-            hit_idx: vec![0, 1, 2],
-            points: vec![Vec3::ZERO; 3],
-            emitter_prob: vec![0.0; 3],
-        };
+        let cast = three_pixel_cast([(0.0, Some(0)), (0.1, Some(0)), (3.0, None)]);
         let emitters = EmitterTable::new(
             vec![Emitter {
                 centre: [0.0, 0.0, 1.1],
