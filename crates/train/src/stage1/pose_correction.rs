@@ -3,12 +3,13 @@
 //! (normalized units), applied to its rays as o' = o + τ, d' = R(ω) d. Poses from ARKit or SfM
 //! are off by millimetres and tenths of a degree; this absorbs it instead of blurring the fields.
 //!
-//! With depth, a view is aligned to the SDF as a depth camera is tracked against a fused surface
-//! ([`PoseCorrection::align_view`]: point-to-plane Gauss–Newton on its depth points). Without,
-//! the correction follows the rendering losses' gradient with Adam: for the ray samples
-//! x = o' + t d', ∂L/∂τ = Σ ∂L/∂x and ∂L/∂ω = Σ t d' × ∂L/∂x ([`PoseCorrection::step`]). A
-//! quadratic penalty pulls ω and τ towards zero, so views the data cannot place stay where the
-//! dataset put them.
+//! The correction follows the rendering losses' gradient with Adam: for the ray samples
+//! x = o' + t d', ∂L/∂τ = Σ ∂L/∂x and ∂L/∂ω = Σ t d' × ∂L/∂x ([`PoseCorrection::step`]). With
+//! depth a view can instead be aligned to the SDF as a depth camera is tracked against a fused
+//! surface (`pose.follow_gradient = false`; [`PoseCorrection::align_view`]: point-to-plane
+//! Gauss–Newton on its depth points), which the phone captures showed to drift. A quadratic
+//! penalty pulls ω and τ towards zero, so views the data cannot place stay where the dataset
+//! put them.
 //!
 //! Gauge: moving every camera and the scene by one rigid motion changes no loss, and the SDF
 //! follows the cameras (its bubble points lie on their rays), so the corrections random-walk
