@@ -3,7 +3,7 @@
 # alone on the small living room, the COLMAP import against transforms.json, and the default
 # room's full capture through both stages. Usage, from the repository root after
 # `cargo build --release`:
-#   docs/experiments/capture_degradations.sh WORK_DIR [small|colmap|full]...
+#   docs/experiments/capture_degradations.sh WORK_DIR [small|poses|colmap|full]...
 # COLMAP needs a Python with pycolmap, numpy and pillow as $PYCOLMAP_PYTHON.
 set -euo pipefail
 I=${I2SDF:-$PWD/target/release/i2sdf}
@@ -37,18 +37,26 @@ stage2() { # DATA RUN: the quick demo's stage 2 on a copy of a stage-1 run, eval
   summary "$2_s2"
 }
 
+pose_rows() {
+  for d in pose05 pose2; do
+    stage1 $d r_${d}_off exact --set pose.correction=off
+    stage1 $d r_${d}_on exact
+  done
+  stage1 exact r_exact_on exact --set pose.correction=on
+}
+
 for what in "$@"; do case $what in
 small)
   synth exact $S; synth jpeg $S --jpeg-quality 90; synth lens $S --lens opencv
   synth dhalf $S --depth-grid 2; synth dnoise $S --depth-noise sigma; synth nonormal $S --no-normals
   synth nomask $S --no-masks; synth pose05 $S --pose-noise 0.5,0.3; synth pose2 $S --pose-noise 2,1
   for d in exact jpeg lens dhalf dnoise nonormal nomask; do stage1 $d r_$d exact; done
-  for d in pose05 pose2; do
-    stage1 $d r_${d}_off exact --set pose.correction=off
-    stage1 $d r_${d}_on exact --set pose.correction=on --set pose.start=0.2
-  done
-  stage1 exact r_exact_on exact --set pose.correction=on --set pose.start=0.2
+  pose_rows
   stage2 exact r_exact; stage2 nomask r_nomask ;;
+poses) # the pose rows alone: without and with the correction (on by default where poses are
+  # not declared exact, as in these two), and the correction forced on for the exact room
+  synth exact $S; synth pose05 $S --pose-noise 0.5,0.3; synth pose2 $S --pose-noise 2,1
+  pose_rows ;;
 colmap)
   synth cexact $S --depth-grid 1 --no-normals --no-hdr
   "${PYCOLMAP_PYTHON:-python3}" "$HERE/colmap_from_synth.py" cexact colmap_bin colmap_txt
@@ -58,5 +66,5 @@ full)
   synth room; synth capture --capture
   rm -rf full_run; "$I" train --data capture --out full_run --quiet
   "$I" eval --run full_run --data room --out full_run.eval.json --force > /dev/null; summary full_run ;;
-*) echo "unknown part $what (small, colmap, full)"; exit 2 ;;
+*) echo "unknown part $what (small, poses, colmap, full)"; exit 2 ;;
 esac; done
