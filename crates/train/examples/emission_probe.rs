@@ -1,11 +1,11 @@
 //! Runs `emission_from_shading` on inputs dumped by `stage2_ablation` (`EST=1 EST_DUMP=FILE`)
 //! with settings from the environment, so its parameters can be studied without a cache build:
-//! `EST_HOLD=k=r,g,b EST_STEP=0.2 EST_DELTA=0.05 EST_COS=0.95 EST_SLOPE=0.1 EST_MIN=0.01
+//! `EST_HOLD=k=r,g,b EST_FLOOR=1 EST_POOL=0.1 EST_STEP=0.2 EST_DELTA=0.05 EST_COS=0.95 EST_SLOPE=0.1 EST_MIN=0.01
 //! cargo run --release -p i2sdf-train --example emission_probe -- FILE`.
 
 use glam::Vec3;
 use i2sdf_train::stage2::emission_from_shading::{estimate_emission, neighbour_pairs, ShadedPixel, ShadingEstimate};
-use i2sdf_train::stage2::shading::DiffuseSums;
+use i2sdf_train::stage2::shading::{pool_diffuse, DiffuseSums, ShadingPoint};
 
 fn env<T: std::str::FromStr>(key: &str, default: T) -> T {
     std::env::var(key).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
@@ -19,7 +19,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
         .collect();
     let (n, k, width) = (raw[0] as usize, raw[1] as usize, raw[2] as usize);
-    let bound: Vec<Vec3> = (0..k).map(|e| Vec3::from_slice(&raw[3 + 3 * e..6 + 3 * e])).collect();
+    // EST_FLOOR=v: the lower bound lowered to v (stage2_ablation dumps the stage's estimate as
+    // the bound, which no variant could then go under).
+    let floor: f32 = env("EST_FLOOR", f32::INFINITY);
+    let bound: Vec<Vec3> = (0..k)
+        .map(|e| Vec3::from_slice(&raw[3 + 3 * e..6 + 3 * e]).min(Vec3::splat(floor)))
+        .collect();
     let row = 15 + k;
     let (mut px, mut sums) = (Vec::with_capacity(n), Vec::with_capacity(n));
     for r in raw[3 + 3 * k..].chunks_exact(row) {
@@ -45,6 +50,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         min_target: env("EST_MIN", d.min_target),
         ..d
     };
+    // EST_POOL=r: the (already pooled) sums averaged again over r (world units), as
+    // `pool_diffuse` does, to see how the estimate follows the emitter weights' noise.
+    let pool: f32 = env("EST_POOL", 0.0);
+    if pool > 0.0 {
+        let pts: Vec<ShadingPoint> = px
+            .iter()
+            .map(|p| ShadingPoint {
+                position: p.position,
+                normal: p.normal,
+                view: Vec3::ZERO,
+            })
+            .collect();
+        sums = pool_diffuse(&pts, &sums, pool);
+    }
     let views = px.iter().map(|p| p.view as usize + 1).max().unwrap_or(0);
     let pairs = neighbour_pairs(&px, &vec![width; views], &s);
     // EST_HOLD="k=r,g,b": emitter k held there (the others estimated).

@@ -153,6 +153,9 @@ pub struct Stage2Config {
     /// Radius (normalized units) over which the diffuse irradiance of cached pixels with similar
     /// normals is averaged (0: each pixel's own samples only).
     pub irradiance_radius: f32,
+    /// Radius (normalized units) over which the SDF's shading normals of cached pixels are
+    /// averaged where the dataset gives no normal map (0: the SDF's gradient at each hit).
+    pub normal_smoothing_radius: f32,
     /// Marching-cubes resolution of the frozen surface baked for the secondary rays (a BVH,
     /// hits refined onto the SDF; 0: sphere-trace every ray).
     pub bake_resolution: usize,
@@ -219,6 +222,7 @@ impl Default for Stage2Config {
             specular_bake: true,
             bake_resolution: 256,
             irradiance_radius: 0.024,
+            normal_smoothing_radius: 0.02,
             input_normals: true,
             label_unobserved: false,
             fit_bulbs: true,
@@ -570,6 +574,7 @@ impl TrainConfig {
         int("stage2.cache_samples", s2.cache_samples, 1, 4096)?;
         int("stage2.refresh_pixels", s2.refresh_pixels, 0, MAX_POINTS)?;
         real("stage2.irradiance_radius", s2.irradiance_radius, 0.0, 0.5)?;
+        real("stage2.normal_smoothing_radius", s2.normal_smoothing_radius, 0.0, 0.5)?;
         if s2.refresh_pixels > 0 && s2.irradiance_radius > 0.0 {
             // The pooled diffuse sums come from the samples traced at the start; refreshed
             // samples would leave them stale (and a resumed run could not rebuild them).

@@ -241,11 +241,20 @@ impl Stage2 {
         let observed = frozen.observed.clone();
         let mut cast = cast;
         let on_sphere = setup::recast_through_bulbs(&frozen, &mut cast);
-        let pixels = setup::label_pixels(&cast, &on_sphere, views, &c2, &emitters, frozen.index_margin, progress);
+        let scale = scene.normalization.scale as f32;
+        let pixels = setup::label_pixels(
+            &cast,
+            &on_sphere,
+            views,
+            &c2,
+            &emitters,
+            frozen.index_margin,
+            scale,
+            progress,
+        );
         // 4. Incident radiance of every surface pixel, traced once.
         let (mut cache, own, surface) = setup::trace_cache(&frozen, &pixels, &c2, seed, resume_at, progress);
         drop(frozen);
-        let scale = scene.normalization.scale as f32;
         let pooled = (c2.irradiance_radius > 0.0).then(|| {
             progress("pooling the diffuse irradiance of nearby pixels");
             let pts: Vec<ShadingPoint> = surface.iter().map(|&i| pixels[i as usize].point).collect();

@@ -6,7 +6,7 @@ use super::{normalized, pixel_rng, refresh_selection, CachedPixel, PixelKind};
 use crate::config::Stage2Config;
 use crate::stage2::emitter_clusters::{cluster_emitters, fit_sphere, ClusterSettings, MarkedPoints, SPHERE_MAX_RADIUS};
 use crate::stage2::emitter_triangulation::{disc_angle, is_compact, triangulate, MaskPiece, Triangulated};
-use crate::stage2::shading::{trace_incident, DiffuseSums, ShadingPoint};
+use crate::stage2::shading::{smooth_normals, trace_incident, DiffuseSums, ShadingPoint};
 use crate::stage2::surface_cache::{ShadingCache, SpecularBake};
 use crate::stage2::targets::TargetView;
 use glam::{DVec3, Vec3};
@@ -449,7 +449,8 @@ pub(super) fn recast_through_bulbs(frozen: &FrozenScene<'_>, cast: &mut Cast) ->
 /// material mask marks non-GGX is dropped too, as no material of the model can reproduce it —
 /// the surface still reflects light onto the others) and shading point, whose normal
 /// is the dataset's normal map where it has one (an input, as in stage 1's normal loss; sharper
-/// than the SDF's gradient at edges), else the SDF's.
+/// than the SDF's gradient at edges), else the SDF's, averaged over
+/// `stage2.normal_smoothing_radius` (normalized units; `scale` world units each).
 pub(super) fn label_pixels(
     cast: &Cast,
     on_sphere: &[bool],
@@ -457,9 +458,11 @@ pub(super) fn label_pixels(
     c2: &Stage2Config,
     emitters: &EmitterTable,
     index_margin: f64,
+    scale: f32,
     progress: &dyn Fn(&str),
 ) -> Vec<CachedPixel> {
     let mut pixels = Vec::with_capacity(cast.hit_idx.len());
+    let mut from_map = Vec::with_capacity(cast.hit_idx.len());
     let (mut given_normals, mut normal_angle) = (0usize, 0.0f64);
     let mut surface = 0u32;
     for (j, &i) in cast.hit_idx.iter().enumerate() {
@@ -501,6 +504,7 @@ pub(super) fn label_pixels(
             surface += 1;
             PixelKind::Surface { index: surface - 1 }
         };
+        from_map.push(given.is_some());
         pixels.push(CachedPixel {
             point: ShadingPoint {
                 position: h.position,
@@ -513,6 +517,19 @@ pub(super) fn label_pixels(
             view: v,
             pixel: p,
         });
+    }
+    let sdf_normal: Vec<bool> = pixels
+        .iter()
+        .zip(&from_map)
+        .map(|(p, &m)| !m && matches!(p.kind, PixelKind::Surface { .. }))
+        .collect();
+    if c2.normal_smoothing_radius > 0.0 && sdf_normal.contains(&true) {
+        progress("smoothing the SDF's shading normals");
+        let mut points: Vec<ShadingPoint> = pixels.iter().map(|p| p.point).collect();
+        smooth_normals(&mut points, &sdf_normal, c2.normal_smoothing_radius * scale);
+        for (p, q) in pixels.iter_mut().zip(points) {
+            p.point = q;
+        }
     }
     if given_normals > 0 {
         progress(&format!(
@@ -648,7 +665,7 @@ mod tests {
             normal: None,
         };
         let c2 = Stage2Config::default();
-        let pixels = label_pixels(&cast, &[], &[view], &c2, &emitters, 0.05, &|_| {});
+        let pixels = label_pixels(&cast, &[], &[view], &c2, &emitters, 0.05, 1.0, &|_| {});
         let kinds: Vec<(u32, PixelKind)> = pixels.iter().map(|p| (p.pixel, p.kind)).collect();
         assert_eq!(
             kinds,
@@ -681,7 +698,7 @@ mod tests {
             normal: None,
         };
         let c2 = Stage2Config::default();
-        let pixels = label_pixels(&cast, &[true, true, false], &[view], &c2, &emitters, 0.05, &|_| {});
+        let pixels = label_pixels(&cast, &[true, true, false], &[view], &c2, &emitters, 0.05, 1.0, &|_| {});
         let kinds: Vec<(u32, PixelKind)> = pixels.iter().map(|p| (p.pixel, p.kind)).collect();
         assert_eq!(
             kinds,
