@@ -43,6 +43,9 @@ pub struct TrainingMaps {
     pub masks_in_run: Option<MasksInRun>,
     /// Use stage 2's HDR targets (`stage2.use_hdr`), for the description.
     use_hdr: bool,
+    /// Stage 2 smooths the SDF's shading normals where a view has no normal map
+    /// (`stage2.normal_smoothing_radius` > 0), for the description.
+    smooths_normals: bool,
 }
 
 /// One map as `check` and `train` say it: how many training views have it in the dataset and
@@ -162,6 +165,7 @@ impl TrainingMaps {
             detection: None,
             masks_in_run: None,
             use_hdr: config.stage2.use_hdr,
+            smooths_normals: config.stage2.normal_smoothing_radius > 0.0,
         })
     }
 
@@ -306,6 +310,10 @@ impl TrainingMaps {
                     }
                 }
                 _ => "normal loss where given".into(),
+            } + if normals < views && self.smooths_normals {
+                "; stage 2 shades with the SDF's normals, smoothed (stage2.normal_smoothing_radius)"
+            } else {
+                ""
             },
         ));
         let found: usize = self.found.iter().flatten().count();
@@ -477,6 +485,12 @@ mod tests {
         let lines: Vec<String> = maps.describe(&bare).iter().map(|l| l.to_string()).collect();
         assert_eq!(
             lines[1],
+            "normals: absent → derived from depth (4 views) for the normal loss; stage 2 shades with \
+             the SDF's normals, smoothed (stage2.normal_smoothing_radius)"
+        );
+        let unsmoothed = TrainingMaps::prepare(&bare, &config(&["stage2.normal_smoothing_radius=0"])).unwrap();
+        assert_eq!(
+            unsmoothed.describe(&bare)[1].to_string(),
             "normals: absent → derived from depth (4 views) for the normal loss"
         );
         assert!(
