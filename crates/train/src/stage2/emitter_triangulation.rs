@@ -122,8 +122,7 @@ fn refine(pieces: &[MaskPiece], set: &[usize]) -> Option<(DVec3, f64)> {
 }
 
 /// The lights that the pieces agree on, best first: each from the pieces of at least `min_views`
-/// views that pass within their disc radius of one point, and accepted by `accept(centre,
-/// radius, pieces)`. A proposal's pieces are set aside whether it is accepted or not, so each
+/// views that pass within their disc radius of one point, and accepted by `accept`. A proposal's pieces are set aside whether it is accepted or not, so each
 /// piece serves one proposal.
 pub fn triangulate(
     pieces: &[MaskPiece],

@@ -6,7 +6,7 @@ use super::{normalized, pixel_rng, refresh_selection, CachedPixel, PixelKind};
 use crate::config::Stage2Config;
 use crate::stage2::emitter_clusters::{cluster_emitters, fit_sphere, ClusterSettings, MarkedPoints, SPHERE_MAX_RADIUS};
 use crate::stage2::emitter_triangulation::{disc_angle, is_compact, triangulate, MaskPiece, Triangulated};
-use crate::stage2::shading::{smooth_normals, trace_incident, DiffuseSums, ShadingPoint};
+use crate::stage2::shading::{smoothed_normals, trace_incident, DiffuseSums, ShadingPoint};
 use crate::stage2::surface_cache::{ShadingCache, SpecularBake};
 use crate::stage2::targets::TargetView;
 use glam::{DVec3, Vec3};
@@ -278,7 +278,8 @@ fn triangulate_missed_lights(
             Ray::new(g.origin, g.dir(x, y), 0.0, f32::INFINITY)
         };
         for piece in i2sdf_data::emitter_detect::components(mask, cam.width, cam.height) {
-            if !is_compact_piece(&piece, cam.width) {
+            let piece_pixels: Vec<u32> = piece.iter().map(|&p| p as u32).collect();
+            if !is_compact(&piece_pixels, cam.width) {
                 continue;
             }
             let hits = cast_all(&piece.iter().map(|&p| pixel_ray(p)).collect::<Vec<_>>());
@@ -308,7 +309,7 @@ fn triangulate_missed_lights(
                     cam.fx,
                     cam.fy,
                 ),
-                pixels: piece.iter().map(|&p| p as u32).collect(),
+                pixels: piece_pixels,
             });
         }
     }
@@ -406,10 +407,6 @@ fn triangulate_missed_lights(
             (emitter, sum.map(|s| ((s / n.max(1) as f64) as f32).max(1e-3)))
         })
         .collect()
-}
-
-fn is_compact_piece(piece: &[usize], width: usize) -> bool {
-    is_compact(&piece.iter().map(|&p| p as u32).collect::<Vec<_>>(), width)
 }
 
 /// The cached rays that meet a bulb's clearance ball, cast again into the labelled scene
@@ -525,10 +522,10 @@ pub(super) fn label_pixels(
         .collect();
     if c2.normal_smoothing_radius > 0.0 && sdf_normal.contains(&true) {
         progress("smoothing the SDF's shading normals");
-        let mut points: Vec<ShadingPoint> = pixels.iter().map(|p| p.point).collect();
-        smooth_normals(&mut points, &sdf_normal, c2.normal_smoothing_radius * scale);
-        for (p, q) in pixels.iter_mut().zip(points) {
-            p.point = q;
+        let points: Vec<ShadingPoint> = pixels.iter().map(|p| p.point).collect();
+        let normals = smoothed_normals(&points, &sdf_normal, c2.normal_smoothing_radius * scale);
+        for (p, n) in pixels.iter_mut().zip(normals) {
+            p.point.normal = n;
         }
     }
     if given_normals > 0 {

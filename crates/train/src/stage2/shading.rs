@@ -316,34 +316,41 @@ pub fn pool_diffuse(points: &[ShadingPoint], sums: &[DiffuseSums], radius: f32) 
     out
 }
 
-/// The normals of the points marked `smooth` averaged over the points within `radius` (world)
-/// whose normals are within 60° of theirs (cos > 0.5: the two sides of a corner or of a thin
-/// object stay apart), each kept where the mean would face away from its viewer. Where no
-/// normal map is given, the shading normal is the SDF's gradient at the hit, and a surface
-/// fitted to a phone's sensor depth is bumpy: measured on the default room's capture, its
-/// pixels' normals were 14.7° from the true ones (median; 4.9° on the exact room's SDF), and
-/// averaged over 8 cm 5.3° (1.2°). Every cosine of the shading then carries the bumps'
-/// pattern, which the emission estimate takes for noise in the light and answers with too
-/// little L. Computed from the normals as given (not in place), in ascending index order.
-pub fn smooth_normals(points: &mut [ShadingPoint], smooth: &[bool], radius: f32) {
+/// The shading normals of `points` with those marked `smooth` averaged over the points within
+/// `radius` (world) whose normals are within 60° of theirs (cos > 0.5: the two sides of a corner
+/// or of a thin object stay apart); a point keeps its own where the mean would face away from
+/// its viewer. Where no normal map is given, the shading normal is the SDF's gradient at the
+/// hit, and a surface fitted to a phone's sensor depth is bumpy: measured on the default room's
+/// capture, its pixels' normals were 14.7° from the true ones (median; 4.9° on the exact room's
+/// SDF), and averaged over 8 cm 5.3° (1.2°). Every cosine of the shading then carries the
+/// bumps' pattern, which the emission estimate takes for noise in the light and answers with
+/// too little L. Neighbours are summed in ascending index order (the same on every run).
+pub fn smoothed_normals(points: &[ShadingPoint], smooth: &[bool], radius: f32) -> Vec<Vec3> {
     let positions: Vec<[f32; 3]> = points.iter().map(|p| p.position.to_array()).collect();
     let tree = KdTree::new(&positions);
-    let given: Vec<Vec3> = points.iter().map(|p| p.normal).collect();
     points
-        .par_iter_mut()
+        .par_iter()
         .zip(smooth)
         .enumerate()
-        .filter(|(_, (_, &s))| s)
-        .for_each_init(Vec::new, |near, (i, (p, _))| {
+        .map_init(Vec::new, |near, (i, (p, &s))| {
+            if !s {
+                return p.normal;
+            }
             tree.within(positions[i], radius, near);
             near.sort_unstable();
-            let n = given[i];
-            let mean: Vec3 = near.iter().map(|&j| given[j]).filter(|m| m.dot(n) > 0.5).sum();
+            let mean: Vec3 = near
+                .iter()
+                .map(|&j| points[j].normal)
+                .filter(|m| m.dot(p.normal) > 0.5)
+                .sum();
             let mean = mean.normalize_or_zero();
             if mean.dot(p.view) > 0.0 {
-                p.normal = mean;
+                mean
+            } else {
+                p.normal
             }
-        });
+        })
+        .collect()
 }
 
 /// Test support: the analytic gradient of ⟨g, R̂⟩ (material `grad`, emissions `d_emission`)
@@ -548,7 +555,9 @@ mod tests {
         // Its viewer on the other side: any mean of its side faces away from it.
         points[11].view = -points[11].view;
         let before = points.clone();
-        smooth_normals(&mut points, &smooth, 0.05);
+        for (p, n) in points.iter_mut().zip(smoothed_normals(&before, &smooth, 0.05)) {
+            p.normal = n;
+        }
         let (e0, e1) = (mean_error(&before), mean_error(&points));
         assert!(e0 > 10.0 && e1 < 0.4 * e0, "mean error {e0}° → {e1}°");
         assert_eq!(points[7], before[7]);
