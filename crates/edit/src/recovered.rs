@@ -7,7 +7,7 @@
 //! surface those points lie a fraction of a voxel off the surface the shadow ray meets, and the
 //! test fails at random. On the mesh, sampled points and hits are the same surface, the labels
 //! are per triangle (no F_e query per hit), the normals are the SDF's gradient at the vertices
-//! interpolated, and a ray costs a BVH traversal alone.
+//! (smoothed where the run's are) interpolated, and a ray costs a BVH traversal alone.
 
 use crate::apply::edited_scene;
 use crate::differential::hdr_ldr_images;
@@ -30,7 +30,7 @@ use i2sdf_render::{
 /// The frozen SDF's zero level set as the edit renderer's base geometry: the marching-cubes mesh
 /// (world units) with, per triangle, label 0 (ordinary) or k + 1 (emitter k: F_e > threshold at
 /// its centroid and `index` k there, as [`FrozenScene::cast`] labels hits) and the SDF's gradient
-/// at the vertices as shading normals.
+/// at the vertices as shading normals (averaged as the run's are, [`FrozenScene::smoothed_normals`]).
 pub struct RecoveredSurface {
     pub geometry: MeshGeometry,
     pub mesh: TriangleMesh,
@@ -76,6 +76,11 @@ impl RecoveredSurface {
             .into_iter()
             .map(|(_, g)| g.normalize_or_zero())
             .collect();
+        // Smoothed as the run's shading normals are (stage 2 fitted the materials with them).
+        let normals = match frozen.smoothed_normals() {
+            Some(f) => f.at_points(&vertices, &normals, None),
+            None => normals,
+        };
         let centroids: Vec<Vec3> = mesh
             .faces
             .iter()

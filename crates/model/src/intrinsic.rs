@@ -33,6 +33,7 @@ use crate::raycast::{CastSettings, Hit as CastHit, SdfCaster, CAST_CHUNK};
 use crate::renderer::sphere_exit;
 use crate::scene::NeuralScene;
 use crate::sdf_mesh::{extract_mesh, voxel_size};
+use crate::shading_normals::SmoothedNormals;
 use glam::{DVec3, Vec3};
 use i2sdf_data::{Bounds, Camera, DataError, Radiometry};
 use i2sdf_render::{
@@ -93,6 +94,17 @@ pub struct BakedSurface {
     /// The grid step (world units): the Newton step's clamp and the largest |d| at a BVH hit
     /// that is accepted as lying on the zero level set.
     voxel: f32,
+    /// Where the run shades with smoothed normals (a dataset without normal maps,
+    /// `stage2.normal_smoothing_radius`): the field and the mesh's vertex normals smoothed.
+    shading: Option<BakedShading>,
+}
+
+/// The smoothed shading normals of a baked surface ([`SmoothedNormals`] over its vertices):
+/// a BVH hit's normal is its triangle's smoothed vertex normals interpolated.
+struct BakedShading {
+    field: SmoothedNormals,
+    faces: Vec<[u32; 3]>,
+    vertex_normals: Vec<Vec3>,
 }
 
 impl BakedSurface {
@@ -103,13 +115,43 @@ impl BakedSurface {
     /// Not simplified, unlike the edit renderer's surface: simplified by a tenth of a voxel
     /// (493k faces → 76k), the default room's test-view re-render took as long (41.2 s against
     /// 40.6 s; its time is in the network queries) and lost 0.03 dB.
-    pub fn new(scene: &NeuralScene, bounds: &Bounds, resolution: usize) -> Result<Self, DataError> {
+    ///
+    /// With `normal_smoothing` > 0 (world units) the hits' shading normals are the SDF's
+    /// averaged over that radius ([`SmoothedNormals`] over the mesh's vertices, their normals
+    /// the SDF's gradient there).
+    pub fn new(
+        scene: &NeuralScene,
+        bounds: &Bounds,
+        resolution: usize,
+        normal_smoothing: f32,
+    ) -> Result<Self, DataError> {
         let mesh = extract_mesh(scene, bounds, resolution)?;
         let voxel = voxel_size(scene, bounds, resolution)?;
+        let shading = (normal_smoothing > 0.0 && !mesh.faces.is_empty()).then(|| {
+            let vertices: Vec<Vec3> = mesh.positions.iter().map(|p| Vec3::from(*p)).collect();
+            let none = EmitterTable::new(Vec::new(), &[]);
+            let normals = FrozenScene::new(scene, &none, Radiometry::default())
+                .sdf_gradient(&vertices)
+                .into_iter()
+                .map(|(_, g)| g.normalize_or_zero())
+                .collect();
+            let field = SmoothedNormals::new(&vertices, normals, normal_smoothing);
+            BakedShading {
+                vertex_normals: field.at_samples(),
+                field,
+                faces: mesh.faces.clone(),
+            }
+        });
         Ok(BakedSurface {
             bvh: Bvh::build(&mesh),
             voxel,
+            shading,
         })
+    }
+
+    /// The smoothed shading normals of this surface, where it has them.
+    pub fn smoothed_normals(&self) -> Option<&SmoothedNormals> {
+        self.shading.as_ref().map(|s| &s.field)
     }
 }
 
@@ -218,7 +260,7 @@ impl<'a> FrozenScene<'a> {
     /// 1 cm: median 0.05°, p99 10.7° (0.02° / 2.5° with `baked_exact_normals`). At 384: bake
     /// 17.8 s, 99.67 % within 1 cm, same speed.
     pub fn bake(&mut self, bounds: &Bounds, resolution: usize) -> Result<(), DataError> {
-        self.baked = Some(Arc::new(BakedSurface::new(self.scene, bounds, resolution)?));
+        self.baked = Some(Arc::new(BakedSurface::new(self.scene, bounds, resolution, 0.0)?));
         Ok(())
     }
 
@@ -230,6 +272,12 @@ impl<'a> FrozenScene<'a> {
     /// The baked surface, to share with other `FrozenScene`s of the same scene.
     pub fn baked_surface(&self) -> Option<Arc<BakedSurface>> {
         self.baked.clone()
+    }
+
+    /// The smoothed shading normals of the baked surface, where the run has them
+    /// ([`BakedSurface::new`]'s `normal_smoothing`).
+    pub fn smoothed_normals(&self) -> Option<&SmoothedNormals> {
+        self.baked.as_deref().and_then(BakedSurface::smoothed_normals)
     }
 
     /// Uses a surface baked by another `FrozenScene` of the same scene.
@@ -309,9 +357,9 @@ impl<'a> FrozenScene<'a> {
         out: &mut [Option<LabelledHit>],
         emitter_features: bool,
     ) -> HitFeatures {
-        // 1. The BVH's closest hits.
-        let mut t_bvh = vec![f32::NAN; rays.len()];
-        t_bvh
+        // 1. The BVH's closest hits (the triangle and barycentrics kept for smoothed normals).
+        let mut bvh_hits = vec![None; rays.len()];
+        bvh_hits
             .par_chunks_mut(CAST_CHUNK)
             .zip(rays.par_chunks(CAST_CHUNK))
             .for_each(|(t, rays)| {
@@ -320,8 +368,9 @@ impl<'a> FrozenScene<'a> {
                     let (lo, hi) = self.segment(r);
                     (hi > lo).then_some((r.origin, r.dir, lo, hi))
                 };
-                baked.bvh.intersect_each(rays.len(), ray, |i, h| t[i] = h.t);
+                baked.bvh.intersect_each(rays.len(), ray, |i, h| t[i] = Some(h));
             });
+        let t_bvh: Vec<f32> = bvh_hits.iter().map(|h| h.map_or(f32::NAN, |h| h.t)).collect();
         // 2. One SDF + gradient query at every BVH hit, then one Newton step along the ray. At
         // the hits inside an emitter's sphere the same query keeps the feature z for F_e.
         let idx: Vec<usize> = (0..rays.len()).filter(|&i| !t_bvh[i].is_nan()).collect();
@@ -379,6 +428,19 @@ impl<'a> FrozenScene<'a> {
             let points: Vec<Vec3> = idx.iter().map(|&i| out[i].unwrap().position).collect();
             for (&i, (_, g)) in idx.iter().zip(self.sdf_gradient(&points)) {
                 out[i].as_mut().unwrap().normal = g.normalize_or_zero();
+            }
+        }
+        if let Some(shading) = &baked.shading {
+            // The triangle's smoothed vertex normals interpolated, where that faces the ray's
+            // origin (else the SDF's, as stage 2 shades such a point).
+            for (i, h) in bvh_hits.iter().enumerate() {
+                if let (Some(h), Some(hit), false) = (h, out[i].as_mut(), fallback[i]) {
+                    let [a, b, c] = shading.faces[h.triangle as usize].map(|v| shading.vertex_normals[v as usize]);
+                    let n = ((1.0 - h.u - h.v) * a + h.u * b + h.v * c).normalize_or_zero();
+                    if n.dot(rays[i].dir) < 0.0 {
+                        hit.normal = n;
+                    }
+                }
             }
         }
         // 3. The sphere tracer for the rest (their BVH hit's feature is not theirs).

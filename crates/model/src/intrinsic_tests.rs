@@ -470,6 +470,44 @@ fn baked_cast_agrees_with_the_tracer() {
     assert_agree(&all, &traced, 0.35 * holed.baked.as_ref().unwrap().voxel);
 }
 
+/// A bake with smoothed shading normals casts the same hits as the plain bake; its normals are
+/// the field's at the hit (the triangle's smoothed vertex normals interpolated), face the rays'
+/// origins and differ from the SDF's (the averaging itself is tested in `shading_normals`).
+#[test]
+fn a_bake_with_smoothed_normals_shades_with_them() {
+    let s = scene();
+    let t = table(&s);
+    let rays = rays(2000);
+    let b = bounds([-1.1; 3], [1.1; 3]);
+    let mut plain = frozen_scene(&s, &t);
+    plain.bake(&b, 64).unwrap();
+    assert!(plain.smoothed_normals().is_none());
+    let mut smooth = frozen_scene(&s, &t);
+    smooth.set_baked_surface(Some(Arc::new(BakedSurface::new(&s, &b, 64, 0.3).unwrap())));
+    let field = smooth.smoothed_normals().expect("a field");
+    assert_eq!(field.radius(), 0.3);
+    let (mut h0, mut h1) = (vec![None; rays.len()], vec![None; rays.len()]);
+    plain.cast(&rays, &mut h0);
+    smooth.cast(&rays, &mut h1);
+    let (mut points, mut raw, mut views, mut got) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut changed = 0;
+    for ((a, b), r) in h0.iter().zip(&h1).zip(&rays) {
+        let (a, b) = (a.expect("a hit"), b.expect("a hit"));
+        assert_eq!((a.t, a.position, a.emitter), (b.t, b.position, b.emitter));
+        assert!(b.normal.dot(r.dir) < 0.0, "{b:?} faces away from {r:?}");
+        changed += usize::from(a.normal != b.normal);
+        points.push(b.position);
+        raw.push(a.normal);
+        views.push(-r.dir);
+        got.push(b.normal);
+    }
+    assert!(changed > rays.len() / 2, "{changed} normals changed");
+
+    for (q, g) in field.at_points(&points, &raw, Some(&views)).iter().zip(&got) {
+        assert!(q.dot(*g) > 3f32.to_radians().cos(), "field {q} vs hit {g}");
+    }
+}
+
 /// The baked cast's kept features give F_e as a query at the same points would: the joint
 /// SDF + gradient + feature query equals the separate ones, and F_e of the kept features equals
 /// `emitter_prob` there.

@@ -28,6 +28,7 @@ pub mod renderer;
 pub mod run_dir;
 pub mod scene;
 pub mod sdf_mesh;
+pub mod shading_normals;
 pub mod volume;
 
 pub use config::{Backbone, ModelConfig};

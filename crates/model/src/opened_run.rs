@@ -42,6 +42,10 @@ pub struct InferenceConfig {
 pub struct BakeRecord {
     pub bounds: Bounds,
     pub resolution: usize,
+    /// The radius (world units) over which the surface's shading normals are the SDF's
+    /// averaged ([`crate::shading_normals`]; 0: the SDF's own, as in checkpoints without it).
+    #[serde(default)]
+    pub normal_smoothing: f32,
 }
 
 impl BakeRecord {
@@ -66,7 +70,12 @@ impl BakeRecord {
 
     /// The baked surface of `scene` this record describes.
     pub fn bake(&self, scene: &NeuralScene) -> Result<Arc<BakedSurface>, DataError> {
-        Ok(Arc::new(BakedSurface::new(scene, &self.bounds, self.resolution)?))
+        Ok(Arc::new(BakedSurface::new(
+            scene,
+            &self.bounds,
+            self.resolution,
+            self.normal_smoothing,
+        )?))
     }
 }
 
@@ -183,6 +192,7 @@ fn legacy_bake(info: &RunInfo, config: &InferenceConfig) -> Option<BakeRecord> {
     (config.bake_resolution > 0).then_some(BakeRecord {
         bounds,
         resolution: config.bake_resolution,
+        normal_smoothing: 0.0,
     })
 }
 
@@ -199,6 +209,7 @@ mod tests {
                 max: [1.0, 2.5, 2.0],
             },
             resolution: 128,
+            normal_smoothing: 0.073,
         };
         for bake in [Some(record), None] {
             let (k, v) = BakeRecord::meta(bake.as_ref());
@@ -206,6 +217,13 @@ mod tests {
             assert_eq!(BakeRecord::from_meta(path, &meta).unwrap(), Some(bake));
         }
         assert_eq!(BakeRecord::from_meta(path, &HashMap::new()).unwrap(), None);
+        // A record written before the smoothing was kept reads as the SDF's own normals.
+        let older = HashMap::from([(
+            "bake".to_string(),
+            r#"{"bounds":{"min":[0,0,0],"max":[1,1,1]},"resolution":64}"#.to_string(),
+        )]);
+        let read = BakeRecord::from_meta(path, &older).unwrap().unwrap().unwrap();
+        assert_eq!((read.resolution, read.normal_smoothing), (64, 0.0));
         let bad = HashMap::from([("bake".to_string(), "[1, 2".to_string())]);
         let e = BakeRecord::from_meta(path, &bad).unwrap_err();
         assert!(e.is_bad_input() && e.to_string().contains("bake"), "{e}");

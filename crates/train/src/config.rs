@@ -145,6 +145,11 @@ pub struct Stage2Config {
     /// +1.35 dB, the bulb alone relit +1.5 and +1.4 dB (differential); on seed 1 the relit sets
     /// lost 0.3–0.8 dB (docs/results.md).
     pub fit_bulbs: bool,
+    /// A bulb's sphere takes the radius its emitter masks give (the median disc of its whole,
+    /// unoccluded mask pieces at its centre's depth) instead of its surface fit's, which stage 1's
+    /// inflated small bright objects make too large (`setup::size_bulbs_by_masks`). Needs emitter
+    /// masks (given or found) and `fit_bulbs`.
+    pub size_bulbs_by_masks: bool,
     /// Lights that no surface carries (stage 1 built no surface for them: a clipped bulb the
     /// depth sensor missed) are triangulated from the pieces of the emitter masks that no
     /// emitter explains, as spheres (`stage2::emitter_triangulation`). Needs emitter masks
@@ -153,8 +158,9 @@ pub struct Stage2Config {
     /// Radius (normalized units) over which the diffuse irradiance of cached pixels with similar
     /// normals is averaged (0: each pixel's own samples only).
     pub irradiance_radius: f32,
-    /// Radius (normalized units) over which the SDF's shading normals of cached pixels are
-    /// averaged where the dataset gives no normal map (0: the SDF's gradient at each hit).
+    /// Radius (normalized units) over which the SDF's shading normals are averaged where the
+    /// dataset gives no normal map (0: the SDF's gradient at each hit): stage 2's pixels and,
+    /// through the bake record, every renderer of the run.
     pub normal_smoothing_radius: f32,
     /// Marching-cubes resolution of the frozen surface baked for the secondary rays (a BVH,
     /// hits refined onto the SDF; 0: sphere-trace every ray).
@@ -222,10 +228,11 @@ impl Default for Stage2Config {
             specular_bake: true,
             bake_resolution: 256,
             irradiance_radius: 0.024,
-            normal_smoothing_radius: 0.02,
+            normal_smoothing_radius: 0.03,
             input_normals: true,
             label_unobserved: false,
             fit_bulbs: true,
+            size_bulbs_by_masks: true,
             triangulate_emitters: true,
             samples: 16,
             emitter_sampling: true,

@@ -311,7 +311,7 @@ impl TrainingMaps {
                 }
                 _ => "normal loss where given".into(),
             } + if normals < views && self.smooths_normals {
-                "; stage 2 shades with the SDF's normals, smoothed (stage2.normal_smoothing_radius)"
+                "; stage 2 and the renderers shade with the SDF's normals, smoothed (stage2.normal_smoothing_radius)"
             } else {
                 ""
             },
@@ -485,8 +485,8 @@ mod tests {
         let lines: Vec<String> = maps.describe(&bare).iter().map(|l| l.to_string()).collect();
         assert_eq!(
             lines[1],
-            "normals: absent → derived from depth (4 views) for the normal loss; stage 2 shades with \
-             the SDF's normals, smoothed (stage2.normal_smoothing_radius)"
+            "normals: absent → derived from depth (4 views) for the normal loss; stage 2 and the \
+             renderers shade with the SDF's normals, smoothed (stage2.normal_smoothing_radius)"
         );
         let unsmoothed = TrainingMaps::prepare(&bare, &config(&["stage2.normal_smoothing_radius=0"])).unwrap();
         assert_eq!(

@@ -201,7 +201,8 @@ impl Stage2 {
         // 1. The pixels, cast into the frozen SDF; the surface baked for the secondary rays.
         let mut rng = Pcg64::seed_from_u64(seed ^ 0x5747_4532);
         let cast = setup::cast_training_pixels(&scene, views, radiometry, &c2, &mut rng, progress)?;
-        let bake = setup::bake_record(&cast.points, views, &c2);
+        let scale = scene.normalization.scale as f32;
+        let bake = setup::bake_record(&cast.points, views, &c2, scale);
         let baked = match &bake {
             Some(b) => {
                 progress(&format!("baking the frozen surface at {}³", b.resolution));
@@ -241,7 +242,6 @@ impl Stage2 {
         let observed = frozen.observed.clone();
         let mut cast = cast;
         let on_sphere = setup::recast_through_bulbs(&frozen, &mut cast);
-        let scale = scene.normalization.scale as f32;
         let pixels = setup::label_pixels(
             &cast,
             &on_sphere,
@@ -250,6 +250,7 @@ impl Stage2 {
             &emitters,
             frozen.index_margin,
             scale,
+            frozen.smoothed_normals(),
             progress,
         );
         // 4. Incident radiance of every surface pixel, traced once.

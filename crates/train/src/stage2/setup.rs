@@ -5,14 +5,16 @@
 use super::{normalized, pixel_rng, refresh_selection, CachedPixel, PixelKind};
 use crate::config::Stage2Config;
 use crate::stage2::emitter_clusters::{cluster_emitters, fit_sphere, ClusterSettings, MarkedPoints, SPHERE_MAX_RADIUS};
-use crate::stage2::emitter_triangulation::{disc_angle, is_compact, triangulate, MaskPiece, Triangulated};
-use crate::stage2::shading::{smoothed_normals, trace_incident, DiffuseSums, ShadingPoint};
+use crate::stage2::emitter_triangulation::{disc_angle, is_compact, mask_radius, triangulate, MaskPiece, Triangulated};
+use crate::stage2::shading::{trace_incident, DiffuseSums, ShadingPoint};
 use crate::stage2::surface_cache::{ShadingCache, SpecularBake};
 use crate::stage2::targets::TargetView;
 use glam::{DVec3, Vec3};
+use i2sdf_data::camera::RayGenerator;
 use i2sdf_data::{DataError, Radiometry};
 use i2sdf_model::emitters::{Emitter, EmitterTable, BULB_CLEARANCE};
 use i2sdf_model::intrinsic::{FrozenScene, LabelledHit};
+use i2sdf_model::shading_normals::SmoothedNormals;
 use i2sdf_model::{BakeRecord, NeuralScene};
 use i2sdf_render::Ray;
 use rand::seq::SliceRandom;
@@ -86,7 +88,9 @@ pub(super) fn cast_training_pixels(
 /// Where to bake the frozen surface for the secondary rays (a BVH over its marching-cubes mesh,
 /// hits refined onto the SDF): the box of the surface the training pixels see and the cameras,
 /// the dataset's own bounds in effect. None without hits or with `stage2.bake_resolution = 0`.
-pub(super) fn bake_record(points: &[Vec3], views: &[TargetView], c2: &Stage2Config) -> Option<BakeRecord> {
+/// Where some view has no normal map to shade with, the surface's shading normals are smoothed
+/// over `stage2.normal_smoothing_radius` (normalized units, `scale` world units each).
+pub(super) fn bake_record(points: &[Vec3], views: &[TargetView], c2: &Stage2Config, scale: f32) -> Option<BakeRecord> {
     (c2.bake_resolution > 0 && !points.is_empty()).then(|| {
         let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
         for p in points
@@ -103,8 +107,20 @@ pub(super) fn bake_record(points: &[Vec3], views: &[TargetView], c2: &Stage2Conf
                 max: hi.to_array(),
             },
             resolution: c2.bake_resolution,
+            normal_smoothing: smoothing_radius(views, c2) * scale,
         }
     })
+}
+
+/// The radius (normalized units) over which the SDF's shading normals are averaged: 0 where
+/// every view has a normal map that stage 2 shades with.
+pub(super) fn smoothing_radius(views: &[TargetView], c2: &Stage2Config) -> f32 {
+    let sdf_normals = views.iter().any(|v| v.normal.is_none() || !c2.input_normals);
+    if sdf_normals {
+        c2.normal_smoothing_radius
+    } else {
+        0.0
+    }
 }
 
 /// K-means on the surface points F_e marks (normalized frame), K chosen unless
@@ -199,6 +215,9 @@ pub(super) fn cluster_new_emitters(
         }
     }
     let mut list = list;
+    if has_masks && c2.size_bulbs_by_masks {
+        size_bulbs_by_masks(scene, views, &mut list, radiometry, c2, progress);
+    }
     let mut init: Vec<[f32; 3]> = sum.iter().map(|s| s.map(|v| (v as f32).max(1e-3))).collect();
     if has_masks && c2.triangulate_emitters && c2.fit_bulbs {
         let kept = EmitterTable::new(list.clone(), &init);
@@ -235,6 +254,104 @@ pub(super) fn cluster_new_emitters(
     (EmitterTable::new(list, &init), k)
 }
 
+/// The compact pieces of every training view's emitter mask ([`is_compact`]), each as the cone
+/// of rays of its disc ([`disc_angle`]: clipped where most of its pixels are saturated), and
+/// whether it touches its image's border (cut by the frame: smaller than the light's image).
+fn compact_mask_pieces(views: &[TargetView]) -> Vec<(MaskPiece, bool)> {
+    let mut pieces = Vec::new();
+    for (v, view) in views.iter().enumerate() {
+        let Some(mask) = &view.emitter_mask else { continue };
+        let cam = &view.camera;
+        let g = cam.ray_generator();
+        for piece in i2sdf_data::emitter_detect::components(mask, cam.width, cam.height) {
+            let pixels: Vec<u32> = piece.iter().map(|&p| p as u32).collect();
+            if !is_compact(&pixels, cam.width) {
+                continue;
+            }
+            let n = piece.len() as f32;
+            let (u, w) = piece.iter().fold((0.0f32, 0.0f32), |(u, w), &p| {
+                (u + (p % cam.width) as f32 + 0.5, w + (p / cam.width) as f32 + 0.5)
+            });
+            let on_border = piece.iter().any(|&p| {
+                let (x, y) = (p % cam.width, p / cam.width);
+                x == 0 || y == 0 || x + 1 == cam.width || y + 1 == cam.height
+            });
+            let clipped = 2 * piece.iter().filter(|&&p| view.saturated[p] != 0).count() >= piece.len();
+            let solid_angle: f64 = piece
+                .iter()
+                .map(|&p| pixel_solid_angle(&g, p % cam.width, p / cam.width))
+                .sum();
+            pieces.push((
+                MaskPiece {
+                    view: v,
+                    origin: cam.center(),
+                    dir: g.dir(u / n, w / n).as_dvec3(),
+                    angle: disc_angle(piece.len(), solid_angle, clipped),
+                    pixels,
+                },
+                on_border,
+            ));
+        }
+    }
+    pieces
+}
+
+/// The solid angle (steradians) of pixel (x, y) of a camera: the parallelogram of its rays'
+/// directions across it, which holds for any lens model the generator undistorts (pinhole:
+/// cos³θ / (fx·fy)).
+fn pixel_solid_angle(g: &RayGenerator, x: usize, y: usize) -> f64 {
+    let d = |u: f32, v: f32| g.dir(x as f32 + u, y as f32 + v).as_dvec3();
+    (d(1.0, 0.5) - d(0.0, 0.5)).cross(d(0.5, 1.0) - d(0.5, 0.0)).length()
+}
+
+/// Each bulb whose sphere was fitted to its surface points takes the radius its masks give
+/// ([`mask_radius`]) where pieces of at least `stage2.emitter_min_views` views, whole (not cut by
+/// the frame) and unoccluded (their centroid ray meets no surface before the bulb's clearance
+/// ball), pass through it; the centre stays the fit's.
+pub(super) fn size_bulbs_by_masks(
+    scene: &NeuralScene,
+    views: &[TargetView],
+    list: &mut [Emitter],
+    radiometry: Radiometry,
+    c2: &Stage2Config,
+    progress: &dyn Fn(&str),
+) {
+    if !list.iter().any(|e| e.sphere.is_some()) {
+        return;
+    }
+    let pieces: Vec<MaskPiece> = compact_mask_pieces(views)
+        .into_iter()
+        .filter(|(_, border)| !border)
+        .map(|(p, _)| p)
+        .collect();
+    let rays: Vec<Ray> = pieces
+        .iter()
+        .map(|p| Ray::new(p.origin.as_vec3(), p.dir.as_vec3(), 0.0, f32::INFINITY))
+        .collect();
+    let none = EmitterTable::new(Vec::new(), &[]);
+    let mut hits = vec![None; rays.len()];
+    FrozenScene::new(scene, &none, radiometry).cast(&rays, &mut hits);
+    for (k, e) in list.iter_mut().enumerate() {
+        let Some([x, y, z, r]) = e.sphere else { continue };
+        let c = DVec3::new(x, y, z);
+        let whole: Vec<MaskPiece> = pieces
+            .iter()
+            .zip(&hits)
+            .filter(|(p, h)| {
+                let depth = (c - p.origin).dot(p.dir);
+                h.map_or(true, |h| h.t as f64 >= depth - BULB_CLEARANCE as f64 * r)
+            })
+            .map(|(p, _)| p.clone())
+            .collect();
+        if let Some(from_masks) = mask_radius(&whole, c, r, c2.emitter_min_views) {
+            progress(&format!(
+                "emitter {k}: its masks give its sphere a radius of {from_masks:.3} m (its points {r:.3} m)"
+            ));
+            e.sphere = Some([x, y, z, from_masks]);
+        }
+    }
+}
+
 /// A mask piece counts as explained when at least this share of its pixels' hits lie on a
 /// clustered emitter.
 const EXPLAINED_SHARE: f64 = 0.5;
@@ -269,48 +386,28 @@ fn triangulate_missed_lights(
     let rough_small = |e: &Emitter| e.sphere.is_none() && e.radius <= small;
     // 1. Every mask piece, and which of them no clustered emitter explains.
     let mut pieces = Vec::new();
-    for (v, view) in views.iter().enumerate() {
-        let Some(mask) = &view.emitter_mask else { continue };
-        let cam = &view.camera;
+    for (piece, _) in compact_mask_pieces(views) {
+        let cam = &views[piece.view].camera;
         let g = cam.ray_generator();
-        let pixel_ray = |p: usize| {
-            let (x, y) = ((p % cam.width) as f32 + 0.5, (p / cam.width) as f32 + 0.5);
+        let pixel_ray = |p: u32| {
+            let (x, y) = (
+                (p as usize % cam.width) as f32 + 0.5,
+                (p as usize / cam.width) as f32 + 0.5,
+            );
             Ray::new(g.origin, g.dir(x, y), 0.0, f32::INFINITY)
         };
-        for piece in i2sdf_data::emitter_detect::components(mask, cam.width, cam.height) {
-            let piece_pixels: Vec<u32> = piece.iter().map(|&p| p as u32).collect();
-            if !is_compact(&piece_pixels, cam.width) {
-                continue;
-            }
-            let hits = cast_all(&piece.iter().map(|&p| pixel_ray(p)).collect::<Vec<_>>());
-            let explained = hits
-                .iter()
-                .filter(|h| {
-                    h.is_some_and(|h| {
-                        kept.index(h.position.as_dvec3(), frozen.index_margin)
-                            .is_some_and(|k| !rough_small(&kept.emitters[k]))
-                    })
+        let hits = cast_all(&piece.pixels.iter().map(|&p| pixel_ray(p)).collect::<Vec<_>>());
+        let explained = hits
+            .iter()
+            .filter(|h| {
+                h.is_some_and(|h| {
+                    kept.index(h.position.as_dvec3(), frozen.index_margin)
+                        .is_some_and(|k| !rough_small(&kept.emitters[k]))
                 })
-                .count();
-            if explained as f64 >= EXPLAINED_SHARE * piece.len() as f64 {
-                continue;
-            }
-            let n = piece.len() as f32;
-            let (u, w) = piece.iter().fold((0.0f32, 0.0f32), |(u, w), &p| {
-                (u + (p % cam.width) as f32 + 0.5, w + (p / cam.width) as f32 + 0.5)
-            });
-            pieces.push(MaskPiece {
-                view: v,
-                origin: cam.center(),
-                dir: g.dir(u / n, w / n).as_dvec3(),
-                angle: disc_angle(
-                    piece.len(),
-                    2 * piece.iter().filter(|&&p| view.saturated[p] != 0).count() >= piece.len(),
-                    cam.fx,
-                    cam.fy,
-                ),
-                pixels: piece_pixels,
-            });
+            })
+            .count();
+        if (explained as f64) < EXPLAINED_SHARE * piece.pixels.len() as f64 {
+            pieces.push(piece);
         }
     }
     if pieces.is_empty() {
@@ -447,7 +544,8 @@ pub(super) fn recast_through_bulbs(frozen: &FrozenScene<'_>, cast: &mut Cast) ->
 /// the surface still reflects light onto the others) and shading point, whose normal
 /// is the dataset's normal map where it has one (an input, as in stage 1's normal loss; sharper
 /// than the SDF's gradient at edges), else the SDF's, averaged over
-/// `stage2.normal_smoothing_radius` (normalized units; `scale` world units each).
+/// `stage2.normal_smoothing_radius` (normalized units; `scale` world units each) by `smoothed`
+/// (the baked surface's field) where given.
 pub(super) fn label_pixels(
     cast: &Cast,
     on_sphere: &[bool],
@@ -456,6 +554,7 @@ pub(super) fn label_pixels(
     emitters: &EmitterTable,
     index_margin: f64,
     scale: f32,
+    smoothed: Option<&SmoothedNormals>,
     progress: &dyn Fn(&str),
 ) -> Vec<CachedPixel> {
     let mut pixels = Vec::with_capacity(cast.hit_idx.len());
@@ -520,12 +619,30 @@ pub(super) fn label_pixels(
         .zip(&from_map)
         .map(|(p, &m)| !m && matches!(p.kind, PixelKind::Surface { .. }))
         .collect();
-    if c2.normal_smoothing_radius > 0.0 && sdf_normal.contains(&true) {
+    let radius = smoothing_radius(views, c2) * scale;
+    if radius > 0.0 && sdf_normal.contains(&true) {
         progress("smoothing the SDF's shading normals");
-        let points: Vec<ShadingPoint> = pixels.iter().map(|p| p.point).collect();
-        let normals = smoothed_normals(&points, &sdf_normal, c2.normal_smoothing_radius * scale);
-        for (p, n) in pixels.iter_mut().zip(normals) {
-            p.point.normal = n;
+        // The baked surface's field, which the renderers shade with too; unbaked, one of the
+        // pixels' own points.
+        let own;
+        let field = match smoothed {
+            Some(f) => f,
+            None => {
+                let (points, normals): (Vec<Vec3>, Vec<Vec3>) = pixels
+                    .iter()
+                    .zip(&sdf_normal)
+                    .filter(|(_, &s)| s)
+                    .map(|(p, _)| (p.point.position, p.point.normal))
+                    .unzip();
+                own = SmoothedNormals::new(&points, normals, radius);
+                &own
+            }
+        };
+        let idx: Vec<usize> = (0..pixels.len()).filter(|&i| sdf_normal[i]).collect();
+        let pick = |f: fn(&ShadingPoint) -> Vec3| idx.iter().map(|&i| f(&pixels[i].point)).collect::<Vec<Vec3>>();
+        let normals = field.at_points(&pick(|p| p.position), &pick(|p| p.normal), Some(&pick(|p| p.view)));
+        for (&i, n) in idx.iter().zip(normals) {
+            pixels[i].point.normal = n;
         }
     }
     if given_normals > 0 {
@@ -662,7 +779,7 @@ mod tests {
             normal: None,
         };
         let c2 = Stage2Config::default();
-        let pixels = label_pixels(&cast, &[], &[view], &c2, &emitters, 0.05, 1.0, &|_| {});
+        let pixels = label_pixels(&cast, &[], &[view], &c2, &emitters, 0.05, 1.0, None, &|_| {});
         let kinds: Vec<(u32, PixelKind)> = pixels.iter().map(|p| (p.pixel, p.kind)).collect();
         assert_eq!(
             kinds,
@@ -695,11 +812,45 @@ mod tests {
             normal: None,
         };
         let c2 = Stage2Config::default();
-        let pixels = label_pixels(&cast, &[true, true, false], &[view], &c2, &emitters, 0.05, 1.0, &|_| {});
+        let pixels = label_pixels(
+            &cast,
+            &[true, true, false],
+            &[view],
+            &c2,
+            &emitters,
+            0.05,
+            1.0,
+            None,
+            &|_| {},
+        );
         let kinds: Vec<(u32, PixelKind)> = pixels.iter().map(|p| (p.pixel, p.kind)).collect();
         assert_eq!(
             kinds,
             [(0, PixelKind::Emitter(0)), (2, PixelKind::Surface { index: 0 })]
         );
+    }
+
+    /// A pixel's solid angle is cos³θ / (fx·fy) of a pinhole camera, and the whole frame's is
+    /// that of its rectangle of view.
+    #[test]
+    fn pixels_subtend_their_solid_angle() {
+        let (w, h, f) = (40usize, 30usize, 25.0f64);
+        let cam = i2sdf_data::Camera::from_opengl_c2w(w, h, f, f, 20.0, 15.0, glam::DMat4::IDENTITY);
+        let g = cam.ray_generator();
+        for (x, y) in [(20usize, 15usize), (0, 0), (39, 10)] {
+            let d = cam.pixel_center_dir_cam(x, y).normalize();
+            let cos = d.z.abs();
+            let expected = cos * cos * cos / (f * f);
+            let got = pixel_solid_angle(&g, x, y);
+            assert!(
+                (got / expected - 1.0).abs() < 2e-3,
+                "({x}, {y}): {got} against {expected}"
+            );
+        }
+        // The frame: 4·asin(sin a · sin b) for half-angles a, b of a rectangle.
+        let (a, b) = ((20.0 / f).atan(), (15.0 / f).atan());
+        let frame = 4.0 * (a.sin() * b.sin()).asin();
+        let sum: f64 = (0..w * h).map(|p| pixel_solid_angle(&g, p % w, p / w)).sum();
+        assert!((sum / frame - 1.0).abs() < 1e-3, "{sum} against {frame}");
     }
 }

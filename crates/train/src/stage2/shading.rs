@@ -316,43 +316,6 @@ pub fn pool_diffuse(points: &[ShadingPoint], sums: &[DiffuseSums], radius: f32) 
     out
 }
 
-/// The shading normals of `points` with those marked `smooth` averaged over the points within
-/// `radius` (world) whose normals are within 60° of theirs (cos > 0.5: the two sides of a corner
-/// or of a thin object stay apart); a point keeps its own where the mean would face away from
-/// its viewer. Where no normal map is given, the shading normal is the SDF's gradient at the
-/// hit, and a surface fitted to a phone's sensor depth is bumpy: measured on the default room's
-/// capture, its pixels' normals were 14.7° from the true ones (median; 4.9° on the exact room's
-/// SDF), and averaged over 8 cm 5.3° (1.2°). Every cosine of the shading then carries the
-/// bumps' pattern, which the emission estimate takes for noise in the light and answers with
-/// too little L. Neighbours are summed in ascending index order (the same on every run).
-pub fn smoothed_normals(points: &[ShadingPoint], smooth: &[bool], radius: f32) -> Vec<Vec3> {
-    let positions: Vec<[f32; 3]> = points.iter().map(|p| p.position.to_array()).collect();
-    let tree = KdTree::new(&positions);
-    points
-        .par_iter()
-        .zip(smooth)
-        .enumerate()
-        .map_init(Vec::new, |near, (i, (p, &s))| {
-            if !s {
-                return p.normal;
-            }
-            tree.within(positions[i], radius, near);
-            near.sort_unstable();
-            let mean: Vec3 = near
-                .iter()
-                .map(|&j| points[j].normal)
-                .filter(|m| m.dot(p.normal) > 0.5)
-                .sum();
-            let mean = mean.normalize_or_zero();
-            if mean.dot(p.view) > 0.0 {
-                mean
-            } else {
-                p.normal
-            }
-        })
-        .collect()
-}
-
 /// Test support: the analytic gradient of ⟨g, R̂⟩ (material `grad`, emissions `d_emission`)
 /// against central differences of `loss` with step `h` in every channel of Kd and Ks, in ρ and
 /// in every channel of every L[k]; the tolerance is relative, for f32.
@@ -520,53 +483,6 @@ mod tests {
                 assert_eq!(pooled[i], acc, "pixel {i}, radius {radius}");
             }
             assert!(radius == 0.1 || at_radius > 500, "{at_radius} pairs at radius {radius}");
-        }
-    }
-
-    /// A floor and a wall meeting in a corner, their normals jittered by up to ~25°: smoothing
-    /// brings each side's normals back towards its plane's and keeps the two sides apart; the
-    /// points not marked and a point whose mean would face away from its viewer keep their own.
-    #[test]
-    fn smoothing_straightens_bumpy_normals_and_keeps_corners() {
-        let mut rng = Pcg32::seed_from_u64(9);
-        let mut points = Vec::new();
-        let mut truth = Vec::new();
-        for i in 0..40 {
-            for j in 0..40 {
-                let (u, v) = (i as f32 * 0.01, j as f32 * 0.01);
-                for (position, n) in [(Vec3::new(u, 0.0, v), Vec3::Y), (Vec3::new(u, v, 0.0), Vec3::Z)] {
-                    let jitter = Vec3::new(rng.gen(), rng.gen(), rng.gen()) - 0.5;
-                    let normal = (n + 0.9 * jitter).normalize();
-                    points.push(ShadingPoint {
-                        position,
-                        normal,
-                        view: n,
-                    });
-                    truth.push(n);
-                }
-            }
-        }
-        let angle = |a: Vec3, b: Vec3| a.dot(b).clamp(-1.0, 1.0).acos().to_degrees();
-        let mean_error = |ps: &[ShadingPoint]| {
-            ps.iter().zip(&truth).map(|(p, &t)| angle(p.normal, t)).sum::<f32>() / ps.len() as f32
-        };
-        let mut smooth = vec![true; points.len()];
-        smooth[7] = false;
-        // Its viewer on the other side: any mean of its side faces away from it.
-        points[11].view = -points[11].view;
-        let before = points.clone();
-        for (p, n) in points.iter_mut().zip(smoothed_normals(&before, &smooth, 0.05)) {
-            p.normal = n;
-        }
-        let (e0, e1) = (mean_error(&before), mean_error(&points));
-        assert!(e0 > 10.0 && e1 < 0.4 * e0, "mean error {e0}° → {e1}°");
-        assert_eq!(points[7], before[7]);
-        assert_eq!(points[11], before[11]);
-        // Next to the corner each side keeps its own plane (the other side's normals are 90° away).
-        for (p, &t) in points.iter().zip(&truth) {
-            if p.position.y < 0.02 && p.position.z < 0.02 && p.view == t {
-                assert!(angle(p.normal, t) < 30.0, "{p:?}");
-            }
         }
     }
 }
