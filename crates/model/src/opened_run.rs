@@ -36,8 +36,9 @@ pub struct InferenceConfig {
 
 /// The surface stage 2 baked for its rays ([`BakedSurface`]): the box (world units, before
 /// [`PAD_FRACTION`](crate::sdf_mesh::PAD_FRACTION)) of the surface its training pixels see
-/// and of the cameras, and the resolution (`stage2.bake_resolution`). Kept in the stage-2
-/// checkpoint's metadata under [`BakeRecord::META_KEY`] (`null`: stage 2 did not bake).
+/// and of the cameras, the resolution (`stage2.bake_resolution`) and the radius of its shading
+/// normals' smoothing. Kept in the stage-2 checkpoint's metadata under [`BakeRecord::META_KEY`]
+/// (`null`: stage 2 did not bake).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BakeRecord {
     pub bounds: Bounds,
