@@ -71,16 +71,8 @@ impl RecoveredSurface {
             .filter(|_| !frozen.emitters.is_empty())
             .map(|c| ObservedViews::new(&MeshGeometry::new(&mesh, vec![0; mesh.faces.len()]), c));
         let vertices: Vec<Vec3> = mesh.positions.iter().map(|p| Vec3::from(*p)).collect();
-        let normals: Vec<Vec3> = frozen
-            .sdf_gradient(&vertices)
-            .into_iter()
-            .map(|(_, g)| g.normalize_or_zero())
-            .collect();
         // Smoothed as the run's shading normals are (stage 2 fitted the materials with them).
-        let normals = match frozen.smoothed_normals() {
-            Some(f) => f.at_points(&vertices, &normals, None),
-            None => normals,
-        };
+        let normals = frozen.shading_normals(&vertices);
         let centroids: Vec<Vec3> = mesh
             .faces
             .iter()

@@ -81,16 +81,8 @@ fn simplified(
     let groups = simplify::simplify_groups(&mesh.positions, &groups, opts.max_faces, opts.max_error);
     let (kept, groups) = simplify::compact(mesh.positions.len(), &groups);
     let vertices: Vec<Vec3> = kept.iter().map(|&v| Vec3::from(mesh.positions[v as usize])).collect();
-    let normals: Vec<Vec3> = frozen
-        .sdf_gradient(&vertices)
-        .into_iter()
-        .map(|(_, g)| g.normalize_or_zero())
-        .collect();
     // Smoothed as the run's shading normals are (stage 2 fitted the materials with them).
-    let normals = match frozen.smoothed_normals() {
-        Some(f) => f.at_points(&vertices, &normals, None),
-        None => normals,
-    };
+    let normals = frozen.shading_normals(&vertices);
     (vertices, normals, groups)
 }
 

@@ -280,6 +280,21 @@ impl<'a> FrozenScene<'a> {
         self.baked.as_deref().and_then(BakedSurface::smoothed_normals)
     }
 
+    /// The shading normals at world points on the surface: the SDF's gradient, averaged where
+    /// the run's are ([`FrozenScene::smoothed_normals`]) — what the mesh-based renderers and the
+    /// export give their vertices.
+    pub fn shading_normals(&self, points_world: &[Vec3]) -> Vec<Vec3> {
+        let normals: Vec<Vec3> = self
+            .sdf_gradient(points_world)
+            .into_iter()
+            .map(|(_, g)| g.normalize_or_zero())
+            .collect();
+        match self.smoothed_normals() {
+            Some(f) => f.at_points(points_world, &normals, None),
+            None => normals,
+        }
+    }
+
     /// Uses a surface baked by another `FrozenScene` of the same scene.
     pub fn set_baked_surface(&mut self, baked: Option<Arc<BakedSurface>>) {
         self.baked = baked;

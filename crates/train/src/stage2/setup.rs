@@ -215,14 +215,19 @@ pub(super) fn cluster_new_emitters(
         }
     }
     let mut list = list;
+    // The masks' pieces, for sizing the bulbs and for the lights no surface carries.
+    let pieces = match has_masks && c2.fit_bulbs && (c2.size_bulbs_by_masks || c2.triangulate_emitters) {
+        true => compact_mask_pieces(views),
+        false => Vec::new(),
+    };
     if has_masks && c2.size_bulbs_by_masks {
-        size_bulbs_by_masks(scene, views, &mut list, radiometry, c2, progress);
+        size_bulbs_by_masks(scene, &pieces, &mut list, radiometry, c2, progress);
     }
     let mut init: Vec<[f32; 3]> = sum.iter().map(|s| s.map(|v| (v as f32).max(1e-3))).collect();
     if has_masks && c2.triangulate_emitters && c2.fit_bulbs {
         let kept = EmitterTable::new(list.clone(), &init);
         let small = SPHERE_MAX_RADIUS * s;
-        for (e, l) in triangulate_missed_lights(scene, views, &kept, small, radiometry, c2) {
+        for (e, l) in triangulate_missed_lights(scene, views, &pieces, &kept, small, radiometry, c2) {
             let [x, y, z, r] = e.sphere.expect("a triangulated light is a sphere");
             let centre = DVec3::new(x, y, z);
             let sphere = format!("a sphere of radius {r:.3} m about ({x:.2}, {y:.2}, {z:.2}) m");
@@ -305,12 +310,12 @@ fn pixel_solid_angle(g: &RayGenerator, x: usize, y: usize) -> f64 {
 }
 
 /// Each bulb whose sphere was fitted to its surface points takes the radius its masks give
-/// ([`mask_radius`]) where pieces of at least `stage2.emitter_min_views` views, whole (not cut by
+/// ([`mask_radius`] over `pieces`, [`compact_mask_pieces`]) where pieces of at least `stage2.emitter_min_views` views, whole (not cut by
 /// the frame) and unoccluded (their centroid ray meets no surface before the bulb's clearance
 /// ball), pass through it; the centre stays the fit's.
 pub(super) fn size_bulbs_by_masks(
     scene: &NeuralScene,
-    views: &[TargetView],
+    pieces: &[(MaskPiece, bool)],
     list: &mut [Emitter],
     radiometry: Radiometry,
     c2: &Stage2Config,
@@ -319,11 +324,7 @@ pub(super) fn size_bulbs_by_masks(
     if !list.iter().any(|e| e.sphere.is_some()) {
         return;
     }
-    let pieces: Vec<MaskPiece> = compact_mask_pieces(views)
-        .into_iter()
-        .filter(|(_, border)| !border)
-        .map(|(p, _)| p)
-        .collect();
+    let pieces: Vec<&MaskPiece> = pieces.iter().filter(|(_, border)| !border).map(|(p, _)| p).collect();
     let rays: Vec<Ray> = pieces
         .iter()
         .map(|p| Ray::new(p.origin.as_vec3(), p.dir.as_vec3(), 0.0, f32::INFINITY))
@@ -341,7 +342,7 @@ pub(super) fn size_bulbs_by_masks(
                 let depth = (c - p.origin).dot(p.dir);
                 h.map_or(true, |h| h.t as f64 >= depth - BULB_CLEARANCE as f64 * r)
             })
-            .map(|(p, _)| p.clone())
+            .map(|(&p, _)| p.clone())
             .collect();
         if let Some(from_masks) = mask_radius(&whole, c, r, c2.emitter_min_views) {
             progress(&format!(
@@ -357,7 +358,8 @@ pub(super) fn size_bulbs_by_masks(
 const EXPLAINED_SHARE: f64 = 0.5;
 
 /// The lights stage 1 built no surface for, triangulated from the pieces of the training
-/// views' emitter masks that the clustered emitters (`kept`) do not explain
+/// views' emitter masks (`all_pieces`, [`compact_mask_pieces`]) that the clustered emitters
+/// (`kept`) do not explain
 /// ([`emitter_triangulation`](super::emitter_triangulation)), each as a bulb (its sphere set)
 /// with its initial L (the mean target of its pieces' pixels). An emitter no larger than
 /// `small` (world) whose points fit no sphere (a rough bulb: the second room's capture) explains
@@ -370,6 +372,7 @@ const EXPLAINED_SHARE: f64 = 0.5;
 fn triangulate_missed_lights(
     scene: &NeuralScene,
     views: &[TargetView],
+    all_pieces: &[(MaskPiece, bool)],
     kept: &EmitterTable,
     small: f64,
     radiometry: Radiometry,
@@ -386,7 +389,7 @@ fn triangulate_missed_lights(
     let rough_small = |e: &Emitter| e.sphere.is_none() && e.radius <= small;
     // 1. Every mask piece, and which of them no clustered emitter explains.
     let mut pieces = Vec::new();
-    for (piece, _) in compact_mask_pieces(views) {
+    for (piece, _) in all_pieces {
         let cam = &views[piece.view].camera;
         let g = cam.ray_generator();
         let pixel_ray = |p: u32| {
@@ -407,7 +410,7 @@ fn triangulate_missed_lights(
             })
             .count();
         if (explained as f64) < EXPLAINED_SHARE * piece.pixels.len() as f64 {
-            pieces.push(piece);
+            pieces.push(piece.clone());
         }
     }
     if pieces.is_empty() {
