@@ -1,6 +1,6 @@
 //! Runs `emission_from_shading` on inputs dumped by `stage2_ablation` (`EST=1 EST_DUMP=FILE`)
 //! with settings from the environment, so its parameters can be studied without a cache build:
-//! `EST_HOLD=k=r,g,b EST_FLOOR=1 EST_POOL=0.1 EST_STEP=0.2 EST_DELTA=0.05 EST_COS=0.95 EST_SLOPE=0.1 EST_MIN=0.01
+//! `EST_HOLD=k=r,g,b EST_FLOOR=1 EST_POOL=0.1 EST_MINSTEP=0.1 EST_STEP=0.4 EST_DELTA=0.05 EST_COS=0.95 EST_SLOPE=0.1 EST_MIN=0.01
 //! cargo run --release -p i2sdf-train --example emission_probe -- FILE`.
 
 use glam::Vec3;
@@ -43,6 +43,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let d = ShadingEstimate::default();
     let s = ShadingEstimate {
+        min_step: env("EST_MINSTEP", d.min_step),
         max_step: env("EST_STEP", d.max_step),
         delta: env("EST_DELTA", d.delta),
         min_cos: env("EST_COS", d.min_cos),

@@ -163,6 +163,41 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 l_d / (3 * glossy_diffuse.len()) as f64
             );
         }
+        // RAD_CHECK=1: F_c's linearized radiance at each cached surface pixel's own point towards
+        // its camera, against the pixel's linear target (unsaturated channels): the scale the
+        // field term of every pixel's irradiance inherits.
+        if std::env::var("RAD_CHECK").is_ok() {
+            let frozen = stage.frozen();
+            let sel: Vec<_> = stage
+                .pixels
+                .iter()
+                .filter(|p| matches!(p.kind, PixelKind::Surface { .. }) && p.saturated == 0)
+                .collect();
+            let pts: Vec<Vec3> = sel.iter().map(|p| p.point.position).collect();
+            let dirs: Vec<Vec3> = sel.iter().map(|p| -p.point.view).collect();
+            let mut rad = vec![Vec3::ZERO; pts.len()];
+            frozen.surface_radiance(&pts, &dirs, &mut rad);
+            for c in 0..3 {
+                let mut r: Vec<f32> = sel
+                    .iter()
+                    .zip(&rad)
+                    .filter(|(p, _)| p.target[c] > 0.01)
+                    .map(|(p, l)| l[c] / p.target[c])
+                    .collect();
+                r.sort_by(f32::total_cmp);
+                let q = |f: f64| r[((r.len() - 1) as f64 * f) as usize];
+                let (s_l, s_t) = sel.iter().zip(&rad).fold((0.0f64, 0.0f64), |a, (p, l)| {
+                    (a.0 + l[c] as f64, a.1 + p.target[c] as f64)
+                });
+                println!(
+                    "F_c / target, channel {c}: p10 {:.3} p50 {:.3} p90 {:.3}, sums {:.4}",
+                    q(0.1),
+                    q(0.5),
+                    q(0.9),
+                    s_l / s_t
+                );
+            }
+        }
         // GLOSSY_LIVE=N: the GT materials of (up to 4000) glossy pixels shaded from N samples
         // of their own GGX mixture (the live proposal): is the cache's floor noise or bias?
         if let Some(nl) = std::env::var("GLOSSY_LIVE").ok().and_then(|v| v.parse::<usize>().ok()) {

@@ -55,10 +55,17 @@ impl ShadedPixel {
 /// Settings of [`estimate_emission`].
 #[derive(Clone, Copy, Debug)]
 pub struct ShadingEstimate {
-    /// Image offsets of the neighbour pairs: s = 1, 2, 4, … px up to this fraction of the view's
-    /// width, along x, y and both diagonals for each. Small steps see shadow edges, large ones
-    /// the falloff across a wall; measured on the default room (LDR targets, exact geometry):
-    /// up to 8 px of 160 the lights came out at 0.85× and 0.79×, up to 32 px at 0.98× and 1.06×.
+    /// Image offsets of the neighbour pairs: s = 1, 2, 4, … px, from `min_step` up to `max_step`
+    /// (fractions of the view's width), along x, y and both diagonals for each. The long pairs
+    /// see the falloff of a light across a surface. The short ones mostly see the errors of the
+    /// emitter weights: a reconstructed surface's normals, positions and poses are off by
+    /// amounts correlated over a few pixels, an error in the regressor that pulls the estimate
+    /// towards zero (attenuation). Measured on dumped inputs (160-px views; L / truth for the
+    /// ceiling panel and the bulb), with pairs of 1–32 px against 16–64 px: the phone captures
+    /// 0.81 / 0.72 → 0.94 / 0.81 (seed 1) and 0.89 / 0.78 → 1.00 / 0.97 (seed 0), a capture at
+    /// its exact poses 0.94 / 0.94 → 1.01 / 1.03, the exact room's geometry under the capture's
+    /// images 1.03 / 0.89 → 1.07 / 0.96.
+    pub min_step: f32,
     pub max_step: f32,
     /// Largest ratio of an estimate to its lower bound searched.
     pub max_ratio: f32,
@@ -76,7 +83,8 @@ pub struct ShadingEstimate {
 impl Default for ShadingEstimate {
     fn default() -> Self {
         ShadingEstimate {
-            max_step: 0.2,
+            min_step: 0.1,
+            max_step: 0.4,
             max_ratio: 1000.0,
             delta: 0.05,
             min_target: 0.01,
@@ -163,9 +171,11 @@ pub fn neighbour_pairs(pixels: &[ShadedPixel], widths: &[usize], s: &ShadingEsti
             let (x, y) = (p.pixel as i64 % w, p.pixel as i64 / w);
             let index = &index;
             let largest = (w as f32 * s.max_step).max(1.0) as i64;
+            let smallest = (w as f32 * s.min_step).min(largest as f32);
             (0..)
                 .map(|e| 1i64 << e)
                 .take_while(move |&st| st <= largest)
+                .filter(move |&st| st as f32 >= smallest)
                 .flat_map(move |st| {
                     [(st, 0), (0, st), (st, st), (st, -st)]
                         .into_iter()
@@ -301,8 +311,24 @@ mod tests {
     /// A floor seen in one 64×64 view, two albedo patches (a material edge down the middle),
     /// lit by a light above one corner (falloff and a shadow edge) and by the room's light
     /// (smooth, from another direction): the saturated light's L comes back from its lower bound.
-    fn floor(l_true: Vec3, noise: f32) -> (Vec<ShadedPixel>, Vec<DiffuseSums>) {
+    ///
+    /// `weight_error`: the emitter weights the estimator is given are off by a factor
+    /// exp(weight_error · g), g a smooth random field (uniform in [−√3, √3] on a 4-px lattice,
+    /// interpolated): errors correlated over a few pixels.
+    /// A random field on a 4-px lattice (`lattice`: 17 × 17 values), interpolated bilinearly.
+    fn smooth(lattice: &[f32], x: u32, y: u32) -> f32 {
+        let (fx, fy) = (x as f32 / 4.0, y as f32 / 4.0);
+        let (i, j) = (fx.floor() as usize, fy.floor() as usize);
+        let (u, v) = (fx - i as f32, fy - j as f32);
+        let at = |i: usize, j: usize| lattice[j * 17 + i];
+        (1.0 - v) * ((1.0 - u) * at(i, j) + u * at(i + 1, j)) + v * ((1.0 - u) * at(i, j + 1) + u * at(i + 1, j + 1))
+    }
+
+    fn floor(l_true: Vec3, noise: f32, weight_error: f32) -> (Vec<ShadedPixel>, Vec<DiffuseSums>) {
         let mut rng = rand_pcg::Pcg32::seed_from_u64(3);
+        let block: Vec<f32> = (0..17 * 17)
+            .map(|_| (rng.gen::<f32>() * 2.0 - 1.0) * 3f32.sqrt())
+            .collect();
         let (mut px, mut sums) = (Vec::new(), Vec::new());
         for y in 0..64u32 {
             for x in 0..64u32 {
@@ -325,7 +351,11 @@ mod tests {
                 };
                 let field = Vec3::new(0.6, 0.5, 0.4) * (1.0 + 0.3 * p.z) * (1.0 + noise * rng.gen::<f32>());
                 let b = kd / std::f32::consts::PI * (field + l_true * w);
-                sums.push(DiffuseSums { field, emit: vec![w] });
+                let given = w * (weight_error * smooth(&block, x, y)).exp();
+                sums.push(DiffuseSums {
+                    field,
+                    emit: vec![given],
+                });
                 px.push(ShadedPixel {
                     position: p,
                     normal: Vec3::Y,
@@ -343,10 +373,10 @@ mod tests {
     fn a_saturated_light_comes_back_from_its_lower_bound() {
         let l_true = Vec3::new(9.0, 8.0, 6.0);
         for noise in [0.0, 0.1] {
-            let (px, sums) = floor(l_true, noise);
+            let (px, sums) = floor(l_true, noise, 0.0);
             let s = ShadingEstimate::default();
             let pairs = neighbour_pairs(&px, &[64], &s);
-            assert!(pairs.len() > 4 * px.len(), "{} pairs", pairs.len());
+            assert!(pairs.len() > 3 * px.len(), "{} pairs", pairs.len());
             let est = estimate_emission(&px, &sums, &pairs, &[Vec3::ONE], &[true], &s);
             for c in 0..3 {
                 let r = est[0][c] / l_true[c];
@@ -361,8 +391,32 @@ mod tests {
     }
 
     #[test]
+    fn the_long_pairs_resist_errors_of_the_weights() {
+        // Weights off by errors correlated over a few pixels (as a reconstructed surface's
+        // normals make them) pull the estimate towards the bound: errors-in-variables
+        // attenuation. The short pairs see mostly the errors, the long ones the light's falloff,
+        // so pairs from a tenth of the width up are pulled less than pairs of every step.
+        let l_true = Vec3::new(9.0, 8.0, 6.0);
+        let (px, sums) = floor(l_true, 0.0, 0.3);
+        let ratio = |s: &ShadingEstimate| {
+            let pairs = neighbour_pairs(&px, &[64], s);
+            estimate_emission(&px, &sums, &pairs, &[Vec3::ONE], &[true], s)[0].x / l_true.x
+        };
+        let long = ratio(&ShadingEstimate::default());
+        let all = ratio(&ShadingEstimate {
+            min_step: 0.0,
+            ..Default::default()
+        });
+        // Measured: 0.76 against 0.67.
+        assert!(
+            long > 0.7 && long > all + 0.05,
+            "from a tenth of the width {long}, every step {all}"
+        );
+    }
+
+    #[test]
     fn a_held_light_and_the_lower_bound_are_kept() {
-        let (px, sums) = floor(Vec3::splat(3.0), 0.0);
+        let (px, sums) = floor(Vec3::splat(3.0), 0.0, 0.0);
         let s = ShadingEstimate::default();
         let pairs = neighbour_pairs(&px, &[64], &s);
         let held = estimate_emission(&px, &sums, &pairs, &[Vec3::splat(2.0)], &[false], &s);
