@@ -308,13 +308,6 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
 
-    /// A floor seen in one 64×64 view, two albedo patches (a material edge down the middle),
-    /// lit by a light above one corner (falloff and a shadow edge) and by the room's light
-    /// (smooth, from another direction): the saturated light's L comes back from its lower bound.
-    ///
-    /// `weight_error`: the emitter weights the estimator is given are off by a factor
-    /// exp(weight_error · g), g a smooth random field (uniform in [−√3, √3] on a 4-px lattice,
-    /// interpolated): errors correlated over a few pixels.
     /// A random field on a 4-px lattice (`lattice`: 17 × 17 values), interpolated bilinearly.
     fn smooth(lattice: &[f32], x: u32, y: u32) -> f32 {
         let (fx, fy) = (x as f32 / 4.0, y as f32 / 4.0);
@@ -324,9 +317,16 @@ mod tests {
         (1.0 - v) * ((1.0 - u) * at(i, j) + u * at(i + 1, j)) + v * ((1.0 - u) * at(i, j + 1) + u * at(i + 1, j + 1))
     }
 
+    /// A floor seen in one 64×64 view, two albedo patches (a material edge down the middle),
+    /// lit by a light above one corner (falloff and a shadow edge) and by the room's light
+    /// (smooth, from another direction): the saturated light's L comes back from its lower bound.
+    ///
+    /// `weight_error`: the emitter weights the estimator is given are off by a factor
+    /// exp(weight_error · g), g a smooth random field (uniform in [−√3, √3] on a 4-px lattice,
+    /// interpolated): errors correlated over a few pixels.
     fn floor(l_true: Vec3, noise: f32, weight_error: f32) -> (Vec<ShadedPixel>, Vec<DiffuseSums>) {
         let mut rng = rand_pcg::Pcg32::seed_from_u64(3);
-        let block: Vec<f32> = (0..17 * 17)
+        let lattice: Vec<f32> = (0..17 * 17)
             .map(|_| (rng.gen::<f32>() * 2.0 - 1.0) * 3f32.sqrt())
             .collect();
         let (mut px, mut sums) = (Vec::new(), Vec::new());
@@ -351,7 +351,7 @@ mod tests {
                 };
                 let field = Vec3::new(0.6, 0.5, 0.4) * (1.0 + 0.3 * p.z) * (1.0 + noise * rng.gen::<f32>());
                 let b = kd / std::f32::consts::PI * (field + l_true * w);
-                let given = w * (weight_error * smooth(&block, x, y)).exp();
+                let given = w * (weight_error * smooth(&lattice, x, y)).exp();
                 sums.push(DiffuseSums {
                     field,
                     emit: vec![given],
