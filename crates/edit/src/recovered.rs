@@ -88,7 +88,7 @@ impl RecoveredSurface {
             let mut prob = vec![0.0; points.len()];
             frozen.emitter_prob(&points, &mut prob);
             for (&(t, k), p) in near.iter().zip(prob) {
-                if p > frozen.emitter_threshold || observed.as_ref().is_some_and(|o| !o.observed(centroids[t])) {
+                if frozen.emits(k, p, centroids[t], observed.as_ref()) {
                     labels[t] = k as u32 + 1;
                 }
             }
@@ -405,6 +405,7 @@ mod tests {
                 radius: 0.15,
                 points: 10,
                 sphere: Some([c.x as f64, c.y as f64, c.z as f64, r as f64]),
+                bounds: None,
             }],
             &[[5.0; 3]],
         );

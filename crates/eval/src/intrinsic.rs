@@ -305,6 +305,7 @@ mod tests {
             radius: 0.2,
             points: 5,
             sphere: None,
+            bounds: None,
         }
     }
 

@@ -38,7 +38,16 @@ pub struct Emitter {
     /// off (the cluster is the seen side only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sphere: Option<[f64; 4]>,
+    /// The axis-aligned box of the cluster's points, `[min, max]` (world units). None in files
+    /// written before it was kept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bounds: Option<[[f64; 3]; 2]>,
 }
+
+/// How far outside the box of an emitter's points, as a fraction of the index margin, surface no
+/// training camera sees still counts as the emitter (`stage2.label_unobserved`): about 2 cm on
+/// the built-in rooms, the spacing of the cached points that bound the box.
+pub const UNSEEN_BOX_MARGIN: f64 = 0.25;
 
 /// Largest fitted radius of a bulb, as a multiple of its cluster's bounding radius: the seen
 /// side of a bulb spans its sphere (the built-in rooms' bulbs: 0.5–0.8); a slightly curved
@@ -51,6 +60,18 @@ pub const BULB_MAX_RADIUS: f64 = 1.25;
 pub const BULB_CLEARANCE: f32 = 1.7;
 
 impl Emitter {
+    /// Whether surface that no training camera sees at `x` may be this emitter's
+    /// (`stage2.label_unobserved`): inside the box of its points, enlarged by
+    /// [`UNSEEN_BOX_MARGIN`] × `index_margin`. Its bounding sphere (the index) holds a panel's
+    /// neighbourhood too: on seed 1's room 0.26 m² of unseen ceiling beside a 1.3 m² panel. A
+    /// file without the box: anywhere the index holds.
+    pub fn may_hold_unseen(&self, x: DVec3, index_margin: f64) -> bool {
+        self.bounds.is_none_or(|[lo, hi]| {
+            let m = UNSEEN_BOX_MARGIN * index_margin;
+            (0..3).all(|a| x[a] >= lo[a] - m && x[a] <= hi[a] + m)
+        })
+    }
+
     /// The emitter as a bulb: its fitted sphere (centre, radius; world units) where it has one
     /// no larger than [`BULB_MAX_RADIUS`] times the cluster's bounding radius.
     pub fn bulb(&self) -> Option<(glam::Vec3, f32)> {
@@ -128,7 +149,8 @@ impl EmitterTable {
 
     /// Writes `RUN/emitters.json`, atomically:
     /// `{"emitters": [{"centre": [x,y,z], "extent": [dx,dy,dz], "radius": r, "points": n, "sphere":
-    /// [x,y,z,r] or null, "emission": [r,g,b], "radiance": [r,g,b] or null}]}` — world units;
+    /// [x,y,z,r] or null, "bounds": [[x,y,z], [x,y,z]] (the box of the points) or null,
+    /// "emission": [r,g,b], "radiance": [r,g,b] or null}]}` — world units;
     /// `emission` is L\[k\] in image units, `radiance` = emission / exposure (the physical
     /// radiance) when the dataset states its exposure, else null.
     pub fn write_json(&self, path: &Path, exposure: Option<f64>) -> Result<(), DataError> {
@@ -145,6 +167,7 @@ impl EmitterTable {
                     "radius": e.radius,
                     "points": e.points,
                     "sphere": e.sphere,
+                    "bounds": e.bounds,
                     "emission": l,
                     "radiance": radiance,
                 })
@@ -215,12 +238,35 @@ impl EmitterTable {
                         })?,
                 ),
             };
+            let bounds = match entry.get("bounds") {
+                None | Some(Value::Null) => None,
+                Some(v) => Some(
+                    v.as_array()
+                        .filter(|a| a.len() == 2)
+                        .and_then(|a| {
+                            let corner = |c: &Value| -> Option<[f64; 3]> {
+                                let c: Vec<f64> = c.as_array()?.iter().filter_map(Value::as_f64).collect();
+                                (c.len() == 3 && c.iter().all(|x| x.is_finite())).then(|| [c[0], c[1], c[2]])
+                            };
+                            let (lo, hi) = (corner(&a[0])?, corner(&a[1])?);
+                            (0..3).all(|i| lo[i] <= hi[i]).then_some([lo, hi])
+                        })
+                        .ok_or_else(|| {
+                            DataError::field(
+                                path,
+                                key("bounds"),
+                                "must be [[x, y, z], [x, y, z]], min ≤ max per axis",
+                            )
+                        })?,
+                ),
+            };
             emitters.push(Emitter {
                 centre,
                 extent,
                 radius,
                 points,
                 sphere,
+                bounds,
             });
             emission.push(l.map(|v| v as f32));
         }
@@ -282,6 +328,7 @@ mod tests {
                     radius: 0.3,
                     points: 120,
                     sphere: Some([0.0, 2.05, 0.0, 0.1]),
+                    bounds: None,
                 },
                 Emitter {
                     centre: [3.0, 1.0, 0.0],
@@ -289,6 +336,7 @@ mod tests {
                     radius: 2.5,
                     points: 800,
                     sphere: None,
+                    bounds: Some([[2.95, 0.25, -0.75], [3.05, 1.75, 0.75]]),
                 },
             ],
             &[[5.0, 4.0, 3.0], [0.5, 0.5, 0.6]],
@@ -324,9 +372,9 @@ mod tests {
         keys.sort();
         assert_eq!(
             keys,
-            ["centre", "emission", "extent", "points", "radiance", "radius", "sphere"]
+            ["bounds", "centre", "emission", "extent", "points", "radiance", "radius", "sphere"]
         );
-        assert!(v["emitters"][1]["sphere"].is_null());
+        assert!(v["emitters"][1]["sphere"].is_null() && v["emitters"][0]["bounds"].is_null());
         let r = v["emitters"][0]["radiance"].as_array().unwrap();
         assert!((r[0].as_f64().unwrap() - 2.5).abs() < 1e-5);
         let back = EmitterTable::read_json(&p).unwrap();
@@ -353,6 +401,25 @@ mod tests {
         std::fs::write(&p, s).unwrap();
         let e = EmitterTable::read_json(&p).unwrap_err();
         assert!(e.is_bad_input() && e.to_string().contains("emitters[0].sphere"), "{e}");
+        let s = r#"{"emitters": [{"centre": [0,0,0], "extent": [1,1,1], "points": 3, "emission": [1,1,1], "bounds": [[0,0,0], [1,-1,1]]}]}"#;
+        std::fs::write(&p, s).unwrap();
+        let e = EmitterTable::read_json(&p).unwrap_err();
+        assert!(e.is_bad_input() && e.to_string().contains("emitters[0].bounds"), "{e}");
+    }
+
+    #[test]
+    fn unseen_surface_emits_within_the_box_of_the_points() {
+        let t = table();
+        let margin = 0.08; // the box takes a quarter of it: 2 cm
+        let (lamp, window) = (&t.emitters[0], &t.emitters[1]);
+        // No box (an older file): anywhere.
+        assert!(lamp.may_hold_unseen(DVec3::new(9.0, 9.0, 9.0), margin));
+        assert!(window.may_hold_unseen(DVec3::new(3.0, 1.0, 0.0), margin));
+        assert!(window.may_hold_unseen(DVec3::new(3.065, 1.76, -0.765), margin));
+        // Beside the window in its own plane, inside its bounding sphere (radius 2.5): not it.
+        assert!(t.index(DVec3::new(3.0, 1.0, 1.0), 0.0) == Some(1));
+        assert!(!window.may_hold_unseen(DVec3::new(3.0, 1.0, 1.0), margin));
+        assert!(!window.may_hold_unseen(DVec3::new(3.1, 1.0, 0.0), margin));
     }
 
     #[test]

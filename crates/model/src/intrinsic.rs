@@ -532,10 +532,21 @@ impl<'a> FrozenScene<'a> {
             prob[j] = p;
         }
         for (((&i, p), k), x) in idx.iter().zip(&prob).zip(cluster).zip(&points) {
-            if *p > self.emitter_threshold || self.observed.as_ref().is_some_and(|o| !o.observed(*x)) {
+            if self.emits(k as usize, *p, *x, self.observed.as_deref()) {
                 out[i].as_mut().unwrap().emitter = Some(k);
             }
         }
+    }
+
+    /// Whether a surface point `x` within emitter `k`'s index is that emitter: F_e (`p`) above
+    /// the threshold, or, where stage 2 labels the unobserved surface (`observed` given), no
+    /// training camera sees it and it lies in the box of the emitter's points
+    /// ([`crate::emitters::Emitter::may_hold_unseen`]).
+    pub fn emits(&self, k: usize, p: f32, x: Vec3, observed: Option<&ObservedViews>) -> bool {
+        p > self.emitter_threshold
+            || observed.is_some_and(|o| {
+                self.emitters.emitters[k].may_hold_unseen(x.as_dvec3(), self.index_margin) && !o.observed(x)
+            })
     }
 
     /// Each emitter with a fitted sphere ([`crate::emitters::Emitter::sphere`]: a bulb seen from

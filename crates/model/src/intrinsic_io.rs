@@ -170,6 +170,7 @@ mod tests {
             radius: 0.4,
             points: 10,
             sphere: None,
+            bounds: None,
         };
         let fields = IntrinsicFields {
             material: MaterialField::new(&config, 8, 3),

@@ -60,6 +60,7 @@ fn table(s: &NeuralScene) -> EmitterTable {
             radius: 0.5,
             points: 10,
             sphere: None,
+            bounds: None,
         }],
         &[[4.0, 3.0, 2.0]],
     )
@@ -545,6 +546,7 @@ fn a_fitted_bulb_is_its_sphere() {
                 radius: 0.2,
                 points: 10,
                 sphere,
+                bounds: None,
             }],
             &[[4.0, 3.0, 2.0]],
         )

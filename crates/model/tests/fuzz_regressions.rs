@@ -103,6 +103,7 @@ fn stage2_metadata_describing_a_grid_the_file_lacks_is_refused() {
         radius: 0.1,
         points: 1,
         sphere: None,
+        bounds: None,
     };
     let fields = IntrinsicFields {
         material: MaterialField::new(&material, 3, 0),

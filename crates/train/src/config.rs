@@ -133,10 +133,11 @@ pub struct Stage2Config {
     pub specular_bake: bool,
     /// Shade training pixels with the dataset's normal maps where it has them (else the SDF's).
     pub input_normals: bool,
-    /// Hits inside an emitter's sphere that no training camera saw are that emitter (F_e was
-    /// never trained there: the far side of a bulb), whatever F_e says. Off by default: on the
-    /// default room it raised Kd by 0.1 dB but cost the re-render 0.9 dB (the recovered bulb's
-    /// unseen side is larger than the real one, and then emits).
+    /// Hits within the box of an emitter's points that no training camera saw are that emitter
+    /// (F_e was never trained there: the unseen part of a ceiling panel), whatever F_e says; a
+    /// fitted bulb is its sphere either way. Off by default: with the bounding sphere instead of
+    /// the box it completed seed 1's panel (Kd +2.8 dB raw) but overreached onto unseen ceiling
+    /// and cost the default room 0.9 dB of re-render (results.md, tenth session).
     pub label_unobserved: bool,
     /// An emitter whose points lie on a sphere (a bulb seen from one side) is that sphere,
     /// emitting all round, wherever a ray meets it: in stage 2's fit, the re-render, the relit

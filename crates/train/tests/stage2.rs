@@ -83,6 +83,7 @@ fn cached_and_live_estimators_agree() {
             radius: 0.2,
             points: 100,
             sphere: None,
+            bounds: None,
         }],
         &[[6.0, 5.0, 4.0]],
     );

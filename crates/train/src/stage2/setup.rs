@@ -195,6 +195,16 @@ pub(super) fn cluster_new_emitters(
                     let w = to_world([f[0], f[1], f[2]]);
                     [w[0], w[1], w[2], f[3] * s]
                 }),
+            bounds: c.members.first().map(|&m0| {
+                let first = to_world(points.positions[m0]);
+                c.members.iter().fold([first, first], |[lo, hi], &m| {
+                    let w = to_world(points.positions[m]);
+                    [
+                        std::array::from_fn(|a| lo[a].min(w[a])),
+                        std::array::from_fn(|a| hi[a].max(w[a])),
+                    ]
+                })
+            }),
         })
         .collect();
     for (k, e) in list.iter().enumerate() {
@@ -503,6 +513,7 @@ fn triangulate_missed_lights(
                 radius: r,
                 points: n,
                 sphere: Some([c.x, c.y, c.z, r]),
+                bounds: Some([(c - r).to_array(), (c + r).to_array()]),
             };
             (emitter, sum.map(|s| ((s / n.max(1) as f64) as f32).max(1e-3)))
         })
@@ -770,6 +781,7 @@ mod tests {
                 radius: 0.1,
                 points: 1,
                 sphere: None,
+                bounds: None,
             }],
             &[[1.0; 3]],
         );
@@ -803,6 +815,7 @@ mod tests {
                 radius: 0.1,
                 points: 1,
                 sphere: Some([0.0, 0.0, 1.1, 0.1]),
+                bounds: None,
             }],
             &[[1.0; 3]],
         );
