@@ -224,42 +224,28 @@ impl EmitterTable {
                     .filter(|r| r.is_finite() && *r >= 0.0)
                     .ok_or_else(|| DataError::field(path, key("radius"), "must be a finite non-negative number"))?,
             };
-            let sphere = match entry.get("sphere") {
-                None | Some(Value::Null) => None,
-                Some(v) => Some(
-                    v.as_array()
-                        .filter(|a| a.len() == 4)
-                        .and_then(|a| {
-                            let s: Vec<f64> = a.iter().filter_map(Value::as_f64).filter(|x| x.is_finite()).collect();
-                            (s.len() == 4 && s[3] >= 0.0).then(|| [s[0], s[1], s[2], s[3]])
-                        })
-                        .ok_or_else(|| {
-                            DataError::field(path, key("sphere"), "must be 4 finite numbers [x, y, z, r], r ≥ 0")
-                        })?,
-                ),
+            // An optional key: absent or null is None; else `parse` of its list, or the error.
+            let optional = |k: &str, what: &str, parse: &dyn Fn(&[Value]) -> Option<Vec<f64>>| match entry.get(k) {
+                None | Some(Value::Null) => Ok(None),
+                Some(v) => v
+                    .as_array()
+                    .and_then(|a| parse(a))
+                    .map(Some)
+                    .ok_or_else(|| DataError::field(path, key(k), what)),
             };
-            let bounds = match entry.get("bounds") {
-                None | Some(Value::Null) => None,
-                Some(v) => Some(
-                    v.as_array()
-                        .filter(|a| a.len() == 2)
-                        .and_then(|a| {
-                            let corner = |c: &Value| -> Option<[f64; 3]> {
-                                let c: Vec<f64> = c.as_array()?.iter().filter_map(Value::as_f64).collect();
-                                (c.len() == 3 && c.iter().all(|x| x.is_finite())).then(|| [c[0], c[1], c[2]])
-                            };
-                            let (lo, hi) = (corner(&a[0])?, corner(&a[1])?);
-                            (0..3).all(|i| lo[i] <= hi[i]).then_some([lo, hi])
-                        })
-                        .ok_or_else(|| {
-                            DataError::field(
-                                path,
-                                key("bounds"),
-                                "must be [[x, y, z], [x, y, z]], min ≤ max per axis",
-                            )
-                        })?,
-                ),
-            };
+            let numbers =
+                |a: &[Value]| -> Option<Vec<f64>> { a.iter().map(|x| x.as_f64().filter(|x| x.is_finite())).collect() };
+            let sphere = optional("sphere", "must be 4 finite numbers [x, y, z, r], r ≥ 0", &|a| {
+                numbers(a).filter(|s| s.len() == 4 && s[3] >= 0.0)
+            })?
+            .map(|s| [s[0], s[1], s[2], s[3]]);
+            let bounds = optional("bounds", "must be [[x, y, z], [x, y, z]], min ≤ max per axis", &|a| {
+                let corners: Vec<Vec<f64>> = a.iter().map(|c| numbers(c.as_array()?)).collect::<Option<_>>()?;
+                let ok = corners.len() == 2 && corners.iter().all(|c| c.len() == 3);
+                ok.then(|| corners.concat())
+                    .filter(|c| (0..3).all(|i| c[i] <= c[i + 3]))
+            })?
+            .map(|c| [[c[0], c[1], c[2]], [c[3], c[4], c[5]]]);
             emitters.push(Emitter {
                 centre,
                 extent,
