@@ -22,6 +22,7 @@
 //! (docs/results.md, "Stage 2: emitters and materials"); F_c is display-referred (trained on LDR pixels), so its
 //! values are linearized by the dataset's transfer ([`Radiometry`]).
 
+pub use crate::baked_surface::BakedSurface;
 use crate::emitters::EmitterTable;
 use crate::emitters::{on_recovered_bulb, BULB_CLEARANCE};
 use crate::material_field::{
@@ -32,12 +33,11 @@ use crate::query::SceneQuery;
 use crate::raycast::{CastSettings, Hit as CastHit, SdfCaster, CAST_CHUNK};
 use crate::renderer::sphere_exit;
 use crate::scene::NeuralScene;
-use crate::sdf_mesh::{extract_mesh, voxel_size};
 use crate::shading_normals::SmoothedNormals;
 use glam::{DVec3, Vec3};
 use i2sdf_data::{Bounds, Camera, DataError, Radiometry};
 use i2sdf_render::{
-    render_view, Bvh, ConeLight, Estimator, Geometry, GgxBrdf, Hit as RenderHit, Integrator, Light, LightSet, Material,
+    render_view, ConeLight, Estimator, Geometry, GgxBrdf, Hit as RenderHit, Integrator, Light, LightSet, Material,
     RadianceField, Ray, Scene, SurfacePoint, ViewRender, ViewSettings,
 };
 use rayon::prelude::*;
@@ -86,73 +86,6 @@ pub struct FrozenScene<'a> {
     /// thousands of small queries, and allocating, zeroing and transposing for each were about a
     /// tenth of its CPU samples in `perf` (the wall time moved by less than the runs' spread).
     queries: Mutex<Vec<SceneQuery<'a>>>,
-}
-
-/// The marching-cubes mesh of the frozen SDF in a BVH, world units.
-pub struct BakedSurface {
-    bvh: Bvh,
-    /// The grid step (world units): the Newton step's clamp and the largest |d| at a BVH hit
-    /// that is accepted as lying on the zero level set.
-    voxel: f32,
-    /// Where the run shades with smoothed normals (a dataset without normal maps,
-    /// `stage2.normal_smoothing_radius`): the field and the mesh's vertex normals smoothed.
-    shading: Option<BakedShading>,
-}
-
-/// The smoothed shading normals of a baked surface ([`SmoothedNormals`] over its vertices):
-/// a BVH hit's normal is its triangle's smoothed vertex normals interpolated.
-struct BakedShading {
-    field: SmoothedNormals,
-    faces: Vec<[u32; 3]>,
-    vertex_normals: Vec<Vec3>,
-}
-
-impl BakedSurface {
-    /// The marching-cubes mesh of `scene`'s SDF over `bounds` (world units, padded by
-    /// [`PAD_FRACTION`](crate::sdf_mesh::PAD_FRACTION)) at `resolution` samples along the
-    /// longest side, in a BVH ([`FrozenScene::bake`]).
-    ///
-    /// Not simplified, unlike the edit renderer's surface: simplified by a tenth of a voxel
-    /// (493k faces → 76k), the default room's test-view re-render took as long (41.2 s against
-    /// 40.6 s; its time is in the network queries) and lost 0.03 dB.
-    ///
-    /// With `normal_smoothing` > 0 (world units) the hits' shading normals are the SDF's
-    /// averaged over that radius ([`SmoothedNormals`] over the mesh's vertices, their normals
-    /// the SDF's gradient there).
-    pub fn new(
-        scene: &NeuralScene,
-        bounds: &Bounds,
-        resolution: usize,
-        normal_smoothing: f32,
-    ) -> Result<Self, DataError> {
-        let mesh = extract_mesh(scene, bounds, resolution)?;
-        let voxel = voxel_size(scene, bounds, resolution)?;
-        let shading = (normal_smoothing > 0.0 && !mesh.faces.is_empty()).then(|| {
-            let vertices: Vec<Vec3> = mesh.positions.iter().map(|p| Vec3::from(*p)).collect();
-            let none = EmitterTable::new(Vec::new(), &[]);
-            let normals = FrozenScene::new(scene, &none, Radiometry::default())
-                .sdf_gradient(&vertices)
-                .into_iter()
-                .map(|(_, g)| g.normalize_or_zero())
-                .collect();
-            let field = SmoothedNormals::new(&vertices, normals, normal_smoothing);
-            BakedShading {
-                vertex_normals: field.at_samples(),
-                field,
-                faces: mesh.faces.clone(),
-            }
-        });
-        Ok(BakedSurface {
-            bvh: Bvh::build(&mesh),
-            voxel,
-            shading,
-        })
-    }
-
-    /// The smoothed shading normals of this surface, where it has them.
-    pub fn smoothed_normals(&self) -> Option<&SmoothedNormals> {
-        self.shading.as_ref().map(|s| &s.field)
-    }
 }
 
 /// Points per block of the labelling and field queries (parallel tasks over blocks).

@@ -8,6 +8,7 @@
 //! caster of the trained SDF ([`raycast`]), marching cubes ([`marching_cubes()`]) and the mesh of
 //! the SDF's zero level set ([`sdf_mesh`]).
 
+pub mod baked_surface;
 pub mod config;
 pub mod emitters;
 pub mod images;
