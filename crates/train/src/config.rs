@@ -135,9 +135,11 @@ pub struct Stage2Config {
     pub input_normals: bool,
     /// Hits within the box of an emitter's points that no training camera saw are that emitter
     /// (F_e was never trained there: the unseen part of a ceiling panel), whatever F_e says; a
-    /// fitted bulb is its sphere either way. Off by default: with the bounding sphere instead of
-    /// the box it completed seed 1's panel (Kd +2.8 dB raw) but overreached onto unseen ceiling
-    /// and cost the default room 0.9 dB of re-render (results.md, tenth session).
+    /// fitted bulb is its sphere either way. On seed 1 it completes the ceiling panel (Kd +2.0 dB
+    /// raw, the relit sets +0.7 dB); no room or capture measured lost more than 0.1 dB of any image
+    /// figure, though seed 1's capture's ceiling L went ×0.96 → ×0.84 (docs/results.md, eleventh
+    /// session). With the emitter's bounding sphere instead of its box it overreached onto
+    /// unseen ceiling.
     pub label_unobserved: bool,
     /// An emitter whose points lie on a sphere (a bulb seen from one side) is that sphere,
     /// emitting all round, wherever a ray meets it: in stage 2's fit, the re-render, the relit
@@ -231,7 +233,7 @@ impl Default for Stage2Config {
             irradiance_radius: 0.024,
             normal_smoothing_radius: 0.03,
             input_normals: true,
-            label_unobserved: false,
+            label_unobserved: true,
             fit_bulbs: true,
             size_bulbs_by_masks: true,
             triangulate_emitters: true,
