@@ -766,6 +766,18 @@ fn a_paper_format_scene_is_evaluated_with_every_figure_filled() {
     filled("material", &["albedo_psnr", "albedo_psnr_scaled", "roughness_l1"]);
     filled("rerender", &["psnr", "ssim"]);
     filled("novel_view", &["psnr", "ssim"]);
+    // The re-render scored denoised: a figure, and not the raw one.
+    let denoised = dir.path().join("denoised.json");
+    let o = i2sdf(&eval_args(
+        &run,
+        &data,
+        &denoised,
+        &["--mesh-resolution", "32", "--spp", "2", "--denoise"],
+    ));
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    let d: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(denoised).unwrap()).unwrap();
+    let psnr = d["rerender"]["psnr"].as_f64().expect("a denoised re-render PSNR");
+    assert_ne!(Some(psnr), m["rerender"]["psnr"].as_f64());
     // A triangle mesh in world units is scored too: the run's own, put into the dataset by hand
     // (no command writes into a dataset).
     let ply = dir.path().join("gt.ply");

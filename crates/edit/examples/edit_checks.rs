@@ -54,6 +54,7 @@ fn main() {
         spp,
         bounces: 8,
         seed: 0,
+        denoise: None,
     };
     let assets = Default::default();
     let render = |text: &str| {
@@ -218,6 +219,7 @@ fn main() {
         spp: 64,
         bounces: 3,
         seed: 1,
+        denoise: None,
     };
     let ed = rec.edited(&EditSpec::default(), &assets);
     let t = Instant::now();

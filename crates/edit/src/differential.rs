@@ -196,6 +196,7 @@ mod tests {
             height: 1,
             emitters: 1,
             radiance: radiance.iter().map(|&r| Vec3::splat(r)).collect(),
+            variance: vec![0.0; 2],
             depth: vec![1.0, 2.0],
             normal: vec![Vec3::Z; 2],
             emitter_mask: vec![false; 2],

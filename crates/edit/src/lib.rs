@@ -17,4 +17,6 @@ pub use apply::{edited_scene, light_gains};
 pub mod differential;
 pub use differential::{composite_hdr, hdr_ldr_images, Composite};
 pub mod renderer;
+/// The renders' denoiser, for the edit and eval settings that take one.
+pub use i2sdf_render::Denoiser;
 pub use renderer::EditRenderer;

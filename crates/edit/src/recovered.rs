@@ -24,7 +24,7 @@ use i2sdf_model::{
     emitter_cone_lights, extract_mesh, EmitterTable, FrozenScene, MaterialField, NeuralMaterial, NeuralScene, OpenedRun,
 };
 use i2sdf_render::{
-    AreaLight, Estimator, Integrator, Light, MeshGeometry, PathStart, SphereLight, ViewRender, ViewSettings,
+    AreaLight, Denoiser, Estimator, Integrator, Light, MeshGeometry, PathStart, SphereLight, ViewRender, ViewSettings,
 };
 
 /// The frozen SDF's zero level set as the edit renderer's base geometry: the marching-cubes mesh
@@ -219,6 +219,9 @@ pub struct EditSettings {
     /// Most scattering events per path (Russian roulette from the third).
     pub bounces: u32,
     pub seed: u64,
+    /// Denoise each render (every emitter's slot apart, so relighting stays exact):
+    /// [`i2sdf_render::denoise`].
+    pub denoise: Option<Denoiser>,
 }
 
 impl Default for EditSettings {
@@ -227,6 +230,7 @@ impl Default for EditSettings {
             spp: 64,
             bounces: 8,
             seed: 0,
+            denoise: None,
         }
     }
 }
@@ -333,14 +337,18 @@ impl<'a> RecoveredScene<'a> {
         on_row: &(dyn Fn() + Sync),
     ) -> ViewRender {
         let nm = NeuralMaterial::new(self.material, &self.frozen);
-        edited.render(
+        let mut render = edited.render(
             &self.surface.geometry,
             &nm,
             None,
             camera,
             &settings.view_settings(view),
             on_row,
-        )
+        );
+        if let Some(denoiser) = &settings.denoise {
+            denoiser.apply(&mut render);
+        }
+        render
     }
 }
 

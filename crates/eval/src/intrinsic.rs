@@ -21,11 +21,17 @@ pub struct IntrinsicOptions {
     /// Paths per pixel of the re-render.
     pub spp: u32,
     pub seed: u64,
+    /// Denoise the re-render before scoring it ([`i2sdf_render::denoise`]).
+    pub denoise: Option<i2sdf_render::Denoiser>,
 }
 
 impl Default for IntrinsicOptions {
     fn default() -> Self {
-        IntrinsicOptions { spp: 64, seed: 0 }
+        IntrinsicOptions {
+            spp: 64,
+            seed: 0,
+            denoise: None,
+        }
     }
 }
 
@@ -243,7 +249,7 @@ pub fn intrinsic_metrics_with_progress(
                 check_dims(f, what, m, ch)?;
             }
         }
-        let v = rerender_view(
+        let mut v = rerender_view(
             frozen,
             &fields.material,
             &f.camera,
@@ -252,6 +258,9 @@ pub fn intrinsic_metrics_with_progress(
             view as u32,
             on_row,
         );
+        if let Some(d) = &options.denoise {
+            d.apply(&mut v);
+        }
         let ldr = rerender_ldr(&v, &fields.radiometry);
         let pred = ImageRef::new(&ldr.data, w, h, 3)?;
         let gt = ImageRef::new(&f.rgb.data, w, h, 3)?;

@@ -4,6 +4,7 @@
 //! the ground-truth maps of the pixel-centre ray (depth, normal, emitter mask, Kd, Ks, ρ).
 
 use crate::brdf::GgxBrdf;
+use crate::color::luminance;
 use crate::geometry::{Hit, Ray};
 use crate::integrator::{BounceUniforms, Integrator, PathStart, Scene, STRATIFIED_BOUNCES};
 use crate::material::SurfacePoint;
@@ -37,6 +38,10 @@ pub struct ViewRender {
     pub height: usize,
     pub emitters: usize,
     pub radiance: Vec<Vec3>,
+    /// Per pixel and slot, as `radiance`: the variance of the luminance of the pixel's mean,
+    /// estimated from its paths (s²/n; an overestimate under the stratified sampling), which
+    /// steers the denoiser ([`crate::denoise`]).
+    pub variance: Vec<f32>,
     pub depth: Vec<f32>,
     pub normal: Vec<Vec3>,
     pub emitter_mask: Vec<bool>,
@@ -123,8 +128,15 @@ pub fn render_view(scene: &Scene, cam: &Camera, settings: &ViewSettings, on_row:
                 for x in x0..x1 {
                     let first = (x - x0) * spp as usize;
                     for k in 0..ne {
-                        let sum: Vec3 = (first..first + spp as usize).map(|p| radiance[p * ne + k]).sum();
-                        row.radiance[x * ne + k] = sum / spp as f32;
+                        let paths = (first..first + spp as usize).map(|p| radiance[p * ne + k]);
+                        let sum: Vec3 = paths.clone().sum();
+                        let mean = sum / spp as f32;
+                        row.radiance[x * ne + k] = mean;
+                        if spp > 1 {
+                            let (l, n) = (luminance(mean), spp as f32);
+                            let ss: f32 = paths.map(|c| (luminance(c) - l).powi(2)).sum();
+                            row.variance[x * ne + k] = ss / (n - 1.0) / n;
+                        }
                     }
                 }
             }
@@ -138,6 +150,7 @@ pub fn render_view(scene: &Scene, cam: &Camera, settings: &ViewSettings, on_row:
         height: h,
         emitters: ne,
         radiance: Vec::with_capacity(w * h * ne),
+        variance: Vec::with_capacity(w * h * ne),
         depth: Vec::with_capacity(w * h),
         normal: Vec::with_capacity(w * h),
         emitter_mask: Vec::with_capacity(w * h),
@@ -147,6 +160,7 @@ pub fn render_view(scene: &Scene, cam: &Camera, settings: &ViewSettings, on_row:
     };
     for r in rows {
         out.radiance.extend(r.radiance);
+        out.variance.extend(r.variance);
         out.depth.extend(r.depth);
         out.normal.extend(r.normal);
         out.emitter_mask.extend(r.emitter_mask);
@@ -231,6 +245,7 @@ fn shuffle<T>(v: &mut [T], rng: &mut Pcg32) {
 
 struct RowBuffers {
     radiance: Vec<Vec3>,
+    variance: Vec<f32>,
     depth: Vec<f32>,
     normal: Vec<Vec3>,
     emitter_mask: Vec<bool>,
@@ -243,6 +258,7 @@ impl RowBuffers {
     fn new(w: usize, ne: usize) -> Self {
         RowBuffers {
             radiance: vec![Vec3::ZERO; w * ne],
+            variance: vec![0.0; w * ne],
             depth: vec![0.0; w],
             normal: vec![Vec3::ZERO; w],
             emitter_mask: vec![false; w],

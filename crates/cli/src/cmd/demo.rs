@@ -241,6 +241,7 @@ fn outputs(args: &Args, plan: &mut StagePlan, scene: &Path, run_dir: &Path) -> a
         threshold: 0.05,
         spp: if args.quick { 16 } else { 64 },
         bounces: if args.quick { 4 } else { 8 },
+        denoise: false,
         // No LPIPS weights ship: without --lpips-weights the metrics note that LPIPS is null.
         lpips_weights: args.lpips_weights.clone(),
         // The test views only: the training views' figures (`--split both`) take another
@@ -265,6 +266,7 @@ fn outputs(args: &Args, plan: &mut StagePlan, scene: &Path, run_dir: &Path) -> a
             view: Some(0),
             spp: if args.quick { 16 } else { 64 },
             bounces: if args.quick { 4 } else { 8 },
+            denoise: false,
             width: None,
             height: None,
             seed: 0,

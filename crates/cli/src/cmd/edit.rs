@@ -12,7 +12,7 @@ use clap::Args as ClapArgs;
 use i2sdf_data::edit_spec::EditOp;
 use i2sdf_data::edit_spec::EditSpec;
 use i2sdf_data::{imageio, Camera, DataError, ImageF32, Split};
-use i2sdf_edit::{Composite, EditRenderer, EditSettings, RecoveredScene};
+use i2sdf_edit::{Composite, Denoiser, EditRenderer, EditSettings, RecoveredScene};
 use std::path::PathBuf;
 
 #[derive(ClapArgs)]
@@ -41,6 +41,10 @@ pub struct Args {
     /// Most scattering events per path (Russian roulette from the third).
     #[arg(long, default_value_t = EditSettings::default().bounces)]
     pub bounces: u32,
+    /// Denoise each render (an edge-avoiding à-trous filter guided by normal, depth, reflectance
+    /// and the paths' variance, each emitter's light apart so that relighting stays exact).
+    #[arg(long)]
+    pub denoise: bool,
     /// Output width in pixels (with --height; the intrinsics are scaled to it).
     #[arg(long)]
     pub width: Option<usize>,
@@ -218,6 +222,7 @@ fn render_shots(
         spp: args.spp,
         bounces: args.bounces,
         seed: args.seed,
+        denoise: args.denoise.then(Denoiser::default),
     };
     let rows: usize = shots.iter().map(|(_, c, _)| c.height).sum();
     let bar = crate::progress::Step::new(

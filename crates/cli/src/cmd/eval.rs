@@ -12,7 +12,7 @@
 
 use clap::Args as ClapArgs;
 use i2sdf_data::{imageio, Split};
-use i2sdf_edit::{EditSettings, RecoveredScene};
+use i2sdf_edit::{Denoiser, EditSettings, RecoveredScene};
 use i2sdf_eval::intrinsic::{intrinsic_metrics_with_progress, IntrinsicOptions};
 use i2sdf_eval::neural::{evaluate_keeping_test_images, EvalOptions, ViewSplits};
 use i2sdf_eval::progress::EvalProgress;
@@ -63,6 +63,11 @@ pub struct Args {
     /// Most scattering events per path of the relit sets' renders (the edit renderer's).
     #[arg(long, default_value_t = EditSettings::default().bounces)]
     pub bounces: u32,
+    /// Denoise the re-render and the relit sets' renders before scoring them (an edge-avoiding
+    /// à-trous filter guided by normal, depth, reflectance and the paths' variance, each
+    /// emitter's light apart).
+    #[arg(long)]
+    pub denoise: bool,
     /// LPIPS (AlexNet, v0.1) weights as safetensors (scripts/lpips_weights.py) for
     /// novel_view.lpips; without them it is null.
     #[arg(long, value_name = "FILE.safetensors")]
@@ -189,6 +194,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let (Some(fields), Some(frozen)) = (&run.fields, frozen) {
         let intrinsic = IntrinsicOptions {
             spp: args.spp,
+            denoise: args.denoise.then(Denoiser::default),
             ..Default::default()
         };
         let relight = RelightOptions {
@@ -196,6 +202,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 spp: args.spp,
                 bounces: args.bounces,
                 seed: 0,
+                denoise: args.denoise.then(Denoiser::default),
             },
             // The recovered surface the sets are traced in: the edit renderer's, or coarser when
             // the mesh is (a report at the same settings then shows the same renders).
