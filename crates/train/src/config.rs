@@ -85,6 +85,12 @@ pub enum Normals {
 pub struct MapsConfig {
     pub emitter_masks: EmitterMasks,
     pub normals: Normals,
+    /// Distance (metres) at which the depth maps' noise has doubled from its value up close; 0
+    /// weighs every depth sample alike. Stage 1's depth, bubble and inside terms weigh a sample
+    /// at distance z along its ray by 1 / (1 + (z / d)²), normalized to a mean of 1 over each
+    /// batch: the L1 likelihood of a sensor whose noise grows as σ₀ (1 + (z / d)²), as
+    /// triangulating sensors' does (the paper's σ(z) = 0.0029 z² + 0.0033 m has d = 1.07 m).
+    pub depth_noise_distance: f32,
 }
 
 /// Which Monte Carlo estimator of eq:render stage 2 fits the materials with.
@@ -554,6 +560,7 @@ impl TrainConfig {
         }
         int("sampling.occupancy_every", s.occupancy_every as usize, 1, 1_000_000)?;
         real("sampling.occupancy_margin", s.occupancy_margin, 0.0, 100.0)?;
+        real("maps.depth_noise_distance", self.maps.depth_noise_distance, 0.0, 1e3)?;
         let l = &self.loss;
         for (key, v) in [
             ("loss.rgb", l.rgb),

@@ -18,8 +18,17 @@ pub fn rgb_l1(pred: &[[f32; 3]], target: &[[f32; 3]], w: f32, grad: &mut [[f32; 
     (loss / n as f64) as f32
 }
 
-/// L_depth = mean over rays with depth of |D̂ − D| (eq. "depth"). `valid` masks rays with depth.
-pub fn depth_l1(pred: &[f32], target: &[f32], valid: &[bool], w: f32, grad: &mut [f32]) -> f32 {
+/// L_depth = mean over rays with depth of |D̂ − D| (eq. "depth"), each ray's term times its
+/// `weights` entry where given (the sensor's noise model, `maps.depth_noise_distance`; the
+/// caller makes them average 1). `valid` masks rays with depth.
+pub fn depth_l1(
+    pred: &[f32],
+    target: &[f32],
+    valid: &[bool],
+    weights: Option<&[f32]>,
+    w: f32,
+    grad: &mut [f32],
+) -> f32 {
     let n = valid.iter().filter(|v| **v).count();
     if n == 0 {
         return 0.0;
@@ -27,9 +36,9 @@ pub fn depth_l1(pred: &[f32], target: &[f32], valid: &[bool], w: f32, grad: &mut
     let mut loss = 0.0f64;
     for i in 0..pred.len() {
         if valid[i] {
-            let d = pred[i] - target[i];
-            loss += d.abs() as f64;
-            grad[i] += w * d.signum() / n as f32;
+            let (d, k) = (pred[i] - target[i], weights.map_or(1.0, |v| v[i]));
+            loss += (k * d.abs()) as f64;
+            grad[i] += w * k * d.signum() / n as f32;
         }
     }
     (loss / n as f64) as f32
@@ -115,12 +124,13 @@ pub fn smoothness(a: &[[f32; 3]], b: &[[f32; 3]], w: f32, grad_a: &mut [[f32; 3]
 
 /// L_bubble = mean over bubble points of |d(x)| (eq:bubble: surface points from depth must lie on the
 /// zero level set).
-pub fn bubble(sdf: &[f32], w: f32, grad: &mut [f32]) -> f32 {
+pub fn bubble(sdf: &[f32], weights: Option<&[f32]>, w: f32, grad: &mut [f32]) -> f32 {
     let n = sdf.len().max(1) as f32;
     let mut loss = 0.0f64;
-    for (d, g) in sdf.iter().zip(grad.iter_mut()) {
-        loss += d.abs() as f64;
-        *g += w * d.signum() / n;
+    for (i, (d, g)) in sdf.iter().zip(grad.iter_mut()).enumerate() {
+        let k = weights.map_or(1.0, |v| v[i]);
+        loss += (k * d.abs()) as f64;
+        *g += w * k * d.signum() / n;
     }
     (loss / n as f64) as f32
 }
@@ -131,16 +141,29 @@ pub fn bubble(sdf: &[f32], w: f32, grad: &mut [f32]) -> f32 {
 /// negative. eq:bubble only pins |d| = 0 on the surface, which a ridge of small positive d also
 /// satisfies: that is what a 1–2 px lamp pole becomes (semi-transparent in volume rendering, no
 /// zero crossing for marching cubes), as its partly covered pixels favour.
-pub fn inside(sdf: &[f32], w: f32, grad: &mut [f32]) -> f32 {
+pub fn inside(sdf: &[f32], weights: Option<&[f32]>, w: f32, grad: &mut [f32]) -> f32 {
     let n = sdf.len().max(1) as f32;
     let mut loss = 0.0f64;
-    for (d, g) in sdf.iter().zip(grad.iter_mut()) {
+    for (i, (d, g)) in sdf.iter().zip(grad.iter_mut()).enumerate() {
         if *d > 0.0 {
-            loss += *d as f64;
-            *g += w / n;
+            let k = weights.map_or(1.0, |v| v[i]);
+            loss += (k * *d) as f64;
+            *g += w * k / n;
         }
     }
     (loss / n as f64) as f32
+}
+
+/// Per-sample weights of a sensor whose noise grows as σ₀ (1 + (z / d)²): 1 / (1 + (z / d)²)
+/// for each distance z (the L1 likelihood's 1 / σ up to a factor), scaled to average 1 so that a
+/// term's weight keeps its meaning. None where `d` is 0 (every sample alike).
+pub fn noise_weights(distances: impl Iterator<Item = f32>, d: f32) -> Option<Vec<f32>> {
+    if d <= 0.0 {
+        return None;
+    }
+    let w: Vec<f32> = distances.map(|z| 1.0 / (1.0 + (z / d).powi(2))).collect();
+    let mean = w.iter().sum::<f32>() / w.len().max(1) as f32;
+    (mean > 0.0).then(|| w.iter().map(|v| v / mean).collect())
 }
 
 #[cfg(test)]
@@ -155,6 +178,21 @@ mod tests {
     // Inputs are kept away from the kinks of |·| so central differences are exact enough.
     const P: [f32; 6] = [0.3, -0.7, 1.2, 0.9, 0.2, -0.4];
     const T: [f32; 6] = [0.1, 0.2, -0.3, 0.5, -0.6, 0.7];
+    /// Per-sample weights (`noise_weights`' kind).
+    const K: [f32; 6] = [1.6, 0.4, 1.0, 0.7, 1.9, 0.4];
+
+    /// The noise weights fall with distance as 1 / (1 + (z/d)²), average 1, and are off at d = 0.
+    #[test]
+    fn noise_weights_follow_the_sensor_model() {
+        let w = noise_weights([0.0, 1.0, 3.0].into_iter(), 1.0).unwrap();
+        let raw = [1.0, 0.5, 0.1];
+        let mean = raw.iter().sum::<f32>() / 3.0;
+        for (a, r) in w.iter().zip(raw) {
+            assert!((a - r / mean).abs() < 1e-6, "{w:?}");
+        }
+        assert!((w.iter().sum::<f32>() / 3.0 - 1.0).abs() < 1e-6);
+        assert!(noise_weights([1.0].into_iter(), 0.0).is_none());
+    }
 
     #[test]
     fn rgb_and_depth_gradients() {
@@ -165,11 +203,13 @@ mod tests {
         close(&g.concat(), &numeric(&f, &P), 1e-3);
 
         let valid = [true, false, true, true, true, false];
-        let f = |x: &[f32]| depth_l1(x, &T, &valid, 1.0, &mut [0.0; 6]);
-        let mut g = [0.0; 6];
-        depth_l1(&P, &T, &valid, 1.0, &mut g);
-        close(&g, &numeric(&f, &P), 1e-3);
-        assert_eq!(g[1], 0.0);
+        for weights in [None, Some(&K[..])] {
+            let f = |x: &[f32]| depth_l1(x, &T, &valid, weights, 1.0, &mut [0.0; 6]);
+            let mut g = [0.0; 6];
+            depth_l1(&P, &T, &valid, weights, 1.0, &mut g);
+            close(&g, &numeric(&f, &P), 1e-3);
+            assert_eq!(g[1], 0.0);
+        }
     }
 
     #[test]
@@ -211,16 +251,18 @@ mod tests {
         close(&ga.concat(), &numeric(&f, &P), 1e-3);
         close(&gb.concat(), &ga.concat().iter().map(|x| -x).collect::<Vec<_>>(), 1e-6);
 
-        let f = |x: &[f32]| bubble(x, 0.5, &mut [0.0; 6]);
-        let mut g = [0.0; 6];
-        bubble(&P, 0.5, &mut g);
-        close(&g.iter().map(|x| x / 0.5).collect::<Vec<_>>(), &numeric(&f, &P), 1e-3);
+        for weights in [None, Some(&K[..])] {
+            let f = |x: &[f32]| bubble(x, weights, 0.5, &mut [0.0; 6]);
+            let mut g = [0.0; 6];
+            bubble(&P, weights, 0.5, &mut g);
+            close(&g.iter().map(|x| x / 0.5).collect::<Vec<_>>(), &numeric(&f, &P), 1e-3);
 
-        let f = |x: &[f32]| inside(x, 0.5, &mut [0.0; 6]);
-        let mut g = [0.0; 6];
-        inside(&P, 0.5, &mut g);
-        close(&g.iter().map(|x| x / 0.5).collect::<Vec<_>>(), &numeric(&f, &P), 1e-3);
+            let f = |x: &[f32]| inside(x, weights, 0.5, &mut [0.0; 6]);
+            let mut g = [0.0; 6];
+            inside(&P, weights, 0.5, &mut g);
+            close(&g.iter().map(|x| x / 0.5).collect::<Vec<_>>(), &numeric(&f, &P), 1e-3);
+        }
         // Points already inside cost nothing.
-        assert_eq!(inside(&[-0.1, -2.0], 1.0, &mut [0.0; 2]), 0.0);
+        assert_eq!(inside(&[-0.1, -2.0], None, 1.0, &mut [0.0; 2]), 0.0);
     }
 }

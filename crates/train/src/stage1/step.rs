@@ -52,7 +52,7 @@ impl Stage1 {
         let t0 = std::time::Instant::now();
         self.refresh_occupancy();
         let rendered = self.rendered_surfaces(&w, rng);
-        let counts = self.draw_extra_points(&w, rendered.as_deref(), rng);
+        let (counts, point_depths) = self.draw_extra_points(&w, rendered.as_deref(), rng);
         if rendered.is_none() {
             self.place_samples(rng);
         }
@@ -75,7 +75,7 @@ impl Stage1 {
             ..Default::default()
         };
         let ray_grads = self.ray_losses(&w, &mut st);
-        let (mut d_sdf, mut d_grad) = self.point_losses(&w, counts, &mut st);
+        let (mut d_sdf, mut d_grad) = self.point_losses(&w, counts, &point_depths, &mut st);
         st.loss = w.rgb * st.rgb
             + w.depth * st.depth
             + w.normal * st.normal
@@ -210,8 +210,14 @@ impl Stage1 {
     /// Fills the extra-point buffer (see [`ExtraCounts`]): uniform points of the box for the
     /// eikonal term; bubble points on the surfaces (drawn from the PDF maps, or the rendered
     /// surfaces without depth) with, given depth, their inside points just behind; pairs x, x + ε
-    /// on the batch's surfaces for eq:smooth.
-    fn draw_extra_points(&mut self, w: &LossWeights, rendered: Option<&[Option<f32>]>, rng: &mut Pcg64) -> ExtraCounts {
+    /// on the batch's surfaces for eq:smooth. Also returns the depth (along its ray) of each
+    /// bubble point drawn from the depth maps, for their noise weights; empty otherwise.
+    fn draw_extra_points(
+        &mut self,
+        w: &LossWeights,
+        rendered: Option<&[Option<f32>]>,
+        rng: &mut Pcg64,
+    ) -> (ExtraCounts, Vec<f32>) {
         let mut extra = std::mem::take(&mut self.extra);
         extra.clear();
         let t = &self.config.train;
@@ -219,6 +225,7 @@ impl Stage1 {
             eikonal: t.eikonal_points,
             ..Default::default()
         };
+        let mut depths = Vec::new();
         for _ in 0..t.eikonal_points {
             let p: [f32; 3] = [
                 rng.gen_range(-1.0..1.0),
@@ -238,7 +245,7 @@ impl Stage1 {
                 counts.bubble += 1;
             }
         } else if w.bubble > 0.0 {
-            counts.bubble = self.draw_bubble_points(w, &mut extra, rng);
+            counts.bubble = self.draw_bubble_points(w, &mut extra, &mut depths, rng);
         }
         counts.inside = if w.inside > 0.0 && rendered.is_none() {
             counts.bubble
@@ -260,21 +267,29 @@ impl Stage1 {
             }
         }
         self.extra = extra;
-        counts
+        (counts, depths)
     }
 
     /// Bubble points drawn by the PDF maps (eq:bubble's error-guided sampling) on the pixels'
-    /// depth points, then (with `loss.inside`) a point [`INSIDE_DEPTH`] behind each. Returns how
-    /// many bubble points it added.
-    fn draw_bubble_points(&self, w: &LossWeights, extra: &mut Vec<f32>, rng: &mut Pcg64) -> usize {
+    /// depth points, then (with `loss.inside`) a point [`INSIDE_DEPTH`] behind each; each bubble
+    /// point's depth along its ray into `depths`. Returns how many bubble points it added.
+    fn draw_bubble_points(
+        &self,
+        w: &LossWeights,
+        extra: &mut Vec<f32>,
+        depths: &mut Vec<f32>,
+        rng: &mut Pcg64,
+    ) -> usize {
         let mut picks = Vec::new();
         if let Some(pdf) = &self.pdf {
             pdf.sample(self.config.train.bubble_points, rng, &mut picks);
         }
         let (mut n, pin) = (0, self.pin_points());
         for p in &picks {
-            if let Some(x) = self.images[p.image as usize].depth_point(p.pixel as usize, pin) {
+            let im = &self.images[p.image as usize];
+            if let Some(x) = im.depth_point(p.pixel as usize, pin) {
                 extra.extend_from_slice(&x);
+                depths.push(im.depth[p.pixel as usize]);
                 n += 1;
             }
         }
@@ -304,10 +319,27 @@ impl Stage1 {
             emitter: vec![0.0f32; rays],
         };
         st.rgb = losses::rgb_l1(&pred_rgb, &self.batch.rgb, w.rgb, &mut g.rgb);
+        let ray_weights = self
+            .noise_weights(
+                self.batch
+                    .depth
+                    .iter()
+                    .zip(&self.batch.has_depth)
+                    .filter(|(_, v)| **v)
+                    .map(|(t, _)| *t),
+            )
+            .map(|valid| {
+                let mut each = valid.into_iter();
+                let has = &self.batch.has_depth;
+                has.iter()
+                    .map(|v| if *v { each.next().unwrap_or(1.0) } else { 0.0 })
+                    .collect::<Vec<_>>()
+            });
         st.depth = losses::depth_l1(
             &out.depth,
             &self.batch.depth,
             &self.batch.has_depth,
+            ray_weights.as_deref(),
             w.depth,
             &mut g.depth,
         );
@@ -334,7 +366,13 @@ impl Stage1 {
     /// The losses on points into `st`: eikonal on every ray sample and the uniform points,
     /// bubble and inside on theirs, eq:smooth on the pairs. Returns their gradients with respect
     /// to each point's SDF value and spatial gradient (laid out as the renderer's workspace).
-    fn point_losses(&self, w: &LossWeights, counts: ExtraCounts, st: &mut StepStats) -> (Vec<f32>, Vec<[f32; 3]>) {
+    fn point_losses(
+        &self,
+        w: &LossWeights,
+        counts: ExtraCounts,
+        point_depths: &[f32],
+        st: &mut StepStats,
+    ) -> (Vec<f32>, Vec<[f32; 3]>) {
         let n_s = self.ws.n_samples;
         let n = self.ws.sdf.len();
         let mut d_sdf = vec![0.0f32; n];
@@ -350,12 +388,27 @@ impl Stage1 {
             st.eikonal = losses::eikonal(&grads3[..n_s + n_eik], w.eikonal, &mut d_grad[..n_s + n_eik]);
         }
         let b0 = n_s + n_eik;
+        // The bubble points from the depth maps, and the inside points behind the same picks.
+        let point_weights = (point_depths.len() == n_bub)
+            .then(|| self.noise_weights(point_depths.iter().copied()))
+            .flatten();
         if n_bub > 0 {
-            st.bubble = losses::bubble(&self.ws.sdf[b0..b0 + n_bub], w.bubble, &mut d_sdf[b0..b0 + n_bub]);
+            st.bubble = losses::bubble(
+                &self.ws.sdf[b0..b0 + n_bub],
+                point_weights.as_deref(),
+                w.bubble,
+                &mut d_sdf[b0..b0 + n_bub],
+            );
         }
         if n_in > 0 {
             let i0 = b0 + n_bub;
-            st.inside = losses::inside(&self.ws.sdf[i0..i0 + n_in], w.inside, &mut d_sdf[i0..i0 + n_in]);
+            let weights = point_weights.as_deref().filter(|v| v.len() == n_in);
+            st.inside = losses::inside(
+                &self.ws.sdf[i0..i0 + n_in],
+                weights,
+                w.inside,
+                &mut d_sdf[i0..i0 + n_in],
+            );
         }
         if n_smooth > 0 {
             let s0 = b0 + n_bub + n_in;
@@ -369,6 +422,13 @@ impl Stage1 {
             );
         }
         (d_sdf, d_grad)
+    }
+
+    /// `maps.depth_noise_distance`'s weights of depth samples at these distances along their
+    /// rays (normalized units), averaging 1; None when it is 0.
+    fn noise_weights(&self, depths: impl Iterator<Item = f32>) -> Option<Vec<f32>> {
+        let d = self.config.maps.depth_noise_distance / self.normalization.scale as f32;
+        losses::noise_weights(depths, d)
     }
 
     /// The PDF maps learn from this batch's depth errors (Sec. 4.1.2).
