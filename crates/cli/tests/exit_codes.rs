@@ -634,6 +634,19 @@ fn eval_scores_the_relit_sets() {
     assert!(r["sets"]["brighter"]["psnr_unedited"].is_number());
     assert!(r["sets"]["mirror"]["psnr_unedited"].is_null());
     assert_eq!(r["unedited"]["frames"], tests.len());
+    assert_eq!(r["settings"]["denoised"], false);
+    // Denoised: every set scored again, other figures, and the settings say so.
+    let denoised = dir.path().join("denoised.json");
+    let mut args = vec!["eval", "--run", s(run), "--data", s(&data), "--out", s(&denoised)];
+    args.extend_from_slice(&["--spp", "2", "--bounces", "2", "--mesh-resolution", "32", "--denoise"]);
+    let o = i2sdf(&args);
+    assert_eq!(o.code, 0, "{}", o.stderr);
+    let d: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&denoised).unwrap()).unwrap();
+    assert_eq!(d["relight"]["settings"]["denoised"], true);
+    for set in ["brighter", "mirror"] {
+        let (raw, den) = (&r["sets"][set]["psnr"], &d["relight"]["sets"][set]["psnr"]);
+        assert!(den.is_number() && den != raw, "{set}: {raw} → {den}");
+    }
 }
 
 /// `render --path` and `edit --path`: the path's frames, the looping GIF, and bad path
@@ -778,6 +791,11 @@ fn a_paper_format_scene_is_evaluated_with_every_figure_filled() {
     let d: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(denoised).unwrap()).unwrap();
     let psnr = d["rerender"]["psnr"].as_f64().expect("a denoised re-render PSNR");
     assert_ne!(Some(psnr), m["rerender"]["psnr"].as_f64());
+    // And the metrics say which they are.
+    assert_eq!(
+        (&d["rerender"]["denoised"], &m["rerender"]["denoised"]),
+        (&true.into(), &false.into())
+    );
     // A triangle mesh in world units is scored too: the run's own, put into the dataset by hand
     // (no command writes into a dataset).
     let ply = dir.path().join("gt.ply");

@@ -294,6 +294,7 @@ pub fn intrinsic_metrics_with_progress(
     let rerender = RerenderMetrics {
         psnr: mean(&p),
         ssim: mean(&s),
+        denoised: options.denoise.is_some(),
     };
     let emitters = emitter_metrics(&fields.emitters, &dataset.emitters, dataset.radiometry.exposure);
     Ok((rerender, acc.finish(), emitters))

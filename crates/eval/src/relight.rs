@@ -171,6 +171,7 @@ pub fn relight_metrics<'a>(
         bounces: options.render.bounces,
         seed: options.render.seed,
         mesh_resolution: options.mesh_resolution,
+        denoised: options.render.denoise.is_some(),
     });
     Ok(metrics)
 }

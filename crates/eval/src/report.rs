@@ -201,6 +201,9 @@ impl From<&MeshMetrics> for MeshReport {
 pub struct RerenderMetrics {
     pub psnr: Option<f64>,
     pub ssim: Option<f64>,
+    /// The re-render was denoised before it was scored (`eval --denoise`).
+    #[serde(default)]
+    pub denoised: bool,
 }
 
 /// Stage 2's material maps (from the pixel-centre rays of the test views) against the GT maps,
@@ -281,6 +284,9 @@ pub struct RelightSettings {
     pub bounces: u32,
     pub seed: u64,
     pub mesh_resolution: usize,
+    /// The renders were denoised before they were scored (`eval --denoise`).
+    #[serde(default)]
+    pub denoised: bool,
 }
 
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

@@ -393,6 +393,7 @@ fn relight_section(
         bounces: options.bounces,
         seed: settings.seed,
         mesh_resolution: options.mesh_resolution,
+        denoised: settings.denoise.is_some(),
     };
     if let Some(note) = input.metrics.and_then(|(_, m)| settings_note(m, &ours)) {
         page.body.push_str(&note);
@@ -600,19 +601,22 @@ fn emitters_section(assets: &mut Assets, input: &RunInputs, vertices: &[[f32; 3]
 /// each. With the same settings they are eval's own figures.
 fn settings_note(metrics: &Value, ours: &RelightSettings) -> Option<String> {
     let theirs: RelightSettings = serde_json::from_value(metrics.get("relight")?.get("settings")?.clone()).ok()?;
+    let denoised = |s: &RelightSettings| if s.denoised { ", denoised" } else { "" };
     (theirs != *ours).then(|| {
         format!(
             "<p class=\"muted\">Eval scored the relit sets at {} paths per pixel, {} bounces, seed {}, \
-             surface at {}³; this report renders at {}, {}, {}, {}³, so its captions differ from \
+             surface at {}³{}; this report renders at {}, {}, {}, {}³{}, so its captions differ from \
              the metrics' per-frame figures by the noise of each.</p>",
             theirs.spp,
             theirs.bounces,
             theirs.seed,
             theirs.mesh_resolution,
+            denoised(&theirs),
             ours.spp,
             ours.bounces,
             ours.seed,
-            ours.mesh_resolution
+            ours.mesh_resolution,
+            denoised(ours),
         )
     })
 }
