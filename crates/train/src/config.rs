@@ -90,9 +90,10 @@ pub struct MapsConfig {
     /// at distance z along its ray by 1 / (1 + (z / d)²), normalized to a mean of 1 over each
     /// batch: the L1 likelihood of a sensor whose noise grows as σ₀ (1 + (z / d)²), as
     /// triangulating sensors' does (the paper's σ(z) = 0.0029 z² + 0.0033 m has d = 1.07 m).
-    /// Off by default: on the phone captures it gained seed 0 (F 0.948 → 0.951 at d = 2, its
-    /// bulb built) and lost seed 1 (0.944 → 0.938–0.940): what only far samples see, the
-    /// bookshelf, loses recall (docs/results.md, eleventh session).
+    /// Off by default: on the phone captures at d = 2 it gained seeds 0 and 7 (F 0.948 → 0.951,
+    /// its bulb built; 0.922 → 0.955) and lost seed 1 (0.944 → 0.938): what only far samples
+    /// see, the bookshelf, loses recall. The exact rooms are not measured with it yet
+    /// (docs/results.md, eleventh session).
     pub depth_noise_distance: f32,
 }
 
