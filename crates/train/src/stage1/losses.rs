@@ -155,14 +155,19 @@ pub fn inside(sdf: &[f32], weights: Option<&[f32]>, w: f32, grad: &mut [f32]) ->
 }
 
 /// Per-sample weights of a sensor whose noise grows as σ₀ (1 + (z / d)²): 1 / (1 + (z / d)²)
-/// for each distance z (the L1 likelihood's 1 / σ up to a factor), scaled to average 1 so that a
-/// term's weight keeps its meaning. None where `d` is 0 (every sample alike).
-pub fn noise_weights(distances: impl Iterator<Item = f32>, d: f32) -> Option<Vec<f32>> {
+/// for each distance z (the L1 likelihood's 1 / σ up to a factor), scaled to average 1 over the
+/// samples `counted` marks (all without it) so that a term's weight keeps its meaning. None where
+/// `d` is 0 (every sample alike).
+pub fn noise_weights(distances: &[f32], counted: Option<&[bool]>, d: f32) -> Option<Vec<f32>> {
     if d <= 0.0 {
         return None;
     }
-    let w: Vec<f32> = distances.map(|z| 1.0 / (1.0 + (z / d).powi(2))).collect();
-    let mean = w.iter().sum::<f32>() / w.len().max(1) as f32;
+    let w: Vec<f32> = distances.iter().map(|z| 1.0 / (1.0 + (z / d).powi(2))).collect();
+    let counts = |i: usize| counted.is_none_or(|c| c[i]);
+    let (sum, n) = (0..w.len())
+        .filter(|&i| counts(i))
+        .fold((0.0f32, 0usize), |(s, n), i| (s + w[i], n + 1));
+    let mean = sum / n.max(1) as f32;
     (mean > 0.0).then(|| w.iter().map(|v| v / mean).collect())
 }
 
@@ -184,14 +189,14 @@ mod tests {
     /// The noise weights fall with distance as 1 / (1 + (z/d)²), average 1, and are off at d = 0.
     #[test]
     fn noise_weights_follow_the_sensor_model() {
-        let w = noise_weights([0.0, 1.0, 3.0].into_iter(), 1.0).unwrap();
+        let w = noise_weights(&[0.0, 1.0, 3.0], None, 1.0).unwrap();
         let raw = [1.0, 0.5, 0.1];
         let mean = raw.iter().sum::<f32>() / 3.0;
         for (a, r) in w.iter().zip(raw) {
             assert!((a - r / mean).abs() < 1e-6, "{w:?}");
         }
         assert!((w.iter().sum::<f32>() / 3.0 - 1.0).abs() < 1e-6);
-        assert!(noise_weights([1.0].into_iter(), 0.0).is_none());
+        assert!(noise_weights(&[1.0], None, 0.0).is_none());
     }
 
     #[test]

@@ -319,22 +319,8 @@ impl Stage1 {
             emitter: vec![0.0f32; rays],
         };
         st.rgb = losses::rgb_l1(&pred_rgb, &self.batch.rgb, w.rgb, &mut g.rgb);
-        let ray_weights = self
-            .noise_weights(
-                self.batch
-                    .depth
-                    .iter()
-                    .zip(&self.batch.has_depth)
-                    .filter(|(_, v)| **v)
-                    .map(|(t, _)| *t),
-            )
-            .map(|valid| {
-                let mut each = valid.into_iter();
-                let has = &self.batch.has_depth;
-                has.iter()
-                    .map(|v| if *v { each.next().unwrap_or(1.0) } else { 0.0 })
-                    .collect::<Vec<_>>()
-            });
+        // Rays without depth get a weight too; depth_l1 skips them, and the mean is over the rest.
+        let ray_weights = self.noise_weights(&self.batch.depth, Some(&self.batch.has_depth));
         st.depth = losses::depth_l1(
             &out.depth,
             &self.batch.depth,
@@ -390,7 +376,7 @@ impl Stage1 {
         let b0 = n_s + n_eik;
         // The bubble points from the depth maps, and the inside points behind the same picks.
         let point_weights = (point_depths.len() == n_bub)
-            .then(|| self.noise_weights(point_depths.iter().copied()))
+            .then(|| self.noise_weights(point_depths, None))
             .flatten();
         if n_bub > 0 {
             st.bubble = losses::bubble(
@@ -425,10 +411,10 @@ impl Stage1 {
     }
 
     /// `maps.depth_noise_distance`'s weights of depth samples at these distances along their
-    /// rays (normalized units), averaging 1; None when it is 0.
-    fn noise_weights(&self, depths: impl Iterator<Item = f32>) -> Option<Vec<f32>> {
+    /// rays (normalized units), averaging 1 over those `counted` marks; None when it is 0.
+    fn noise_weights(&self, depths: &[f32], counted: Option<&[bool]>) -> Option<Vec<f32>> {
         let d = self.config.maps.depth_noise_distance / self.normalization.scale as f32;
-        losses::noise_weights(depths, d)
+        losses::noise_weights(depths, counted, d)
     }
 
     /// The PDF maps learn from this batch's depth errors (Sec. 4.1.2).
