@@ -544,6 +544,7 @@ pub fn load(root: &Path) -> Result<Dataset> {
         radiometry: Radiometry::default(),
         // Structure from motion's poses carry its residual error: stage 1 corrects them.
         poses_exact: false,
+        depth_exact: false,
         emitters: Vec::new(),
         mesh_path: None,
         relight: Vec::new(),

@@ -204,6 +204,11 @@ pub struct Dataset {
     /// The dataset declares its poses exact (native `poses_exact: true`, as the synthetic rooms
     /// write; the paper's release, calibrated): training then does not correct them.
     pub poses_exact: bool,
+    /// The dataset declares its depth maps exact (native `depth_exact: true`, as the synthetic
+    /// rooms without sensor noise write; the paper's release, rendered): training then weighs
+    /// every depth sample alike instead of modelling a sensor's noise
+    /// (`maps.depth_noise_distance`).
+    pub depth_exact: bool,
     /// The ground-truth emitters (native format, top-level `emitters`), for evaluation only.
     pub emitters: Vec<GtEmitter>,
     /// Ground-truth mesh (PLY) in world units, if the dataset has one.

@@ -215,6 +215,7 @@ pub fn write_native(dir: &Path, opts: &FixtureOptions) -> Vec<Camera> {
         "camera_model": "OPENCV",
         "depth_unit_scale_factor": 0.001,
         "poses_exact": true,
+        "depth_exact": true,
         "an_unknown_key": {"is": "ignored"},
         "frames": frames,
     });

@@ -15,7 +15,9 @@
 //! neither holds out every 8th frame (0, 8, 16, …) for testing. Top level, optional: `mesh_path`,
 //! `relight: [{spec, frames}]`, `ldr: {transfer: "srgb"|"linear"}`, `objects: [{id, name, tags}]`
 //! (the GT mesh's per-face `object_id`s, named and tagged), `poses_exact` (true: the poses are
-//! exact and training does not correct them; default false). Unknown keys are ignored.
+//! exact and training does not correct them; default false), `depth_exact` (true: the depth maps are
+//! exact, as rendered ones are, and training does not model a sensor's noise; default false).
+//! Unknown keys are ignored.
 
 use crate::camera::{validate_rigid, Camera, Lens};
 use crate::dataset::{self, Dataset, Format, Frame, GtEmitter, ObjectInfo, RelightSet, Split};
@@ -308,7 +310,8 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
     let mut relight = load_relight(root, &json_path, top, units, &mut depth_dropped)?;
     let objects = parse_objects(&json_path, top)?;
     let radiometry = parse_ldr(&json_path, top)?;
-    let poses_exact = parse_poses_exact(&json_path, top)?;
+    let poses_exact = parse_declaration(&json_path, top, "poses_exact")?;
+    let depth_exact = parse_declaration(&json_path, top, "depth_exact")?;
     let emitters = parse_emitters(&json_path, top)?;
     let (bounds, bounds_source, normalization) = dataset::measure_bounds(&frames);
     let relight_frames = relight.iter_mut().flat_map(|r| r.frames.iter_mut());
@@ -323,6 +326,7 @@ pub fn load_from_str(root: &Path, text: &str) -> Result<Dataset> {
         frames,
         radiometry,
         poses_exact,
+        depth_exact,
         emitters,
         mesh_path,
         relight,
@@ -476,14 +480,16 @@ pub(crate) fn parse_ldr(json_path: &Path, top: &Map<String, Value>) -> Result<Ra
     Ok(Radiometry { transfer, exposure })
 }
 
-/// The optional top-level `poses_exact` (default false: training corrects the poses).
-fn parse_poses_exact(json_path: &Path, top: &Map<String, Value>) -> Result<bool> {
-    match top.get("poses_exact") {
+/// An optional top-level declaration that some input is exact, `poses_exact` or `depth_exact`
+/// (default false: training treats it as measured, correcting the poses or modelling the depth
+/// sensor's noise).
+fn parse_declaration(json_path: &Path, top: &Map<String, Value>, key: &str) -> Result<bool> {
+    match top.get(key) {
         None | Some(Value::Null) => Ok(false),
         Some(Value::Bool(b)) => Ok(*b),
         Some(v) => Err(DataError::field(
             json_path,
-            "poses_exact",
+            key,
             format!("expected true or false, found {v}"),
         )),
     }
@@ -645,6 +651,18 @@ mod tests {
 
     fn parse(v: Value) -> Result<Vec<ObjectInfo>> {
         parse_objects(Path::new("scene/transforms.json"), v.as_object().unwrap())
+    }
+
+    #[test]
+    fn exactness_declarations_default_to_measured_and_bad_values_name_their_key() {
+        let path = Path::new("scene/transforms.json");
+        for key in ["poses_exact", "depth_exact"] {
+            let read = |v: Value| parse_declaration(path, v.as_object().unwrap(), key);
+            assert!(!read(json!({})).unwrap());
+            assert!(read(json!({key: true})).unwrap());
+            let e = read(json!({key: "yes"})).unwrap_err();
+            assert!(e.is_bad_input() && e.to_string().contains(key), "{e}");
+        }
     }
 
     #[test]

@@ -419,6 +419,7 @@ pub fn load_with_npz<R: std::io::Read + std::io::Seek>(
         radiometry,
         // The release's poses are the renderer's own (synthetic) or calibrated (real rooms).
         poses_exact: true,
+        depth_exact: true,
         emitters: Vec::new(),
         mesh_path: Some(root.join("mesh.ply")).filter(|p| p.is_file()),
         relight: Vec::new(),

@@ -196,6 +196,9 @@ fn left_out(dataset: &Dataset) -> Vec<String> {
     if !dataset.poses_exact {
         notes.push("the poses are approximate, but the format's reader takes them as exact".to_string());
     }
+    if !dataset.depth_exact && dataset.frames.iter().any(|f| f.depth.is_some()) {
+        notes.push("the depth is a sensor's, but the format's reader takes it as exact".to_string());
+    }
     notes
 }
 

@@ -555,6 +555,7 @@ fn transforms_json(
         "ldr": ldr,
         "depth": depth,
         "poses_exact": cap.pose_perturbation().is_none(),
+        "depth_exact": opts.depth_noise == DepthNoise::None,
         "mesh_path": "mesh.ply",
         "scene_path": "scene.toml",
         "generator": generator,

@@ -55,10 +55,13 @@ fn matrix(v: &Value) -> DMat4 {
 }
 
 #[test]
-fn the_exact_room_declares_exact_poses_and_no_capture() {
+fn the_exact_room_declares_exact_poses_and_depth_and_no_capture() {
     let tmp = tempfile::tempdir().unwrap();
     let t = exact(tmp.path());
-    assert_eq!(t["poses_exact"], true);
+    assert_eq!(
+        (t["poses_exact"].clone(), t["depth_exact"].clone()),
+        (Value::Bool(true), Value::Bool(true))
+    );
     assert!(t["generator"].get("capture").is_none());
     assert!(t.get("camera_model").is_none() && t["ldr"]["exposure"].is_f64());
 }
@@ -250,6 +253,8 @@ fn pose_noise_perturbs_the_training_poses_only_and_keeps_the_true_ones() {
         DepthNoise::None,
     );
     assert_eq!(tb["poses_exact"], false);
+    // No depth noise: the depth is still exact.
+    assert_eq!(tb["depth_exact"], true);
     let truth = json(&b.path().join(tb["poses_true_path"].as_str().unwrap()));
     for (fa, fb) in frames(&ta).iter().zip(frames(&tb)) {
         // Rendered at the true pose: the same image.
@@ -352,6 +357,9 @@ fn a_phone_capture_keeps_the_exact_rooms_scene_and_test_views() {
         (cap["normals"].clone(), cap["hdr"].clone()),
         (Value::Bool(false), Value::Bool(false))
     );
-    assert_eq!(tb["poses_exact"], false);
+    assert_eq!(
+        (tb["poses_exact"].clone(), tb["depth_exact"].clone()),
+        (Value::Bool(false), Value::Bool(false))
+    );
     assert_eq!(tb["generator"]["seed"], ta["generator"]["seed"]);
 }

@@ -80,21 +80,31 @@ pub enum Normals {
 }
 
 /// What training does for each map the dataset may lack; the maps in force are `crate::maps`'.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MapsConfig {
     pub emitter_masks: EmitterMasks,
     pub normals: Normals,
-    /// Distance (metres) at which the depth maps' noise has doubled from its value up close; 0
-    /// weighs every depth sample alike. Stage 1's depth, bubble and inside terms weigh a sample
-    /// at distance z along its ray by 1 / (1 + (z / d)²), normalized to a mean of 1 over each
-    /// batch: the L1 likelihood of a sensor whose noise grows as σ₀ (1 + (z / d)²), as
-    /// triangulating sensors' does (the paper's σ(z) = 0.0029 z² + 0.0033 m has d = 1.07 m).
-    /// Off by default: on the phone captures at d = 2 it gained seeds 0 and 7 (F 0.948 → 0.951,
-    /// its bulb built; 0.922 → 0.955) and lost seed 1 (0.944 → 0.938): what only far samples
-    /// see, the bookshelf, loses recall. The exact rooms are not measured with it yet
-    /// (docs/results.md, eleventh session).
+    /// Distance (metres) at which a depth sensor's noise has doubled from its value up close; 0
+    /// weighs every depth sample alike. Applies to depth the dataset does not declare exact
+    /// (`depth_exact: true` in transforms.json; the built-in rooms without sensor noise and the
+    /// paper's release do). Stage 1's depth, bubble and inside terms weigh a sample at distance
+    /// z along its ray by 1 / (1 + (z / d)²), normalized to a mean of 1 over each batch: the L1
+    /// likelihood of a sensor whose noise grows as σ₀ (1 + (z / d)²), as triangulating sensors'
+    /// does (the paper's σ(z) = 0.0029 z² + 0.0033 m has d = 1.07 m). 2 m: on three phone
+    /// captures it moved F 0.948 → 0.951 (its bulb built), 0.944 → 0.938 (the bookshelf, seen
+    /// only from afar, loses recall) and 0.922 → 0.955 (docs/results.md, eleventh session).
     pub depth_noise_distance: f32,
+}
+
+impl Default for MapsConfig {
+    fn default() -> Self {
+        MapsConfig {
+            emitter_masks: EmitterMasks::default(),
+            normals: Normals::default(),
+            depth_noise_distance: 2.0,
+        }
+    }
 }
 
 /// Which Monte Carlo estimator of eq:render stage 2 fits the materials with.
@@ -392,6 +402,11 @@ pub struct AdaptiveConfig {
     pub p_min: f32,
     /// Errors are clamped to this before they become probabilities.
     pub p_max: f32,
+    /// The fraction of each batch's rays drawn in proportion to the pixels' last colour error
+    /// (the rest uniformly; 0: all uniformly), as Instant-NGP's error maps do: at 2.8 visits a
+    /// pixel in stage 1, a thin object's few pixels are otherwise seen too rarely to be built
+    /// where no depth marks them (a phone's depth grid misses them).
+    pub rgb_rays: f32,
 }
 
 impl Default for AdaptiveConfig {
@@ -400,6 +415,7 @@ impl Default for AdaptiveConfig {
             enabled: true,
             p_min: 0.02,
             p_max: 1.0,
+            rgb_rays: 0.0,
         }
     }
 }
@@ -582,6 +598,7 @@ impl TrainConfig {
         let a = &self.adaptive;
         real("adaptive.p_min", a.p_min, 0.0, 1e3)?;
         real("adaptive.p_max", a.p_max, 0.0, 1e3)?;
+        real("adaptive.rgb_rays", a.rgb_rays, 0.0, 0.9)?;
         if a.p_max <= a.p_min {
             return Err(format!(
                 "adaptive.p_max = {}: must exceed adaptive.p_min = {}",

@@ -6,7 +6,9 @@
 //!   ([`i2sdf_data::depth_normals`]; measured as good as the true normals on a synthetic room,
 //!   where no normal loss lost 0.08 F-score) or none; they supervise stage 1's normal loss;
 //! - depth: without it stage 1 has no depth loss and no error-guided sampling, and takes its
-//!   smoothness and bubble points from the rendered surface (`crate::stage1`);
+//!   smoothness and bubble points from the rendered surface (`crate::stage1`); depth the dataset
+//!   does not declare exact is a sensor's, whose far samples weigh less
+//!   (`maps.depth_noise_distance`);
 //! - HDR: stage 2 fits the LDR images instead (`crate::stage2::targets`);
 //! - material masks (the paper's release marks non-GGX areas): without them stage 2 fits every
 //!   surface pixel.
@@ -46,6 +48,8 @@ pub struct TrainingMaps {
     /// Stage 2 smooths the SDF's shading normals where a view has no normal map
     /// (`stage2.normal_smoothing_radius` > 0), for the description.
     smooths_normals: bool,
+    /// The depth sensor's noise model in force (metres; 0: every depth sample weighs alike).
+    pub depth_noise_distance: f32,
 }
 
 /// One map as `check` and `train` say it: how many training views have it in the dataset and
@@ -166,6 +170,12 @@ impl TrainingMaps {
             masks_in_run: None,
             use_hdr: config.stage2.use_hdr,
             smooths_normals: config.stage2.normal_smoothing_radius > 0.0,
+            // Exact depth has no noise to model.
+            depth_noise_distance: if dataset.depth_exact {
+                0.0
+            } else {
+                m.depth_noise_distance
+            },
         })
     }
 
@@ -287,8 +297,22 @@ impl TrainingMaps {
                     "no depth loss; smoothness and bubble points on the rendered surface (where each ray's termination density peaks)"
                         .into()
                 }
-                n if n == views => "depth loss, bubble points, smoothness".into(),
-                _ => "depth loss, bubble points and smoothness where given".into(),
+                n => {
+                    let uses = if n == views {
+                        "depth loss, bubble points, smoothness"
+                    } else {
+                        "depth loss, bubble points and smoothness where given"
+                    };
+                    let noise = match (dataset.depth_exact, self.depth_noise_distance) {
+                        (true, _) => "; declared exact (depth_exact): every sample weighs alike".to_string(),
+                        (false, d) if d > 0.0 => format!(
+                            "; a sensor's: far samples weigh less, its noise doubled at {d} m \
+                             (maps.depth_noise_distance)"
+                        ),
+                        (false, _) => "; a sensor's, every sample weighed alike (maps.depth_noise_distance = 0)".into(),
+                    };
+                    format!("{uses}{noise}")
+                }
             },
         ));
         out.push(line(
@@ -452,6 +476,28 @@ mod tests {
         );
     }
 
+    /// Depth not declared exact is a sensor's: its noise model is in force unless turned off.
+    #[test]
+    fn sensor_depth_gets_the_noise_model_and_says_so() {
+        let (_d, mut ds) = dataset();
+        ds.depth_exact = false;
+        let maps = TrainingMaps::prepare(&ds, &config(&[])).unwrap();
+        assert_eq!(maps.depth_noise_distance, 2.0);
+        let line = maps.describe(&ds)[0].to_string();
+        assert!(
+            line.ends_with("a sensor's: far samples weigh less, its noise doubled at 2 m (maps.depth_noise_distance)"),
+            "{line}"
+        );
+        let maps = TrainingMaps::prepare(&ds, &config(&["maps.depth_noise_distance=0"])).unwrap();
+        assert_eq!(maps.depth_noise_distance, 0.0);
+        assert!(maps.describe(&ds)[0].to_string().contains("every sample weighed alike"));
+        let e = TrainConfig::load(None, &["maps.depth_noise_distance=-1".to_string()]).unwrap_err();
+        assert!(
+            e.is_bad_input() && e.to_string().contains("maps.depth_noise_distance"),
+            "{e}"
+        );
+    }
+
     /// What stands in for each missing map, per policy, and the lines that say it.
     #[test]
     fn each_policy_gives_its_maps_and_says_so() {
@@ -462,7 +508,11 @@ mod tests {
         assert_eq!(maps.emitter_mask(k, f), f.emitter_mask.as_ref());
         assert!(matches!(maps.normal(f), Some(Cow::Borrowed(_))));
         let lines: Vec<String> = maps.describe(&full).iter().map(|l| l.to_string()).collect();
-        assert_eq!(lines[0], "depth: 4/4 views → depth loss, bubble points, smoothness");
+        assert_eq!(
+            lines[0],
+            "depth: 4/4 views → depth loss, bubble points, smoothness; declared exact (depth_exact): every sample weighs alike"
+        );
+        assert_eq!(maps.depth_noise_distance, 0.0);
         assert_eq!(lines[1], "normals: 4/4 views → normal loss");
         assert_eq!(lines[2], "emitter masks: 4/4 views → emitter loss, stage 2's emitters");
         assert!(

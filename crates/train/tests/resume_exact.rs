@@ -1,6 +1,7 @@
 //! Stage 1 resumed from a checkpoint at any step of its schedule — inside the bubble step too,
-//! where the error-guided PDF maps carry state from batch to batch — continues bit for bit as the
-//! uninterrupted run; a checkpoint names the data it was trained on.
+//! where the error-guided PDF maps carry state from batch to batch, and with the colour error maps
+//! that draw a quarter of the rays — continues bit for bit as the uninterrupted run; a checkpoint
+//! names the data it was trained on.
 
 #[allow(dead_code)]
 mod common;
@@ -25,6 +26,7 @@ fn config() -> TrainConfig {
         "model.hash_log2_table=12",
         "sampling.samples=16",
         "sampling.coarse=16",
+        "adaptive.rgb_rays=0.25",
     ]
     .map(String::from)
     .to_vec();
@@ -58,6 +60,7 @@ fn stage1_resumes_bit_for_bit_at_every_step_of_the_schedule() {
         let persist = config().schedule.smooth_bubble > 0.0;
         let has_pdf = (11..=30).contains(&at) || (persist && at > 30);
         assert_eq!(meta.contains_key("pdf_maps"), has_pdf, "at {at}");
+        assert!(meta.contains_key("rgb_error_maps"), "at {at}");
         drop(part);
         let mut b = Trainer::new(Stage1::resume(&ds, config(), &maps, &ckpt).unwrap());
         while !b.done() {

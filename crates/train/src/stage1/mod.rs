@@ -137,6 +137,13 @@ const POSE_META: &str = "pose_correction";
 /// The checkpoint's prefix of the PDF maps, and its metadata key saying they are there.
 const PDF_PREFIX: &str = "adam.pdf_maps";
 const PDF_META: &str = "pdf_maps";
+/// The same for the colour error maps (`adaptive.rgb_rays`).
+const RGB_PDF_PREFIX: &str = "adam.rgb_error_maps";
+const RGB_PDF_META: &str = "rgb_error_maps";
+/// The colour error maps keep a pixel's mean absolute LDR error over its channels, 0 below
+/// this (a pixel fitted to 2.5/255 is not worth revisiting), clamped to 1. As in the depth maps,
+/// a floor keeps the restored block sums exact (see [`Stage1::restore_pdf`]).
+const RGB_ERROR_MIN: f32 = 0.01;
 
 pub struct Stage1 {
     pub config: TrainConfig,
@@ -150,6 +157,9 @@ pub struct Stage1 {
     ws: RenderWorkspace,
     settings: RenderSettings,
     pdf: Option<PdfMaps>,
+    /// Every training pixel's last colour error, which `adaptive.rgb_rays` of each batch's rays
+    /// are drawn by (None when that is 0).
+    rgb_errors: Option<PdfMaps>,
     batch: RayBatch,
     extra: Vec<f32>,
     /// The training views' pose corrections (None: the poses are used as given).
@@ -161,6 +171,8 @@ pub struct Stage1 {
     image_gradients: Option<Vec<photometric::ImageGradient>>,
     /// No training pixel has depth: bubble and smoothness points come from the rendered surface.
     no_depth: bool,
+    /// The depth sensor's noise model in force (metres; 0: off): `TrainingMaps::depth_noise_distance`.
+    depth_noise_distance: f32,
     /// The training data's fingerprint (JSON), kept in every checkpoint so that a resume or a
     /// stage 2 against other data is refused.
     dataset: String,
@@ -219,12 +231,15 @@ impl Stage1 {
                 (f.name.clone(), im.frame_index, f.camera.c2w)
             })
             .collect();
+        let rgb_errors = (config.adaptive.rgb_rays > 0.0)
+            .then(|| PdfMaps::over_all_pixels(images.iter().map(|im| im.pixels()), RGB_ERROR_MIN, 1.0));
         Stage1 {
             poses,
             given_poses,
             normalization: dataset.normalization,
             dataset: fingerprint,
             no_depth: images.iter().all(|im| im.depth.iter().all(|d| *d <= 0.0)),
+            depth_noise_distance: maps.depth_noise_distance,
             image_gradients: None,
             images,
             adam,
@@ -233,6 +248,7 @@ impl Stage1 {
             ws: RenderWorkspace::default(),
             settings,
             pdf: None,
+            rgb_errors,
             batch: RayBatch::default(),
             extra: Vec::new(),
             iteration: 0,
@@ -255,7 +271,10 @@ impl Stage1 {
         // The PDF maps of the bubble step: they learn from every batch, so a run resumed inside
         // the step continues with the maps it had, not ones re-initialised from its fields.
         let has_pdf = meta.get(PDF_META).is_some_and(|v| v == "1");
-        let mut pdf_values = PdfValues(vec![0.0; s.images.iter().map(|i| i.pixels()).sum()]);
+        let pixels: usize = s.images.iter().map(|i| i.pixels()).sum();
+        let mut pdf_values = PdfValues(vec![0.0; pixels]);
+        let mut rgb_values = PdfValues(vec![0.0; pixels]);
+        let has_rgb = s.rgb_errors.is_some();
         {
             let Stage1 {
                 scene,
@@ -264,6 +283,7 @@ impl Stage1 {
                 poses,
                 ..
             } = &mut s;
+            let rgb_required = meta.get(RGB_PDF_META).is_some_and(|v| v == "1");
             let prefixes: Vec<String> = specs.iter().map(|g| format!("{OPTIMIZER_PREFIX}{}", g.name)).collect();
             let mut states: Vec<AdamGroupStateMut> = adam
                 .groups
@@ -290,6 +310,14 @@ impl Stage1 {
                     required: true,
                 });
             }
+            if has_rgb {
+                // A run that started without the maps starts them empty.
+                slots.push(ModuleSlot {
+                    prefix: RGB_PDF_PREFIX,
+                    module: &mut rgb_values,
+                    required: rgb_required,
+                });
+            }
             if let Some(p) = poses {
                 slots.push(ModuleSlot {
                     prefix: POSE_PREFIX,
@@ -300,7 +328,10 @@ impl Stage1 {
             scene.load_params(checkpoint, &mut slots)?;
         }
         if has_pdf {
-            s.pdf = Some(s.restore_pdf(&pdf_values.0));
+            s.pdf = Some(s.restore_pdf(s.empty_pdf(), &pdf_values.0));
+        }
+        if let Some(maps) = s.rgb_errors.take() {
+            s.rgb_errors = Some(s.restore_pdf(maps, &rgb_values.0));
         }
         s.apply_poses();
         let get = |k: &str| -> Result<u64, DataError> {
@@ -357,13 +388,12 @@ impl Stage1 {
         out
     }
 
-    /// Maps holding `values` (from [`Stage1::pdf_values`]). The f64 block sums are rebuilt by
+    /// The empty maps `pdf` (depth or colour) holding `values` (from [`Stage1::pdf_values`]). The f64 block sums are rebuilt by
     /// adding the values in order where the uninterrupted run added its deltas as they came; they
     /// agree exactly: every value is 0 or an f32 in [p_min, p_max], so every sum and delta is an
     /// integer multiple of ulp(p_min) and exact while below 2⁵³ of them (16.7 M pixels at the
     /// defaults p_min = 0.02, p_max = 1; beyond, a block sum may differ in its last bit).
-    fn restore_pdf(&self, values: &[f32]) -> PdfMaps {
-        let mut pdf = self.empty_pdf();
+    fn restore_pdf(&self, mut pdf: PdfMaps, values: &[f32]) -> PdfMaps {
         let mut at = 0;
         for (k, im) in self.images.iter().enumerate() {
             pdf.set_image(k, &values[at..at + im.pixels()]);
@@ -577,6 +607,7 @@ impl Stage1 {
 
     fn checkpoint(&self, path: &Path) -> Result<(), DataError> {
         let pdf = self.pdf.as_ref().map(|p| PdfValues(self.pdf_values(p)));
+        let rgb = self.rgb_errors.as_ref().map(|p| PdfValues(self.pdf_values(p)));
         let mut meta = vec![
             ("iteration", self.iteration.to_string()),
             ("adam_step", self.adam.step.to_string()),
@@ -587,6 +618,10 @@ impl Stage1 {
         if let Some(p) = &pdf {
             meta.push((PDF_META, "1".into()));
             extra.push((PDF_PREFIX, p as &dyn Parameters));
+        }
+        if let Some(p) = &rgb {
+            meta.push((RGB_PDF_META, "1".into()));
+            extra.push((RGB_PDF_PREFIX, p as &dyn Parameters));
         }
         if let Some(p) = &self.poses {
             meta.push((POSE_META, "1".into()));

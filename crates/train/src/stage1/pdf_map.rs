@@ -57,6 +57,11 @@ impl PdfMaps {
         }
     }
 
+    /// Empty maps over every pixel of images with these pixel counts (the colour error maps).
+    pub fn over_all_pixels(pixels: impl IntoIterator<Item = usize>, p_min: f32, p_max: f32) -> Self {
+        Self::new(pixels.into_iter().map(|n| vec![true; n]).collect(), p_min, p_max)
+    }
+
     fn flat_index(&self, p: PixelRef) -> usize {
         self.offsets[p.image as usize] + p.pixel as usize
     }

@@ -213,6 +213,11 @@ impl RayBatch {
     /// Fills the batch with `n` pixels drawn uniformly over all training pixels.
     pub fn sample_uniform(&mut self, images: &[TrainImage], n: usize, rng: &mut impl Rng) {
         self.clear();
+        self.add_uniform(images, n, rng);
+    }
+
+    /// Adds `n` pixels drawn uniformly over all training pixels.
+    pub fn add_uniform(&mut self, images: &[TrainImage], n: usize, rng: &mut impl Rng) {
         let total: usize = images.iter().map(|i| i.pixels()).sum();
         self.has_emitter = images.iter().all(|i| i.emitter.is_some());
         for _ in 0..n {

@@ -48,7 +48,7 @@ impl Stage1 {
     /// One iteration with the iteration's RNG. A non-finite loss skips the update.
     pub(super) fn step_with(&mut self, rng: &mut Pcg64) -> StepOutcome<StepStats> {
         let (phase, w) = self.enter_phase();
-        self.batch.sample_uniform(&self.images, self.config.train.rays, rng);
+        self.draw_rays(rng);
         let t0 = std::time::Instant::now();
         self.refresh_occupancy();
         let rendered = self.rendered_surfaces(&w, rng);
@@ -86,6 +86,7 @@ impl Stage1 {
             + w.inside * st.inside;
         st.samples_per_ray = self.ws.n_samples as f32 / self.batch.len().max(1) as f32;
         self.learn_pdf(&mut st);
+        self.learn_rgb_errors();
 
         if !st.loss.is_finite() || !self.ws.out.rgb.iter().all(|v| v.is_finite()) {
             st.skipped = true;
@@ -410,11 +411,47 @@ impl Stage1 {
         (d_sdf, d_grad)
     }
 
-    /// `maps.depth_noise_distance`'s weights of depth samples at these distances along their
-    /// rays (normalized units), averaging 1 over those `counted` marks; None when it is 0.
+    /// The depth sensor's noise model's weights (`maps.depth_noise_distance`, in force for depth
+    /// not declared exact) of depth samples at these distances along their rays (normalized
+    /// units), averaging 1 over those `counted` marks; None when it is off.
     fn noise_weights(&self, depths: &[f32], counted: Option<&[bool]>) -> Option<Vec<f32>> {
-        let d = self.config.maps.depth_noise_distance / self.normalization.scale as f32;
+        let d = self.depth_noise_distance / self.normalization.scale as f32;
         losses::noise_weights(depths, counted, d)
+    }
+
+    /// The batch's rays: `adaptive.rgb_rays` of them drawn by the colour error maps (while they
+    /// hold any error; until then, and for the rest, uniformly).
+    fn draw_rays(&mut self, rng: &mut Pcg64) {
+        let n = self.config.train.rays;
+        let mut picks = Vec::new();
+        if let Some(maps) = &self.rgb_errors {
+            maps.sample(
+                (n as f32 * self.config.adaptive.rgb_rays).round() as usize,
+                rng,
+                &mut picks,
+            );
+        }
+        self.batch.sample_uniform(&self.images, n - picks.len(), rng);
+        for p in &picks {
+            self.batch.push(&self.images, p.image as usize, p.pixel as usize);
+        }
+    }
+
+    /// The colour error maps learn each ray's mean absolute error over its channels.
+    fn learn_rgb_errors(&mut self) {
+        let Some(maps) = &mut self.rgb_errors else { return };
+        let pred = &self.ws.out.rgb;
+        for r in 0..self.batch.len() {
+            let gt = self.batch.rgb[r];
+            let e = (0..3).map(|c| (pred[3 * r + c] - gt[c]).abs()).sum::<f32>() / 3.0;
+            maps.update(
+                PixelRef {
+                    image: self.batch.image[r],
+                    pixel: self.batch.pixel[r],
+                },
+                e,
+            );
+        }
     }
 
     /// The PDF maps learn from this batch's depth errors (Sec. 4.1.2).
