@@ -95,6 +95,12 @@ pub struct MapsConfig {
     /// captures it moved F 0.948 → 0.951 (its bulb built), 0.944 → 0.938 (the bookshelf, seen
     /// only from afar, loses recall) and 0.922 → 0.955 (docs/results.md, eleventh session).
     pub depth_noise_distance: f32,
+    /// The sensor's noise σ₀ up close (metres; 0: none), for depth not declared exact:
+    /// eq:bubble tolerates |d| up to σ₀ (1 + (z / d)²) at a depth point, and the inside point
+    /// moves that far behind it. Off by default: at 0.009 (the paper's σ at 3 m) it halved seed
+    /// 1's outward wall bias but lost F on both captures (0.951 → 0.945, 0.938 → 0.930;
+    /// docs/results.md, twelfth session).
+    pub depth_noise_sigma: f32,
 }
 
 impl Default for MapsConfig {
@@ -103,6 +109,7 @@ impl Default for MapsConfig {
             emitter_masks: EmitterMasks::default(),
             normals: Normals::default(),
             depth_noise_distance: 2.0,
+            depth_noise_sigma: 0.0,
         }
     }
 }
@@ -581,6 +588,7 @@ impl TrainConfig {
         int("sampling.occupancy_every", s.occupancy_every as usize, 1, 1_000_000)?;
         real("sampling.occupancy_margin", s.occupancy_margin, 0.0, 100.0)?;
         real("maps.depth_noise_distance", self.maps.depth_noise_distance, 0.0, 1e3)?;
+        real("maps.depth_noise_sigma", self.maps.depth_noise_sigma, 0.0, 1.0)?;
         let l = &self.loss;
         for (key, v) in [
             ("loss.rgb", l.rgb),

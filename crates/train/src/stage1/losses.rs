@@ -123,14 +123,18 @@ pub fn smoothness(a: &[[f32; 3]], b: &[[f32; 3]], w: f32, grad_a: &mut [[f32; 3]
 }
 
 /// L_bubble = mean over bubble points of |d(x)| (eq:bubble: surface points from depth must lie on the
-/// zero level set).
-pub fn bubble(sdf: &[f32], weights: Option<&[f32]>, w: f32, grad: &mut [f32]) -> f32 {
+/// zero level set), each point's term times its `weights` entry where given; with `tolerance`,
+/// max(0, |d| − τ) instead: a noisy depth point is only known to lie within τ of the surface.
+pub fn bubble(sdf: &[f32], weights: Option<&[f32]>, tolerance: Option<&[f32]>, w: f32, grad: &mut [f32]) -> f32 {
     let n = sdf.len().max(1) as f32;
     let mut loss = 0.0f64;
     for (i, (d, g)) in sdf.iter().zip(grad.iter_mut()).enumerate() {
         let k = weights.map_or(1.0, |v| v[i]);
-        loss += (k * d.abs()) as f64;
-        *g += w * k * d.signum() / n;
+        let excess = d.abs() - tolerance.map_or(0.0, |t| t[i]);
+        if excess > 0.0 {
+            loss += (k * excess) as f64;
+            *g += w * k * d.signum() / n;
+        }
     }
     (loss / n as f64) as f32
 }
@@ -256,11 +260,16 @@ mod tests {
         close(&ga.concat(), &numeric(&f, &P), 1e-3);
         close(&gb.concat(), &ga.concat().iter().map(|x| -x).collect::<Vec<_>>(), 1e-6);
 
-        for weights in [None, Some(&K[..])] {
-            let f = |x: &[f32]| bubble(x, weights, 0.5, &mut [0.0; 6]);
+        // Tolerances: |d| inside the dead zone for the 2nd, 5th and 6th point, outside for the rest.
+        const TOL: [f32; 6] = [0.1, 0.8, 0.5, 0.3, 0.25, 0.5];
+        for (weights, tol) in [(None, None), (Some(&K[..]), None), (Some(&K[..]), Some(&TOL[..]))] {
+            let f = |x: &[f32]| bubble(x, weights, tol, 0.5, &mut [0.0; 6]);
             let mut g = [0.0; 6];
-            bubble(&P, weights, 0.5, &mut g);
+            bubble(&P, weights, tol, 0.5, &mut g);
             close(&g.iter().map(|x| x / 0.5).collect::<Vec<_>>(), &numeric(&f, &P), 1e-3);
+            if tol.is_some() {
+                assert!(g[1] == 0.0 && g[4] == 0.0 && g[5] == 0.0 && g[0] != 0.0, "{g:?}");
+            }
 
             let f = |x: &[f32]| inside(x, weights, 0.5, &mut [0.0; 6]);
             let mut g = [0.0; 6];

@@ -299,7 +299,9 @@ impl Stage1 {
                 let im = &self.images[p.image as usize];
                 let pixel = p.pixel as usize;
                 if im.surface_point(pixel).is_some() {
-                    extra.extend_from_slice(&im.point_at(pixel, im.depth[pixel] + INSIDE_DEPTH, pin));
+                    let t = im.depth[pixel];
+                    let behind = INSIDE_DEPTH + self.noise_tolerances(&[t]).map_or(0.0, |v| v[0]);
+                    extra.extend_from_slice(&im.point_at(pixel, t + behind, pin));
                 }
             }
         }
@@ -380,9 +382,13 @@ impl Stage1 {
             .then(|| self.noise_weights(point_depths, None))
             .flatten();
         if n_bub > 0 {
+            let tolerance = (point_depths.len() == n_bub)
+                .then(|| self.noise_tolerances(point_depths))
+                .flatten();
             st.bubble = losses::bubble(
                 &self.ws.sdf[b0..b0 + n_bub],
                 point_weights.as_deref(),
+                tolerance.as_deref(),
                 w.bubble,
                 &mut d_sdf[b0..b0 + n_bub],
             );
@@ -452,6 +458,17 @@ impl Stage1 {
                 e,
             );
         }
+    }
+
+    /// The sensor's noise σ(z) = σ₀ (1 + (z / d)²) (`maps.depth_noise_sigma`, normalized units) at
+    /// these distances along their rays; None where σ₀ or the noise model is off.
+    fn noise_tolerances(&self, depths: &[f32]) -> Option<Vec<f32>> {
+        let scale = self.normalization.scale as f32;
+        let (s0, d) = (
+            self.config.maps.depth_noise_sigma / scale,
+            self.depth_noise_distance / scale,
+        );
+        (s0 > 0.0 && d > 0.0).then(|| depths.iter().map(|z| s0 * (1.0 + (z / d).powi(2))).collect())
     }
 
     /// The PDF maps learn from this batch's depth errors (Sec. 4.1.2).
