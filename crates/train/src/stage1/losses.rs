@@ -158,6 +158,12 @@ pub fn inside(sdf: &[f32], weights: Option<&[f32]>, w: f32, grad: &mut [f32]) ->
     (loss / n as f64) as f32
 }
 
+/// How much a sensor's noise has grown at distance z from its value up close: 1 + (z / d)²
+/// (`maps.depth_noise_distance` = d, in the same units as z).
+pub fn noise_growth(z: f32, d: f32) -> f32 {
+    1.0 + (z / d).powi(2)
+}
+
 /// Per-sample weights of a sensor whose noise grows as σ₀ (1 + (z / d)²): 1 / (1 + (z / d)²)
 /// for each distance z (the L1 likelihood's 1 / σ up to a factor), scaled to average 1 over the
 /// samples `counted` marks (all without it) so that a term's weight keeps its meaning. None where
@@ -166,7 +172,7 @@ pub fn noise_weights(distances: &[f32], counted: Option<&[bool]>, d: f32) -> Opt
     if d <= 0.0 {
         return None;
     }
-    let w: Vec<f32> = distances.iter().map(|z| 1.0 / (1.0 + (z / d).powi(2))).collect();
+    let w: Vec<f32> = distances.iter().map(|&z| 1.0 / noise_growth(z, d)).collect();
     let counts = |i: usize| counted.is_none_or(|c| c[i]);
     let (sum, n) = (0..w.len())
         .filter(|&i| counts(i))

@@ -388,11 +388,12 @@ impl Stage1 {
         out
     }
 
-    /// The empty maps `pdf` (depth or colour) holding `values` (from [`Stage1::pdf_values`]). The f64 block sums are rebuilt by
-    /// adding the values in order where the uninterrupted run added its deltas as they came; they
-    /// agree exactly: every value is 0 or an f32 in [p_min, p_max], so every sum and delta is an
-    /// integer multiple of ulp(p_min) and exact while below 2⁵³ of them (16.7 M pixels at the
-    /// defaults p_min = 0.02, p_max = 1; beyond, a block sum may differ in its last bit).
+    /// The empty maps `pdf` (depth or colour) holding `values` (from [`Stage1::pdf_values`]). The
+    /// f64 block sums are rebuilt by adding the values in order where the uninterrupted run added
+    /// its deltas as they came; they agree exactly: every value is 0 or an f32 in [p_min, p_max],
+    /// so every sum and delta is an integer multiple of ulp(p_min) and exact while below 2⁵³ of
+    /// them (16.7 M pixels at the defaults p_min = 0.02, p_max = 1; beyond, a block sum may differ
+    /// in its last bit).
     fn restore_pdf(&self, mut pdf: PdfMaps, values: &[f32]) -> PdfMaps {
         let mut at = 0;
         for (k, im) in self.images.iter().enumerate() {

@@ -300,7 +300,7 @@ impl Stage1 {
                 let pixel = p.pixel as usize;
                 if im.surface_point(pixel).is_some() {
                     let t = im.depth[pixel];
-                    let behind = INSIDE_DEPTH + self.noise_tolerances(&[t]).map_or(0.0, |v| v[0]);
+                    let behind = INSIDE_DEPTH + self.noise_sigma().map_or(0.0, |sigma| sigma(t));
                     extra.extend_from_slice(&im.point_at(pixel, t + behind, pin));
                 }
             }
@@ -382,9 +382,10 @@ impl Stage1 {
             .then(|| self.noise_weights(point_depths, None))
             .flatten();
         if n_bub > 0 {
-            let tolerance = (point_depths.len() == n_bub)
-                .then(|| self.noise_tolerances(point_depths))
-                .flatten();
+            let tolerance = self
+                .noise_sigma()
+                .filter(|_| point_depths.len() == n_bub)
+                .map(|sigma| point_depths.iter().map(|&z| sigma(z)).collect::<Vec<f32>>());
             st.bubble = losses::bubble(
                 &self.ws.sdf[b0..b0 + n_bub],
                 point_weights.as_deref(),
@@ -460,15 +461,15 @@ impl Stage1 {
         }
     }
 
-    /// The sensor's noise σ(z) = σ₀ (1 + (z / d)²) (`maps.depth_noise_sigma`, normalized units) at
-    /// these distances along their rays; None where σ₀ or the noise model is off.
-    fn noise_tolerances(&self, depths: &[f32]) -> Option<Vec<f32>> {
+    /// The sensor's noise σ(z) = σ₀ (1 + (z / d)²) (`maps.depth_noise_sigma`) as a function of the
+    /// distance z along a ray, both in normalized units; None where σ₀ or the noise model is off.
+    fn noise_sigma(&self) -> Option<impl Fn(f32) -> f32> {
         let scale = self.normalization.scale as f32;
         let (s0, d) = (
             self.config.maps.depth_noise_sigma / scale,
             self.depth_noise_distance / scale,
         );
-        (s0 > 0.0 && d > 0.0).then(|| depths.iter().map(|z| s0 * (1.0 + (z / d).powi(2))).collect())
+        (s0 > 0.0 && d > 0.0).then_some(move |z: f32| s0 * losses::noise_growth(z, d))
     }
 
     /// The PDF maps learn from this batch's depth errors (Sec. 4.1.2).
