@@ -58,6 +58,7 @@ fn out_of_range_values_name_their_key() {
         ("stage2.emitter_min_views=0", "stage2.emitter_min_views"),
         ("stage2.emitter_mask_agreement=1.5", "stage2.emitter_mask_agreement"),
         ("schedule.smooth_bubble=2", "smooth_bubble"),
+        ("schedule.bubble_eikonal=-0.5", "bubble_eikonal"),
         ("adaptive.p_min=nan", "adaptive.p_min"),
         ("schedule.warmup_fraction=nan", "warmup_fraction"),
         ("stage2.pixels=0", "stage2.pixels"),

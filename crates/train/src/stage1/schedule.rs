@@ -60,6 +60,9 @@ pub struct Schedule {
     /// suspended objects that the smooth step's eikonal and smoothness terms would otherwise
     /// erase — so the bubbles stay on only where the error persists.
     pub smooth_bubble: f64,
+    /// λ1 in the bubble step, as a fraction of warm-up's (beyond the paper, which turns the
+    /// eikonal term off there: 0).
+    pub bubble_eikonal: f64,
 }
 
 impl Default for Schedule {
@@ -73,6 +76,7 @@ impl Default for Schedule {
             bubble: true,
             // Measured on the default room (issue 12): the thin objects survive the smooth step.
             smooth_bubble: 1.0,
+            bubble_eikonal: 0.0,
         }
     }
 }
@@ -80,6 +84,9 @@ impl Default for Schedule {
 impl Schedule {
     pub fn validate(&self) -> Result<(), String> {
         let ok = |f: f64| (0.0..=1.0).contains(&f);
+        if !ok(self.bubble_eikonal) {
+            return Err(format!("bubble_eikonal ({}) must be in [0, 1]", self.bubble_eikonal));
+        }
         if !ok(self.smooth_bubble) {
             return Err(format!("smooth_bubble ({}) must be in [0, 1]", self.smooth_bubble));
         }
@@ -120,7 +127,7 @@ impl Schedule {
                 w.bubble = 0.0;
             }
             Phase::Bubble if self.bubble => {
-                w.eikonal = 0.0;
+                w.eikonal = base.eikonal * self.bubble_eikonal as f32;
                 w.smooth = 0.0;
             }
             Phase::Bubble => {
@@ -174,6 +181,23 @@ mod tests {
     }
 
     #[test]
+    fn the_bubble_step_can_keep_part_of_the_eikonal_term() {
+        let s = Schedule {
+            bubble_eikonal: 0.25,
+            ..Default::default()
+        };
+        let w = s.weights(Phase::Bubble, &LossWeights::default());
+        assert!((w.eikonal - 0.025).abs() < 1e-7);
+        assert_eq!((w.smooth, w.bubble), (0.0, 0.5));
+        assert!(Schedule {
+            bubble_eikonal: 1.5,
+            ..Default::default()
+        }
+        .validate()
+        .is_err());
+    }
+
+    #[test]
     fn bubbles_can_persist_into_the_smooth_step() {
         let s = Schedule {
             smooth_bubble: 0.2,
@@ -204,7 +228,8 @@ mod tests {
             warmup_fraction: 0.8,
             bubble_fraction: 0.5,
             bubble: true,
-            smooth_bubble: 0.0
+            smooth_bubble: 0.0,
+            bubble_eikonal: 0.0,
         }
         .validate()
         .is_err());
