@@ -295,12 +295,13 @@ impl Stage1 {
             }
         }
         if w.inside > 0.0 {
+            let sigma = self.noise_sigma();
             for p in &picks {
                 let im = &self.images[p.image as usize];
                 let pixel = p.pixel as usize;
                 if im.surface_point(pixel).is_some() {
                     let t = im.depth[pixel];
-                    let behind = INSIDE_DEPTH + self.noise_sigma().map_or(0.0, |sigma| sigma(t));
+                    let behind = INSIDE_DEPTH + sigma.as_ref().map_or(0.0, |sigma| sigma(t));
                     extra.extend_from_slice(&im.point_at(pixel, t + behind, pin));
                 }
             }
