@@ -3,8 +3,9 @@
 //! are tuned for the default synthetic room on 2 cores. Unknown keys are errors (a typo in an
 //! ablation must not silently run the default).
 
+pub use crate::auto::Auto;
 use crate::stage1::schedule::{LossWeights, Schedule};
-use i2sdf_data::DataError;
+use i2sdf_data::{DataError, Dataset};
 pub use i2sdf_model::material_field::{MaterialBackbone, MaterialConfig};
 pub use i2sdf_model::{Backbone, ModelConfig};
 use serde::{Deserialize, Serialize};
@@ -292,8 +293,9 @@ impl Default for Stage2Config {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TrainLoop {
-    /// Total stage-1 iterations (the three steps are fractions of it).
-    pub iterations: u64,
+    /// Total stage-1 iterations (the three steps are fractions of it). `"auto"`: 2500, or 5000
+    /// where the depth is a sensor's (`TrainConfig::resolve`).
+    pub iterations: Auto<u64>,
     /// Rays per iteration.
     pub rays: usize,
     /// Bubble points per iteration in the bubble step.
@@ -333,8 +335,8 @@ impl Default for TrainLoop {
         TrainLoop {
             // 2500 iterations with the bubble step from 15 % to the end, and faster MLP and β
             // learning rates: the 5000-iteration defaults' quality in half the time (issue 26,
-            // docs/results.md "Stage 1 against the clock").
-            iterations: 2500,
+            // docs/results.md "Stage 1 against the clock"); a sensor's depth takes 5000.
+            iterations: Auto::AUTO,
             rays: 1024,
             bubble_points: 1024,
             eikonal_points: 1024,
@@ -508,7 +510,54 @@ impl Default for PoseConfig {
     }
 }
 
+/// Stage 1's iterations where `train.iterations` is `"auto"`, and where the depth is a sensor's.
+const ITERATIONS: u64 = 2500;
+const SENSOR_DEPTH_ITERATIONS: u64 = 5000;
+
 impl TrainConfig {
+    /// Fills the `"auto"` settings with what the dataset calls for; given values stay. Depth a
+    /// sensor measured (depth maps the dataset does not declare exact, `depth_exact`) takes 5000
+    /// stage-1 iterations with the eikonal term kept whole in the bubble step: nothing else holds
+    /// the SDF to a distance while eq:bubble pulls it to noisy points, and the longer run gives
+    /// back the detail the term costs (two phone captures of the built-in room: F 0.951 → 0.956
+    /// and 0.938 → 0.956, walls out of their 2.5 cm bias; each change alone did not help;
+    /// docs/results.md, thirteenth session). Exact depth (the term halves the thin objects'
+    /// recall there) and no depth keep 2500 iterations and the paper's λ1 = 0 in that step.
+    /// Returns what it filled for a sensor's depth, as a line for the user.
+    pub fn resolve(&mut self, dataset: &Dataset) -> Option<String> {
+        let sensor_depth = !dataset.depth_exact
+            && dataset
+                .frames
+                .iter()
+                .any(|f| f.split == i2sdf_data::Split::Train && f.depth.is_some());
+        let (iterations, bubble_eikonal) = if sensor_depth {
+            (SENSOR_DEPTH_ITERATIONS, 1.0)
+        } else {
+            (ITERATIONS, 0.0)
+        };
+        let mut filled = Vec::new();
+        if self.train.iterations.value().is_none() {
+            filled.push(format!("train.iterations = {iterations}"));
+        }
+        if self.schedule.bubble_eikonal.value().is_none() {
+            filled.push(format!("schedule.bubble_eikonal = {bubble_eikonal}"));
+        }
+        self.train.iterations.resolve(iterations);
+        self.schedule.bubble_eikonal.resolve(bubble_eikonal);
+        (sensor_depth && !filled.is_empty()).then(|| {
+            format!(
+                "depth a sensor's (not declared exact): {} (\"auto\"; exact depth: 2500 and 0)",
+                filled.join(", ")
+            )
+        })
+    }
+
+    /// Stage 1's iteration total: the resolved `train.iterations` ([`TrainConfig::resolve`];
+    /// 2500 where it was never resolved against a dataset).
+    pub fn iterations(&self) -> u64 {
+        self.train.iterations.or(ITERATIONS)
+    }
+
     /// Reads a TOML file (if given) and applies `key=value` overrides (dotted keys, TOML values;
     /// a value that does not parse as TOML is taken as a string).
     pub fn load(file: Option<&Path>, overrides: &[String]) -> Result<TrainConfig, DataError> {
@@ -555,7 +604,9 @@ impl TrainConfig {
         use i2sdf_model::config::check::{int, positive, real};
         const MAX_POINTS: usize = 1 << 20;
         let t = &self.train;
-        int("train.iterations", t.iterations, 1, 100_000_000)?;
+        if let Some(n) = t.iterations.value() {
+            int("train.iterations", n, 1, 100_000_000)?;
+        }
         int("train.rays", t.rays, 1, MAX_POINTS)?;
         int("train.bubble_points", t.bubble_points, 0, MAX_POINTS)?;
         int("train.eikonal_points", t.eikonal_points, 0, MAX_POINTS)?;

@@ -23,7 +23,7 @@ fn file_and_overrides() {
         ],
     )
     .unwrap();
-    assert_eq!(c.train.iterations, 77);
+    assert_eq!(c.train.iterations, Auto::Value(77));
     assert_eq!(c.train.rays, 256);
     assert_eq!(c.model.backbone, Backbone::Mlp);
     assert!(!c.adaptive.enabled);
@@ -122,4 +122,54 @@ fn typos_and_bad_values_are_errors() {
         .unwrap_err()
         .to_string()
         .contains("bad.toml"));
+}
+
+/// `"auto"` resolves against the dataset: a sensor's depth takes 5000 iterations and the eikonal
+/// term in the bubble step, and says so; exact depth keeps 2500 and the paper's 0 silently;
+/// values given stay, and a bad word or number names its key.
+#[test]
+fn auto_settings_follow_the_depth() {
+    use i2sdf_data::fixture::{self, FixtureOptions};
+    let dir = tempfile::tempdir().unwrap();
+    fixture::write_native(dir.path(), &FixtureOptions::default());
+    let mut ds = i2sdf_data::load(dir.path()).unwrap();
+    assert!(ds.depth_exact);
+    let mut c = TrainConfig::default();
+    assert_eq!(
+        (c.train.iterations, c.schedule.bubble_eikonal),
+        (Auto::AUTO, Auto::AUTO)
+    );
+    assert_eq!(c.resolve(&ds), None);
+    assert_eq!((c.iterations(), c.schedule.bubble_eikonal), (2500, Auto::Value(0.0)));
+    ds.depth_exact = false;
+    let mut c = TrainConfig::default();
+    let line = c.resolve(&ds).expect("a sensor's depth is said");
+    assert!(
+        line.contains("train.iterations = 5000") && line.contains("schedule.bubble_eikonal = 1"),
+        "{line}"
+    );
+    assert_eq!((c.iterations(), c.schedule.bubble_eikonal), (5000, Auto::Value(1.0)));
+    // A resolved configuration is written with its numbers and reads back equal.
+    let text = c.to_toml();
+    assert!(
+        text.contains("\niterations = 5000") && text.contains("bubble_eikonal = 1.0"),
+        "{text}"
+    );
+    assert_eq!(toml::from_str::<TrainConfig>(&text).unwrap(), c);
+    let sets = ["train.iterations=300", "schedule.bubble_eikonal=\"auto\""].map(String::from);
+    let mut c = TrainConfig::load(None, &sets).unwrap();
+    let line = c.resolve(&ds).unwrap();
+    assert!(
+        !line.contains("train.iterations") && line.contains("bubble_eikonal = 1"),
+        "{line}"
+    );
+    assert_eq!(c.iterations(), 300);
+    for (set, key) in [
+        ("train.iterations=often", "train.iterations"),
+        ("train.iterations=0", "train.iterations"),
+        ("schedule.bubble_eikonal=\"off\"", "schedule.bubble_eikonal"),
+    ] {
+        let e = TrainConfig::load(None, &[set.to_string()]).unwrap_err();
+        assert!(e.is_bad_input() && e.to_string().contains(key), "{set}: {e}");
+    }
 }

@@ -11,6 +11,7 @@
 //!
 //! The run directory's layout is `i2sdf_model::run_dir`.
 
+pub mod auto;
 pub mod config;
 pub mod driver;
 pub mod maps;

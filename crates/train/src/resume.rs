@@ -191,7 +191,7 @@ mod tests {
         let mut new = old.clone();
         assert!(config_changes(&old, &new, true).is_empty());
         new.train.log_every += 1;
-        new.train.iterations += 1;
+        new.train.iterations = crate::auto::Auto::Value(1);
         new.stage2.iterations += 1;
         assert!(config_changes(&old, &new, true).is_empty());
         new.train.seed = 7;

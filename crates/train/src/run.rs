@@ -76,7 +76,8 @@ pub fn open_trained(root: &Path) -> Result<OpenedRun, DataError> {
 
 /// Opens a run directory for training: a fresh one (refused if it already holds a run) or, with
 /// `resume`, an existing one whose configuration (`config` if given, else the run's own) and
-/// dataset normalization are checked. Writes the configuration and `run.json`; any stage then
+/// dataset normalization are checked. Writes the configuration, its `"auto"` settings resolved
+/// against the dataset (and says what a sensor's depth filled), and `run.json`; any stage then
 /// [`drive`]s into it.
 pub fn open_run(
     run: &RunDir,
@@ -84,7 +85,7 @@ pub fn open_run(
     data_arg: &str,
     config: Option<TrainConfig>,
     resume: bool,
-) -> Result<(TrainConfig, RunInfo), DataError> {
+) -> Result<(TrainConfig, RunInfo, Option<String>), DataError> {
     let (config, info) = if resume {
         // A run killed before its first checkpoint resumes from iteration 0: its initial state,
         // which a fresh stage 1 with the run's seed rebuilds exactly.
@@ -97,7 +98,9 @@ pub fn open_run(
         record_dataset(&mut info, data_arg, dataset);
         let own = read_run_config(run)?;
         let config = match config {
-            Some(c) => {
+            Some(mut c) => {
+                // "auto" stands for what the run resolved it to.
+                let _ = c.resolve(dataset);
                 check_config(&run.config_path(), &own, &c, run.stage2_checkpoint_path().is_file())?;
                 c
             }
@@ -121,11 +124,14 @@ pub fn open_run(
         record_dataset(&mut info, data_arg, dataset);
         (config.unwrap_or_default(), info)
     };
+    // The run's file holds the numbers its dataset called for, not "auto".
+    let mut config = config;
+    let filled = config.resolve(dataset);
     write_if_changed(&run.config_path(), &config.to_toml())?;
     if run.read_info().ok().as_ref() != Some(&info) {
         run.write_info(&info)?;
     }
-    Ok((config, info))
+    Ok((config, info, filled))
 }
 
 /// Runs (or resumes) stage 1 into `run`. On resume the configuration is the run's own unless
@@ -140,10 +146,13 @@ pub fn train_geometry(
     resume: bool,
     mut on_event: impl FnMut(Event<StepStats>),
 ) -> Result<Stage1, DataError> {
-    let (config, mut info) = open_run(run, dataset, data_arg, config, resume)?;
+    let (config, mut info, filled) = open_run(run, dataset, data_arg, config, resume)?;
     let maps = TrainingMaps::for_run(run, dataset, &config)?;
     for line in maps.describe(dataset) {
         on_event(Event::Note(line.to_string()));
+    }
+    if let Some(line) = filled {
+        on_event(Event::Note(line));
     }
     let snapshots = config.train.snapshot_seconds.clone();
     let options = DriveOptions {
@@ -225,7 +234,8 @@ pub fn train_materials(
     }
     let own = read_run_config(run)?;
     let config = match config {
-        Some(c) => {
+        Some(mut c) => {
+            let _ = c.resolve(dataset);
             check_config(&run.config_path(), &own, &c, ckpt.is_file())?;
             c
         }

@@ -48,8 +48,8 @@ fn the_paper_config_is_the_papers_architecture_and_schedule() {
     assert_eq!((emit.hidden_dim, emit.hidden_layers), (128, 2));
     assert_eq!(c.material.backbone, MaterialBackbone::FeatureMlp);
     assert_eq!((c.material.hidden_dim, c.material.hidden_layers), (64, 3));
-    assert_eq!(c.train.iterations, 200_000);
-    assert_eq!(c.schedule.boundaries(c.train.iterations), (50_000, 150_000));
+    assert_eq!(c.iterations(), 200_000);
+    assert_eq!(c.schedule.boundaries(c.iterations()), (50_000, 150_000));
     assert_eq!(c.schedule.smooth_bubble, 0.0);
     assert_eq!(
         (

@@ -195,12 +195,15 @@ impl Stage1 {
         Self::with_scene(dataset, config, scene, maps)
     }
 
-    fn with_scene(dataset: &Dataset, config: TrainConfig, mut scene: NeuralScene, maps: &TrainingMaps) -> Self {
+    fn with_scene(dataset: &Dataset, mut config: TrainConfig, mut scene: NeuralScene, maps: &TrainingMaps) -> Self {
+        // A run's configuration is resolved already (`run::open_run`); a caller's may say "auto".
+        let _ = config.resolve(dataset);
         scene.set_matmul_precision(config.train.matmul_precision);
+        let iterations = config.iterations();
         let t = &config.train;
         let schedule = |lr_warmup: u64| LrSchedule::WarmupCosine {
             warmup: lr_warmup,
-            total: t.iterations,
+            total: iterations,
             min_factor: t.lr_final_fraction,
         };
         let mut adam = Adam::new(AdamConfig {
@@ -223,7 +226,7 @@ impl Stage1 {
         let images = train_images(dataset, maps);
         let hash_grid = matches!(config.model.backbone, i2sdf_model::Backbone::HashGrid);
         let centres = images.iter().map(|im| im.origin).collect();
-        let poses = PoseCorrection::new(dataset, &config.pose, hash_grid, centres, t.iterations);
+        let poses = PoseCorrection::new(dataset, &config.pose, hash_grid, centres, iterations);
         let given_poses = images
             .iter()
             .map(|im| {
@@ -345,7 +348,7 @@ impl Stage1 {
     }
 
     pub fn done(&self) -> bool {
-        self.iteration >= self.config.train.iterations
+        self.iteration >= self.config.iterations()
     }
 
     /// Will the next step initialise the PDF maps (a pause of a few seconds)?
@@ -360,7 +363,7 @@ impl Stage1 {
     }
 
     pub fn phase(&self) -> Phase {
-        self.config.schedule.phase(self.iteration, self.config.train.iterations)
+        self.config.schedule.phase(self.iteration, self.config.iterations())
     }
 
     /// All-zero maps over the pixels with depth.
@@ -664,7 +667,7 @@ impl TrainStage for Stage1 {
         self.iteration
     }
     fn total(&self) -> u64 {
-        self.config.train.iterations
+        self.config.iterations()
     }
     fn seed(&self) -> u64 {
         self.config.train.seed

@@ -3,6 +3,7 @@
 //! eikonal and smoothness off), smooth (bubble off, eikonal and smoothness on). Step lengths scale
 //! with the total iteration count (paper: 50k / 100k / 50k of 200k).
 
+use crate::auto::Auto;
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -60,11 +61,11 @@ pub struct Schedule {
     /// suspended objects that the smooth step's eikonal and smoothness terms would otherwise
     /// erase — so the bubbles stay on only where the error persists.
     pub smooth_bubble: f64,
-    /// λ1 in the bubble step, as a fraction of warm-up's (beyond the paper, which turns the
-    /// eikonal term off there: 0). Without it nothing holds the SDF to a distance for most of
-    /// stage 1, and eq:bubble on a sensor's noisy points can flatten it over the noise's band;
-    /// measured on two captures, it takes the walls' bias out but costs detail's recall.
-    pub bubble_eikonal: f64,
+    /// λ1 in the bubble step, as a fraction of warm-up's (the paper turns the eikonal term off
+    /// there: 0). Without it nothing holds the SDF to a distance for most of stage 1, and
+    /// eq:bubble on a sensor's noisy points can flatten it over the noise's band. `"auto"`: 1
+    /// where the depth is a sensor's, else 0 (`TrainConfig::resolve`).
+    pub bubble_eikonal: Auto<f64>,
 }
 
 impl Default for Schedule {
@@ -78,7 +79,7 @@ impl Default for Schedule {
             bubble: true,
             // Measured on the default room (issue 12): the thin objects survive the smooth step.
             smooth_bubble: 1.0,
-            bubble_eikonal: 0.0,
+            bubble_eikonal: Auto::AUTO,
         }
     }
 }
@@ -86,8 +87,8 @@ impl Default for Schedule {
 impl Schedule {
     pub fn validate(&self) -> Result<(), String> {
         let ok = |f: f64| (0.0..=1.0).contains(&f);
-        if !ok(self.bubble_eikonal) {
-            return Err(format!("bubble_eikonal ({}) must be in [0, 1]", self.bubble_eikonal));
+        if let Some(e) = self.bubble_eikonal.value().filter(|e| !ok(*e)) {
+            return Err(format!("bubble_eikonal ({e}) must be in [0, 1] or \"auto\""));
         }
         if !ok(self.smooth_bubble) {
             return Err(format!("smooth_bubble ({}) must be in [0, 1]", self.smooth_bubble));
@@ -130,7 +131,8 @@ impl Schedule {
                 w.bubble = 0.0;
             }
             Phase::Bubble if self.bubble => {
-                w.eikonal = base.eikonal * self.bubble_eikonal as f32;
+                // Unresolved (never a run's: `TrainConfig::resolve`): the paper's.
+                w.eikonal = base.eikonal * self.bubble_eikonal.or(0.0) as f32;
                 w.smooth = 0.0;
             }
             Phase::Bubble => {
@@ -186,14 +188,14 @@ mod tests {
     #[test]
     fn the_bubble_step_can_keep_part_of_the_eikonal_term() {
         let s = Schedule {
-            bubble_eikonal: 0.25,
+            bubble_eikonal: 0.25.into(),
             ..Default::default()
         };
         let w = s.weights(Phase::Bubble, &LossWeights::default());
         assert!((w.eikonal - 0.025).abs() < 1e-7);
         assert_eq!((w.smooth, w.bubble), (0.0, 0.5));
         assert!(Schedule {
-            bubble_eikonal: 1.5,
+            bubble_eikonal: 1.5.into(),
             ..Default::default()
         }
         .validate()
@@ -232,7 +234,7 @@ mod tests {
             bubble_fraction: 0.5,
             bubble: true,
             smooth_bubble: 0.0,
-            bubble_eikonal: 0.0,
+            bubble_eikonal: Auto::AUTO,
         }
         .validate()
         .is_err());

@@ -133,7 +133,7 @@ impl Stage1 {
     /// The schedule's step at this iteration and its loss weights; the PDF maps are built when
     /// the bubble step starts and dropped when the smooth step no longer needs them.
     fn enter_phase(&mut self) -> (Phase, LossWeights) {
-        let phase = self.config.schedule.phase(self.iteration, self.config.train.iterations);
+        let phase = self.config.schedule.phase(self.iteration, self.config.iterations());
         let w = self.config.schedule.weights(phase, &self.config.loss);
         if w.bubble > 0.0 && self.pdf.is_none() && !self.no_depth {
             self.init_pdf();
