@@ -43,6 +43,10 @@ fn a_phone_capture_trains_and_is_scored_against_the_exact_room() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(text.contains("emitter masks: absent → found from the images"), "{text}");
     assert!(text.contains("normals: absent → derived from depth"), "{text}");
+    assert!(
+        text.contains("depth a sensor's (not declared exact): train.iterations = 5000, schedule.bubble_eikonal = 1"),
+        "{text}"
+    );
 
     let mut a = vec!["train", "--quiet", "--data", s(&capture), "--out", s(&run)];
     a.extend_from_slice(&TINY);
@@ -53,6 +57,12 @@ fn a_phone_capture_trains_and_is_scored_against_the_exact_room() {
     assert_eq!(o.code, 0, "{}", o.stderr);
     assert!(run.join("poses.json").is_file(), "the corrected poses are written");
     assert!(run.join("emitter_masks").is_dir(), "the found masks are written");
+    // The run keeps the numbers "auto" became: the iterations TINY gave, the eikonal term's 1.
+    let config = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    assert!(
+        config.contains("bubble_eikonal = 1.0") && !config.contains("iterations = \"auto\""),
+        "{config}"
+    );
     let o = common::train_material(&capture, &run, &TINY_STAGE2);
     assert_eq!(o.code, 0, "{}", o.stderr);
 

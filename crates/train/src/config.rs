@@ -546,7 +546,7 @@ impl TrainConfig {
         self.schedule.bubble_eikonal.resolve(bubble_eikonal);
         (sensor_depth && !filled.is_empty()).then(|| {
             format!(
-                "depth a sensor's (not declared exact): {} (\"auto\"; exact depth: 2500 and 0)",
+                "depth a sensor's (not declared exact): {} (\"auto\"; exact depth: {ITERATIONS} and 0)",
                 filled.join(", ")
             )
         })

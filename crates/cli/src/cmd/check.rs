@@ -30,8 +30,10 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     // The configuration first: a bad key is reported before the dataset is read.
-    let config = TrainConfig::load(args.config.as_deref(), &args.set)?;
+    let mut config = TrainConfig::load(args.config.as_deref(), &args.set)?;
     let dataset = i2sdf_data::load(&args.data)?;
+    // What `train` would fill its "auto" settings with on this dataset.
+    let filled = config.resolve(&dataset);
     let summary = i2sdf_data::Summary::of(&dataset);
     let maps = TrainingMaps::prepare(&dataset, &config)?;
     let map_lines = maps.describe(&dataset);
@@ -52,6 +54,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         v["training_maps"] = serde_json::json!({
             "maps": map_lines,
             "emitter_detection": maps.detection,
+            "auto": filled,
         });
         v["exposure"] = serde_json::json!({
             "declared": dataset.radiometry.exposure,
@@ -73,6 +76,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         // What training with this configuration does per map, in the summary's columns.
         for (k, line) in map_lines.iter().enumerate() {
             println!("{:13}{line}", if k == 0 { "training" } else { "" });
+        }
+        if let Some(line) = &filled {
+            println!("{:13}{line}", "");
         }
         match &exposure {
             Some(e) => println!(
