@@ -4,7 +4,7 @@
 //! ablation must not silently run the default).
 
 pub use crate::auto::Auto;
-use crate::stage1::schedule::{LossWeights, Schedule};
+use crate::stage1::schedule::{LossWeights, Schedule, PAPER_BUBBLE_EIKONAL};
 use i2sdf_data::{DataError, Dataset};
 pub use i2sdf_model::material_field::{MaterialBackbone, MaterialConfig};
 pub use i2sdf_model::{Backbone, ModelConfig};
@@ -533,7 +533,7 @@ impl TrainConfig {
         let (iterations, bubble_eikonal) = if sensor_depth {
             (SENSOR_DEPTH_ITERATIONS, 1.0)
         } else {
-            (ITERATIONS, 0.0)
+            (ITERATIONS, PAPER_BUBBLE_EIKONAL)
         };
         let mut filled = Vec::new();
         if self.train.iterations.value().is_none() {
@@ -546,7 +546,7 @@ impl TrainConfig {
         self.schedule.bubble_eikonal.resolve(bubble_eikonal);
         (sensor_depth && !filled.is_empty()).then(|| {
             format!(
-                "depth a sensor's (not declared exact): {} (\"auto\"; exact depth: {ITERATIONS} and 0)",
+                "depth a sensor's (not declared exact): {} (\"auto\"; exact depth: {ITERATIONS} and {PAPER_BUBBLE_EIKONAL})",
                 filled.join(", ")
             )
         })

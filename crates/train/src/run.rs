@@ -74,6 +74,25 @@ pub fn open_trained(root: &Path) -> Result<OpenedRun, DataError> {
     OpenedRun::open(root, inference_config(&config))
 }
 
+/// The configuration a run continues with: its own, or `config` (its "auto" settings standing
+/// for what the run resolved them to) once checked to change nothing the checkpoints depend on.
+fn continued_config(
+    run: &RunDir,
+    dataset: &Dataset,
+    config: Option<TrainConfig>,
+    frozen_stage2: bool,
+) -> Result<TrainConfig, DataError> {
+    let own = read_run_config(run)?;
+    Ok(match config {
+        Some(mut c) => {
+            let _ = c.resolve(dataset);
+            check_config(&run.config_path(), &own, &c, frozen_stage2)?;
+            c
+        }
+        None => own,
+    })
+}
+
 /// Opens a run directory for training: a fresh one (refused if it already holds a run) or, with
 /// `resume`, an existing one whose configuration (`config` if given, else the run's own) and
 /// dataset normalization are checked. Writes the configuration, its `"auto"` settings resolved
@@ -96,16 +115,7 @@ pub fn open_run(
         let mut info = run.read_info()?;
         check_same_dataset(run, &info, data_arg, dataset)?;
         record_dataset(&mut info, data_arg, dataset);
-        let own = read_run_config(run)?;
-        let config = match config {
-            Some(mut c) => {
-                // "auto" stands for what the run resolved it to.
-                let _ = c.resolve(dataset);
-                check_config(&run.config_path(), &own, &c, run.stage2_checkpoint_path().is_file())?;
-                c
-            }
-            None => own,
-        };
+        let config = continued_config(run, dataset, config, run.stage2_checkpoint_path().is_file())?;
         repair(&run.root, &run.log_path())?;
         (config, info)
     } else {
@@ -232,15 +242,7 @@ pub fn train_materials(
     if resume && !ckpt.is_file() && info.stage("stage2").is_some_and(|s| s.iterations > 0) {
         return Err(DataError::file(&ckpt, "missing: no stage-2 checkpoint to resume from"));
     }
-    let own = read_run_config(run)?;
-    let config = match config {
-        Some(mut c) => {
-            let _ = c.resolve(dataset);
-            check_config(&run.config_path(), &own, &c, ckpt.is_file())?;
-            c
-        }
-        None => own,
-    };
+    let config = continued_config(run, dataset, config, ckpt.is_file())?;
     let finished = info
         .stage("stage2")
         .is_some_and(|s| s.done && s.iterations == config.stage2.iterations);

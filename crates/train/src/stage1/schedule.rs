@@ -46,6 +46,9 @@ impl Default for LossWeights {
     }
 }
 
+/// The paper's λ1 in the bubble step (as a fraction of warm-up's): the eikonal term off.
+pub const PAPER_BUBBLE_EIKONAL: f64 = 0.0;
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Schedule {
@@ -132,7 +135,7 @@ impl Schedule {
             }
             Phase::Bubble if self.bubble => {
                 // Unresolved (never a run's: `TrainConfig::resolve`): the paper's.
-                w.eikonal = base.eikonal * self.bubble_eikonal.or(0.0) as f32;
+                w.eikonal = base.eikonal * self.bubble_eikonal.or(PAPER_BUBBLE_EIKONAL) as f32;
                 w.smooth = 0.0;
             }
             Phase::Bubble => {
