@@ -25,6 +25,7 @@ pub mod native;
 pub mod output;
 pub mod paper;
 pub mod paper_write;
+pub mod photo_depth;
 pub mod ply;
 pub mod radiometry;
 pub mod sensor_depth;

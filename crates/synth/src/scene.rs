@@ -90,6 +90,32 @@ pub enum Geometry {
     Quad { origin: [f32; 3], u: [f32; 3], v: [f32; 3] },
 }
 
+impl Geometry {
+    /// Signed distance from `p` to the shape's surface (world units) for the solids (boxes,
+    /// spheres, cylinders, as their exact shapes, not their tessellations); `None` for a quad,
+    /// which bounds no inside. What the probes use to tell which pixels see a thin shape.
+    pub fn distance(&self, p: glam::Vec3) -> Option<f32> {
+        match self {
+            Geometry::Box { min, max, yaw_deg } => {
+                let (lo, hi) = (glam::Vec3::from(*min), glam::Vec3::from(*max));
+                let c = 0.5 * (lo + hi);
+                // Into the box's frame: the inverse of its yaw about the vertical through its centre.
+                let q = glam::Quat::from_rotation_y(-yaw_deg.to_radians()) * (p - c);
+                let d = q.abs() - 0.5 * (hi - lo);
+                Some(d.max(glam::Vec3::ZERO).length() + d.max_element().min(0.0))
+            }
+            Geometry::Cylinder { a, b, radius, .. } => {
+                let (a, b) = (glam::Vec3::from(*a), glam::Vec3::from(*b));
+                let ab = b - a;
+                let s = ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
+                Some((p - (a + s * ab)).length() - radius)
+            }
+            Geometry::Sphere { center, radius, .. } => Some((p - glam::Vec3::from(*center)).length() - radius),
+            Geometry::Quad { .. } => None,
+        }
+    }
+}
+
 /// The object tags the generator writes. Evaluation groups objects by them: `thin` and
 /// `suspended` objects are what the paper's bubble loss exists to recover.
 pub mod tags {
@@ -234,6 +260,24 @@ impl SceneDesc {
             object_of_shape.push(id);
         }
         (objects, object_of_shape)
+    }
+
+    /// The solid shapes (those with a [`Geometry::distance`]) of the objects carrying any of
+    /// `tags`, grouped by object name in order of first appearance: what the probes score the
+    /// thin, suspended and small objects by.
+    pub fn solid_shapes_tagged(&self, tags: &[&str]) -> Vec<(String, Vec<usize>)> {
+        let (objects, object_of) = self.objects();
+        let mut groups: Vec<(String, Vec<usize>)> = Vec::new();
+        for (s, shape) in self.shapes.iter().enumerate() {
+            let o = &objects[object_of[s] as usize];
+            if o.tags.iter().any(|t| tags.contains(&t.as_str())) && shape.geometry.distance(Vec3::ZERO).is_some() {
+                match groups.iter_mut().find(|g| g.0 == o.name) {
+                    Some(g) => g.1.push(s),
+                    None => groups.push((o.name.clone(), vec![s])),
+                }
+            }
+        }
+        groups
     }
 
     /// Checks every value a renderer relies on; errors name the shape and field.

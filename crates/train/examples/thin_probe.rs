@@ -14,7 +14,7 @@
 use i2sdf_model::renderer::{self, RenderWorkspace};
 use i2sdf_model::{NeuralScene, RunDir};
 use i2sdf_nn::sdf::SdfInferWorkspace;
-use i2sdf_synth::scene::{Geometry, SceneDesc};
+use i2sdf_synth::scene::SceneDesc;
 use i2sdf_train::config::TrainConfig;
 use i2sdf_train::maps::TrainingMaps;
 use i2sdf_train::stage1::rays::train_images;
@@ -22,29 +22,6 @@ use i2sdf_train::stage1::render_settings;
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
-
-/// Signed distance to a shape's surface (world units), for the rods and balls of thin objects
-/// and the balls and boxes of small ones.
-fn shape_distance(g: &Geometry, p: glam::Vec3) -> Option<f32> {
-    match g {
-        Geometry::Box { min, max, yaw_deg } => {
-            let (lo, hi) = (glam::Vec3::from(*min), glam::Vec3::from(*max));
-            let c = 0.5 * (lo + hi);
-            // Into the box's frame: the inverse of its yaw about the vertical through its centre.
-            let q = glam::Quat::from_rotation_y(-yaw_deg.to_radians()) * (p - c);
-            let d = q.abs() - 0.5 * (hi - lo);
-            Some(d.max(glam::Vec3::ZERO).length() + d.max_element().min(0.0))
-        }
-        Geometry::Cylinder { a, b, radius, .. } => {
-            let (a, b) = (glam::Vec3::from(*a), glam::Vec3::from(*b));
-            let ab = b - a;
-            let s = ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
-            Some((p - (a + s * ab)).length() - radius)
-        }
-        Geometry::Sphere { center, radius, .. } => Some((p - glam::Vec3::from(*center)).length() - radius),
-        _ => None,
-    }
-}
 
 /// The PDF maps' per-pixel values of a bubble-step checkpoint (`adam.pdf_maps.value`), read from
 /// the safetensors header directly (the tensor is trainer state that inference loads skip).
@@ -85,19 +62,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let scale = norm.scale as f32;
     let images = train_images(&dataset, &TrainingMaps::prepare(&dataset, &config)?);
     let total: usize = images.iter().map(|i| i.pixels()).sum();
-    // The thin and suspended shapes, grouped by object.
-    let (objects, object_of) = desc.objects();
-    let mut groups: Vec<(String, Vec<usize>)> = Vec::new();
-    for (s, shape) in desc.shapes.iter().enumerate() {
-        let o = &objects[object_of[s] as usize];
-        let wanted = o.tags.iter().any(|t| t == "thin" || t == "suspended" || t == "small");
-        if wanted && shape_distance(&shape.geometry, glam::Vec3::ZERO).is_some() {
-            match groups.iter_mut().find(|g| g.0 == o.name) {
-                Some(g) => g.1.push(s),
-                None => groups.push((o.name.clone(), vec![s])),
-            }
-        }
-    }
+    // The thin, suspended and small shapes, grouped by object.
+    let groups = desc.solid_shapes_tagged(&["thin", "suspended", "small"]);
     // A random sample of all training pixels with depth, for the baseline colour error.
     let mut rng = Pcg64::seed_from_u64(3);
     let mut everywhere: Vec<(usize, usize)> = (0..max_pixels)
@@ -191,7 +157,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     .as_vec3();
                 let near = shapes
                     .iter()
-                    .any(|&s| shape_distance(&desc.shapes[s].geometry, w).is_some_and(|d| d.abs() < 0.01));
+                    .any(|&s| desc.shapes[s].geometry.distance(w).is_some_and(|d| d.abs() < 0.01));
                 if near {
                     seen.push((i, p));
                     views.insert(i);

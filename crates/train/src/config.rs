@@ -92,9 +92,11 @@ pub struct MapsConfig {
     /// paper's release do). Stage 1's depth, bubble and inside terms weigh a sample at distance
     /// z along its ray by 1 / (1 + (z / d)²), normalized to a mean of 1 over each batch: the L1
     /// likelihood of a sensor whose noise grows as σ₀ (1 + (z / d)²), as triangulating sensors'
-    /// does (the paper's σ(z) = 0.0029 z² + 0.0033 m has d = 1.07 m). 2 m: on three phone
-    /// captures it moved F 0.948 → 0.951 (its bulb built), 0.944 → 0.938 (the bookshelf, seen
-    /// only from afar, loses recall) and 0.922 → 0.955 (docs/results.md, eleventh session).
+    /// does (the paper's σ(z) = 0.0029 z² + 0.0033 m has d = 1.07 m). Off by default: with the
+    /// eikonal term in the bubble step (the sensor-depth schedule) the far walls need their
+    /// samples' full weight: on three phone captures d = 2 m gave F 0.956 / 0.956 / 0.948 (a
+    /// 10–30 cm bulge on seed 7's far wall), d = 0 0.954 / 0.955 / 0.960, and 0.966 with
+    /// another initialization of seed 7 (docs/results.md, fourteenth and fifteenth sessions).
     pub depth_noise_distance: f32,
     /// The sensor's noise σ₀ up close (metres; 0: none), for depth not declared exact:
     /// eq:bubble tolerates |d| up to σ₀ (1 + (z / d)²) at a depth point, and the inside point
@@ -102,6 +104,14 @@ pub struct MapsConfig {
     /// 1's outward wall bias but lost F on both captures (0.951 → 0.945, 0.938 → 0.930;
     /// docs/results.md, twelfth session).
     pub depth_noise_sigma: f32,
+    /// When (a fraction of stage 1's iterations; 0: never) stage 1 gives depth from the images to
+    /// the pixels a depth sensor lost in front of what it sensed: a plane sweep along their rays
+    /// against the neighbour views at the poses corrected so far (`i2sdf_data::photo_depth`), each
+    /// depth kept where two other views found the same point. What a coarse sensor grid drops as
+    /// flying pixels (a lamp pole, chandelier rods, table legs) then gets depth and bubble points.
+    /// Late, so that the pose correction (from half of stage 1) has brought the poses within a
+    /// fraction of a pixel: the sweep compares single pixels. Exact depth has no such holes.
+    pub photo_depth: f32,
 }
 
 impl Default for MapsConfig {
@@ -109,8 +119,9 @@ impl Default for MapsConfig {
         MapsConfig {
             emitter_masks: EmitterMasks::default(),
             normals: Normals::default(),
-            depth_noise_distance: 2.0,
+            depth_noise_distance: 0.0,
             depth_noise_sigma: 0.0,
+            photo_depth: 0.75,
         }
     }
 }
@@ -640,6 +651,7 @@ impl TrainConfig {
         real("sampling.occupancy_margin", s.occupancy_margin, 0.0, 100.0)?;
         real("maps.depth_noise_distance", self.maps.depth_noise_distance, 0.0, 1e3)?;
         real("maps.depth_noise_sigma", self.maps.depth_noise_sigma, 0.0, 1.0)?;
+        real("maps.photo_depth", self.maps.photo_depth, 0.0, 0.99)?;
         let l = &self.loss;
         for (key, v) in [
             ("loss.rgb", l.rgb),

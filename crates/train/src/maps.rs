@@ -50,6 +50,9 @@ pub struct TrainingMaps {
     smooths_normals: bool,
     /// The depth sensor's noise model in force (metres; 0: every depth sample weighs alike).
     pub depth_noise_distance: f32,
+    /// When stage 1 sweeps the images for the depth a sensor lost (`maps.photo_depth`, a fraction
+    /// of its iterations; 0: never, as for exact depth).
+    pub photo_depth: f32,
 }
 
 /// One map as `check` and `train` say it: how many training views have it in the dataset and
@@ -176,6 +179,7 @@ impl TrainingMaps {
             } else {
                 m.depth_noise_distance
             },
+            photo_depth: if dataset.depth_exact { 0.0 } else { m.photo_depth },
         })
     }
 
@@ -311,7 +315,16 @@ impl TrainingMaps {
                         ),
                         (false, _) => "; a sensor's, every sample weighed alike (maps.depth_noise_distance = 0)".into(),
                     };
-                    format!("{uses}{noise}")
+                    let photo = if self.photo_depth > 0.0 {
+                        format!(
+                            "; where it lost a thin foreground, depth from the images at {:.0} % of stage 1 \
+                             (maps.photo_depth)",
+                            100.0 * self.photo_depth
+                        )
+                    } else {
+                        String::new()
+                    };
+                    format!("{uses}{noise}{photo}")
                 }
             },
         ));
@@ -476,21 +489,27 @@ mod tests {
         );
     }
 
-    /// Depth not declared exact is a sensor's: its noise model is in force unless turned off.
+    /// Depth not declared exact is a sensor's: its noise model and the sweep for depth from the
+    /// images are in force as configured (by default the first off, the second on).
     #[test]
     fn sensor_depth_gets_the_noise_model_and_says_so() {
         let (_d, mut ds) = dataset();
         ds.depth_exact = false;
         let maps = TrainingMaps::prepare(&ds, &config(&[])).unwrap();
+        assert_eq!(maps.depth_noise_distance, 0.0);
+        let line = maps.describe(&ds)[0].to_string();
+        assert!(line.contains("every sample weighed alike"), "{line}");
+        assert!(
+            line.ends_with("depth from the images at 75 % of stage 1 (maps.photo_depth)"),
+            "{line}"
+        );
+        let maps = TrainingMaps::prepare(&ds, &config(&["maps.depth_noise_distance=2", "maps.photo_depth=0"])).unwrap();
         assert_eq!(maps.depth_noise_distance, 2.0);
         let line = maps.describe(&ds)[0].to_string();
         assert!(
             line.ends_with("a sensor's: far samples weigh less, its noise doubled at 2 m (maps.depth_noise_distance)"),
             "{line}"
         );
-        let maps = TrainingMaps::prepare(&ds, &config(&["maps.depth_noise_distance=0"])).unwrap();
-        assert_eq!(maps.depth_noise_distance, 0.0);
-        assert!(maps.describe(&ds)[0].to_string().contains("every sample weighed alike"));
         let e = TrainConfig::load(None, &["maps.depth_noise_distance=-1".to_string()]).unwrap_err();
         assert!(
             e.is_bad_input() && e.to_string().contains("maps.depth_noise_distance"),

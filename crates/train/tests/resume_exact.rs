@@ -13,6 +13,10 @@ use i2sdf_train::resume::{checkpoint_metadata, DatasetFingerprint, DATASET_META}
 use i2sdf_train::stage1::Stage1;
 
 fn config() -> TrainConfig {
+    config_with(&[])
+}
+
+fn config_with(extra: &[&str]) -> TrainConfig {
     // 40 iterations: warm-up 0–10, bubble 10–30, smooth 30–40.
     let sets: Vec<String> = [
         "train.iterations=40",
@@ -28,8 +32,10 @@ fn config() -> TrainConfig {
         "sampling.coarse=16",
         "adaptive.rgb_rays=0.25",
     ]
-    .map(String::from)
-    .to_vec();
+    .iter()
+    .chain(extra)
+    .map(|s| s.to_string())
+    .collect();
     TrainConfig::load(None, &sets).unwrap()
 }
 
@@ -63,6 +69,66 @@ fn stage1_resumes_bit_for_bit_at_every_step_of_the_schedule() {
         assert!(meta.contains_key("rgb_error_maps"), "at {at}");
         drop(part);
         let mut b = Trainer::new(Stage1::resume(&ds, config(), &maps, &ckpt).unwrap());
+        while !b.done() {
+            b.step().unwrap();
+        }
+        assert!(params(&b.stage) == want, "resumed at {at}: the parameters differ");
+    }
+}
+
+/// The sweep for depth from the images (`maps.photo_depth`) on sensor depth with holes: the
+/// depths it found are in every later checkpoint, and a run resumed after it continues bit for
+/// bit (with them, and with the PDF maps made over them).
+#[test]
+fn stage1_resumes_bit_for_bit_after_the_sweep_for_depth() {
+    let (_dir, mut ds) = common::dataset();
+    // A coarse sensor, declared a sensor's: depth on every fourth pixel of every fourth row, and
+    // not where the sample's 4×4 footprint straddles a depth edge (a flying pixel).
+    ds.depth_exact = false;
+    for f in &mut ds.frames {
+        let (w, h) = (f.camera.width, f.camera.height);
+        if let Some(d) = &mut f.depth {
+            let full = d.data.clone();
+            for (p, z) in d.data.iter_mut().enumerate() {
+                let (x, y) = (p % w, p / w);
+                let footprint = (y.saturating_sub(2)..(y + 2).min(h))
+                    .flat_map(|yy| (x.saturating_sub(2)..(x + 2).min(w)).map(move |xx| yy * w + xx))
+                    .map(|q| full[q]);
+                let (lo, hi) = footprint.fold((f32::INFINITY, 0.0f32), |(lo, hi), v| (lo.min(v), hi.max(v)));
+                if x % 4 != 2 || y % 4 != 2 || hi > 1.05 * lo {
+                    *z = 0.0;
+                }
+            }
+        }
+    }
+    let cfg = || config_with(&["maps.photo_depth=0.5"]);
+    let maps = TrainingMaps::prepare(&ds, &cfg()).unwrap();
+    let mut full = Trainer::new(Stage1::new(&ds, cfg(), &maps));
+    let mut swept = Vec::new();
+    while !full.done() {
+        let it = full.stage.iteration;
+        if let Some(n) = full.step().unwrap().stats.photo_depth {
+            swept.push((it, n));
+        }
+    }
+    // Once, at half of the run. (The fixture's box room has no foreground for it to find, so the
+    // depths it keeps are none: what it finds is `i2sdf_data::photo_depth`'s test; here the
+    // schedule, the checkpoint's tensor and the PDF maps made again at the sweep.)
+    assert!(matches!(swept[..], [(20, _)]), "{swept:?}");
+    let params = |s: &Stage1| -> Vec<Vec<f32>> { s.scene.modules().iter().map(|(_, m)| m.values().to_vec()).collect() };
+    let want = params(&full.stage);
+    let runs = tempfile::tempdir().unwrap();
+    for at in [15u64, 20, 21, 25] {
+        let ckpt = runs.path().join(format!("at{at}.safetensors"));
+        let mut part = Trainer::new(Stage1::new(&ds, cfg(), &maps));
+        while part.stage.iteration < at {
+            part.step().unwrap();
+        }
+        part.save(&ckpt).unwrap();
+        let meta = checkpoint_metadata(&ckpt).unwrap();
+        assert_eq!(meta.contains_key("photo_depth"), at > 20, "at {at}");
+        drop(part);
+        let mut b = Trainer::new(Stage1::resume(&ds, cfg(), &maps, &ckpt).unwrap());
         while !b.done() {
             b.step().unwrap();
         }

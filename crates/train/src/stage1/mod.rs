@@ -14,6 +14,7 @@
 
 pub mod losses;
 pub mod pdf_map;
+mod photo_depth;
 pub mod photometric;
 pub mod pose_correction;
 pub mod rays;
@@ -73,6 +74,9 @@ pub struct StepStats {
     /// on the rendered one).
     pub bubble_points: usize,
     pub smooth_pairs: usize,
+    /// Pixels the sweep for depth from the images gave a depth, at the step it ran.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub photo_depth: Option<usize>,
     /// The step produced a non-finite loss and was skipped.
     pub skipped: bool,
     /// Milliseconds spent placing samples (and the extra points), in the render forward, in the
@@ -176,6 +180,12 @@ pub struct Stage1 {
     /// The training data's fingerprint (JSON), kept in every checkpoint so that a resume or a
     /// stage 2 against other data is refused.
     dataset: String,
+    /// Per training image: its frame's camera at the given pose (world units), for the sweep.
+    cameras: Vec<i2sdf_data::Camera>,
+    /// When the sweep for depth from the images runs (`maps.photo_depth`), and once it ran, the
+    /// depths it found (per pixel, image after image; 0: none).
+    photo_depth_at: Option<u64>,
+    photo_depth: Option<PdfValues>,
 }
 
 /// Rays per chunk of the PDF maps' initial render ([`Stage1::init_pdf`]): 4096 with the default
@@ -234,6 +244,12 @@ impl Stage1 {
                 (f.name.clone(), im.frame_index, f.camera.c2w)
             })
             .collect();
+        let no_depth = images.iter().all(|im| im.depth.iter().all(|d| *d <= 0.0));
+        let photo_depth_at = Self::photo_depth_at(&config, dataset.depth_exact, no_depth);
+        let cameras = images
+            .iter()
+            .map(|im| dataset.frames[im.frame_index].camera.clone())
+            .collect();
         let rgb_errors = (config.adaptive.rgb_rays > 0.0)
             .then(|| PdfMaps::over_all_pixels(images.iter().map(|im| im.pixels()), RGB_ERROR_MIN, 1.0));
         Stage1 {
@@ -241,7 +257,10 @@ impl Stage1 {
             given_poses,
             normalization: dataset.normalization,
             dataset: fingerprint,
-            no_depth: images.iter().all(|im| im.depth.iter().all(|d| *d <= 0.0)),
+            no_depth,
+            cameras,
+            photo_depth_at,
+            photo_depth: None,
             depth_noise_distance: maps.depth_noise_distance,
             image_gradients: None,
             images,
@@ -277,6 +296,8 @@ impl Stage1 {
         let pixels: usize = s.images.iter().map(|i| i.pixels()).sum();
         let mut pdf_values = PdfValues(vec![0.0; pixels]);
         let mut rgb_values = PdfValues(vec![0.0; pixels]);
+        let has_photo = meta.get(photo_depth::PHOTO_META).is_some_and(|v| v == "1");
+        let mut photo_values = PdfValues(vec![0.0; pixels]);
         let has_rgb = s.rgb_errors.is_some();
         {
             let Stage1 {
@@ -321,6 +342,13 @@ impl Stage1 {
                     required: rgb_required,
                 });
             }
+            if has_photo {
+                slots.push(ModuleSlot {
+                    prefix: photo_depth::PHOTO_PREFIX,
+                    module: &mut photo_values,
+                    required: true,
+                });
+            }
             if let Some(p) = poses {
                 slots.push(ModuleSlot {
                     prefix: POSE_PREFIX,
@@ -329,6 +357,10 @@ impl Stage1 {
                 });
             }
             scene.load_params(checkpoint, &mut slots)?;
+        }
+        if has_photo {
+            // Before the PDF maps: their pixels are those with depth, the sweep's included.
+            s.add_photo_depth(photo_values.0);
         }
         if has_pdf {
             s.pdf = Some(s.restore_pdf(s.empty_pdf(), &pdf_values.0));
@@ -627,6 +659,10 @@ impl Stage1 {
             meta.push((RGB_PDF_META, "1".into()));
             extra.push((RGB_PDF_PREFIX, p as &dyn Parameters));
         }
+        if let Some(p) = &self.photo_depth {
+            meta.push((photo_depth::PHOTO_META, "1".into()));
+            extra.push((photo_depth::PHOTO_PREFIX, p as &dyn Parameters));
+        }
         if let Some(p) = &self.poses {
             meta.push((POSE_META, "1".into()));
             extra.push((POSE_PREFIX, p as &dyn Parameters));
@@ -673,6 +709,9 @@ impl TrainStage for Stage1 {
         self.config.train.seed
     }
     fn pending_pause(&self) -> Option<&'static str> {
+        if self.needs_photo_depth() {
+            return Some("sweeping the images for the depth the sensor lost");
+        }
         self.needs_pdf().then_some("initialising the error maps")
     }
     fn step(&mut self, rng: &mut Pcg64) -> Result<StepOutcome<StepStats>, DataError> {

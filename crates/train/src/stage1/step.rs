@@ -47,6 +47,7 @@ struct RayGradients {
 impl Stage1 {
     /// One iteration with the iteration's RNG. A non-finite loss skips the update.
     pub(super) fn step_with(&mut self, rng: &mut Pcg64) -> StepOutcome<StepStats> {
+        let photo_depth = self.needs_photo_depth().then(|| self.sweep_photo_depth());
         let (phase, w) = self.enter_phase();
         self.draw_rays(rng);
         let t0 = std::time::Instant::now();
@@ -72,6 +73,7 @@ impl Stage1 {
             beta: self.scene.beta.value(),
             bubble_points: counts.bubble,
             smooth_pairs: counts.smooth,
+            photo_depth,
             ..Default::default()
         };
         let ray_grads = self.ray_losses(&w, &mut st);

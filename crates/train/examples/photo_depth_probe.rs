@@ -1,0 +1,184 @@
+//! The photometric depth of `i2sdf_data::photo_depth` against a capture's truth. Per thin,
+//! suspended or small object of the scene (its `scene.toml`): the training pixels that see it
+//! (true depth within 1 cm of its surface), how many of them got a depth from the images, and how
+//! many of those depths lie within 2 cm of its surface. Over all pixels given a depth: how close
+//! it is to the true depth. Made for `docs/results.md`:
+//! `cargo run --release -p i2sdf-train --example photo_depth_probe -- CAP [true | run=RUN] [key=value …]` on a room
+//! written by `i2sdf synth --capture` (its `depth_gt/` maps and `poses_true.json`; `true`: sweep
+//! with the true poses instead of the perturbed ones, to see what the pose noise costs).
+use glam::DMat4;
+use i2sdf_data::{imageio, photo_depth, Camera, Split};
+use i2sdf_synth::scene::SceneDesc;
+use std::path::Path;
+
+fn mat(v: &serde_json::Value) -> DMat4 {
+    let r: Vec<Vec<f64>> = serde_json::from_value(v.clone()).unwrap();
+    DMat4::from_cols_array_2d(&[
+        [r[0][0], r[1][0], r[2][0], r[3][0]],
+        [r[0][1], r[1][1], r[2][1], r[3][1]],
+        [r[0][2], r[1][2], r[2][2], r[3][2]],
+        [r[0][3], r[1][3], r[2][3], r[3][3]],
+    ])
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let a: Vec<String> = std::env::args().collect();
+    let dir = Path::new(a.get(1).ok_or("usage: photo_depth_probe CAP [true]")?);
+    let use_true = a.iter().any(|s| s == "true");
+    let run = a.iter().find_map(|s| s.strip_prefix("run="));
+    let mut params = photo_depth::PhotoDepthParams::default();
+    for kv in a.iter().skip(2).filter_map(|s| s.split_once('=')) {
+        match kv.0 {
+            "neighbours" => params.neighbours = kv.1.parse()?,
+            "steps" => params.steps = kv.1.parse()?,
+            "near_fraction" => params.near_fraction = kv.1.parse()?,
+            "min_gap" => params.min_gap = kv.1.parse()?,
+            "background_radius_cells" => params.background_radius_cells = kv.1.parse()?,
+            "background_explains" => params.background_explains = kv.1.parse()?,
+            "max_cost" => params.max_cost = kv.1.parse()?,
+            "min_ratio" => params.min_ratio = kv.1.parse()?,
+            "uniqueness" => params.uniqueness = kv.1.parse()?,
+            "min_views" => params.min_views = kv.1.parse()?,
+            "see_through_radius" => params.see_through_radius = kv.1.parse()?,
+            "consistency" => params.consistency = kv.1.parse()?,
+            "min_agreeing" => params.min_agreeing = kv.1.parse()?,
+            "min_baseline" => params.min_baseline = kv.1.parse()?,
+            "full_baseline" => params.full_baseline = kv.1.parse()?,
+            "slack" => params.slack = kv.1.parse()?,
+            "run" => {}
+            k => return Err(format!("unknown parameter {k}").into()),
+        }
+    }
+    let desc = SceneDesc::read(&dir.join("scene.toml"))?;
+    let mut ds = i2sdf_data::load(dir)?;
+    let tf: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("transforms.json"))?)?;
+    let truth: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("poses_true.json"))?)?;
+    let (mut gt, mut true_cams) = (Vec::new(), Vec::new());
+    for f in ds.frames.iter_mut() {
+        let entry = tf["frames"]
+            .as_array()
+            .ok_or("frames")?
+            .iter()
+            .find(|e| dir.join(e["file_path"].as_str().unwrap_or("")) == f.image_path)
+            .ok_or("frame not in transforms.json")?;
+        gt.push(imageio::read_float_map(
+            &dir.join(entry["depth_gt_file_path"].as_str().ok_or("depth_gt")?),
+        )?);
+        let c = &f.camera;
+        let m = mat(&truth["transform_matrix"][entry["file_path"].as_str().unwrap_or("")]);
+        let true_cam = Camera {
+            lens: c.lens.clone(),
+            ..Camera::from_opengl_c2w(c.width, c.height, c.fx, c.fy, c.cx, c.cy, m)
+        };
+        if use_true {
+            f.camera = true_cam.clone();
+        }
+        true_cams.push(true_cam);
+    }
+    if let Some(run) = run {
+        // The poses a stage-1 run corrected, as stage 2 and render use them.
+        i2sdf_model::poses::with_corrected_poses(&i2sdf_model::RunDir::new(Path::new(run)), &mut ds)?;
+    }
+    // The thin, suspended and small shapes, grouped by object.
+    let groups = desc.solid_shapes_tagged(&["thin", "suspended", "small"]);
+    let dist = |g: &[usize], p: glam::DVec3| {
+        g.iter()
+            .filter_map(|&s| desc.shapes[s].geometry.distance(p.as_vec3()))
+            .map(f32::abs)
+            .fold(f32::INFINITY, f32::min)
+    };
+    let train: Vec<usize> = (0..ds.frames.len())
+        .filter(|&i| ds.frames[i].split == Split::Train)
+        .collect();
+    let refs: Vec<_> = train.iter().map(|&i| &ds.frames[i]).collect();
+    let photo_views: Vec<_> = refs
+        .iter()
+        .map(|f| photo_depth::PhotoView::of(f).ok_or("a view without depth"))
+        .collect::<Result<_, _>>()?;
+    let views: Vec<usize> = (0..refs.len()).collect();
+    // The true surface, densely sampled (a point every ~3 mm), for the distance of each depth found.
+    let gt_mesh = i2sdf_data::ply::read_ground_truth(dir.join("mesh.ply"))?;
+    let cloud = i2sdf_data::paper_write::sample_surface(&gt_mesh, 1e5);
+    let tree = i2sdf_data::KdTree::new(&cloud.positions);
+    let t0 = std::time::Instant::now();
+    let found = photo_depth::photo_depth(&photo_views, &views, &params);
+    println!(
+        "poses: {}; sweep {:.1} s",
+        if use_true {
+            "true"
+        } else if run.is_some() {
+            "the run's"
+        } else {
+            "as given"
+        },
+        t0.elapsed().as_secs_f64()
+    );
+    // Per group: pixels seeing it, given a depth, within 2 cm of it.
+    let mut per_group = vec![(0usize, 0usize, 0usize); groups.len()];
+    let mut outcomes = vec![[0usize; 10]; groups.len()];
+    let (mut swept, mut errs, mut surf) = (0, Vec::new(), Vec::new());
+    for (k, pd) in found.iter().enumerate() {
+        let Some(pd) = pd else { continue };
+        swept += pd.swept;
+        let (f, g_depth, tcam) = (refs[k], &gt[train[k]], &true_cams[train[k]]);
+        let w = f.camera.width;
+        for p in 0..f.pixel_count() {
+            let (x, y) = (p % w, p / w);
+            let z = g_depth.data[p];
+            let zf = pd.depth.data[p];
+            if zf > 0.0 && z > 0.0 {
+                errs.push((zf - z).abs());
+                // Off any true surface, with the pose the sweep used (as stage 1 would place it).
+                let at = f.camera.backproject(x, y, zf as f64).as_vec3();
+                surf.push(tree.nearest_distance(at.to_array()));
+            }
+            if z <= 0.0 {
+                continue;
+            }
+            let seen = tcam.backproject(x, y, z as f64);
+            for (gi, (_, shapes)) in groups.iter().enumerate() {
+                if dist(shapes, seen) < 0.01 {
+                    per_group[gi].0 += 1;
+                    outcomes[gi][pd.outcome[p] as usize] += 1;
+                    if zf > 0.0 {
+                        per_group[gi].1 += 1;
+                        let at = f.camera.backproject(x, y, zf as f64);
+                        per_group[gi].2 += (dist(shapes, at) < 0.02) as usize;
+                    }
+                }
+            }
+        }
+    }
+    errs.sort_by(f32::total_cmp);
+    let q = |x: f64| {
+        errs.get(((errs.len().max(1) - 1) as f64 * x) as usize)
+            .copied()
+            .unwrap_or(f32::NAN)
+    };
+    let n = errs.len();
+    let within = |t: f32| errs.iter().filter(|e| **e < t).count();
+    println!(
+        "swept {swept}, given a depth {n}: within 2 cm {}, 5 cm {}, 10 cm {}; |error| median {:.3} m, 75th {:.3}, 90th {:.3}",
+        within(0.02),
+        within(0.05),
+        within(0.1),
+        q(0.5),
+        q(0.75),
+        q(0.9)
+    );
+    println!("outcomes: sensed, no background, too few views, background explains, cost too high, ratio too low, not unique, seen through, unconfirmed, found");
+    surf.sort_by(f32::total_cmp);
+    let near = |t: f32| surf.iter().filter(|e| **e < t).count();
+    println!(
+        "off the true surface: within 1 cm {}, 2 cm {}, 5 cm {}; median {:.3} m, 90th {:.3}",
+        near(0.01),
+        near(0.02),
+        near(0.05),
+        surf[surf.len() / 2],
+        surf[surf.len() * 9 / 10]
+    );
+    for (((name, _), (seen, given, near)), o) in groups.iter().zip(&per_group).zip(&outcomes) {
+        println!("{name:24} pixels {seen:6}  given a depth {given:5}  within 2 cm of it {near:5}  {o:?}");
+    }
+    Ok(())
+}
