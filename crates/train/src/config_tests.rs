@@ -55,6 +55,8 @@ fn out_of_range_values_name_their_key() {
         ("sampling.occupancy_resolution=4", "sampling.occupancy_resolution"),
         ("sampling.occupancy_every=0", "sampling.occupancy_every"),
         ("sampling.occupancy_margin=-1", "sampling.occupancy_margin"),
+        ("maps.photo_depth=1", "maps.photo_depth"),
+        ("maps.photo_depth=-0.5", "maps.photo_depth"),
         ("stage2.emitter_min_views=0", "stage2.emitter_min_views"),
         ("stage2.emitter_mask_agreement=1.5", "stage2.emitter_mask_agreement"),
         ("schedule.smooth_bubble=2", "smooth_bubble"),
