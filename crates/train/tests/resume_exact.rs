@@ -39,6 +39,41 @@ fn config_with(extra: &[&str]) -> TrainConfig {
     TrainConfig::load(None, &sets).unwrap()
 }
 
+/// Every module's parameters.
+fn params(s: &Stage1) -> Vec<Vec<f32>> {
+    s.scene.modules().iter().map(|(_, m)| m.values().to_vec()).collect()
+}
+
+/// A fresh stage 1 trained to iteration `at` and checkpointed to `path`: the checkpoint's metadata.
+fn checkpoint_at(
+    ds: &i2sdf_data::Dataset,
+    config: TrainConfig,
+    maps: &TrainingMaps,
+    at: u64,
+    path: &std::path::Path,
+) -> std::collections::HashMap<String, String> {
+    let mut part = Trainer::new(Stage1::new(ds, config, maps));
+    while part.stage.iteration < at {
+        part.step().unwrap();
+    }
+    part.save(path).unwrap();
+    checkpoint_metadata(path).unwrap()
+}
+
+/// Stage 1 resumed from `path` and trained to its end: its parameters.
+fn finish_resumed(
+    ds: &i2sdf_data::Dataset,
+    config: TrainConfig,
+    maps: &TrainingMaps,
+    path: &std::path::Path,
+) -> Vec<Vec<f32>> {
+    let mut b = Trainer::new(Stage1::resume(ds, config, maps, path).unwrap());
+    while !b.done() {
+        b.step().unwrap();
+    }
+    params(&b.stage)
+}
+
 #[test]
 fn stage1_resumes_bit_for_bit_at_every_step_of_the_schedule() {
     let (_dir, ds) = common::dataset();
@@ -48,17 +83,11 @@ fn stage1_resumes_bit_for_bit_at_every_step_of_the_schedule() {
     while !full.done() {
         full.step().unwrap();
     }
-    let params = |s: &Stage1| -> Vec<Vec<f32>> { s.scene.modules().iter().map(|(_, m)| m.values().to_vec()).collect() };
     let want = params(&full.stage);
     // In warm-up, at the bubble step's first iteration (no maps yet), inside it, in the smooth step.
     for at in [5u64, 10, 11, 20, 29, 35] {
         let ckpt = runs.path().join(format!("at{at}.safetensors"));
-        let mut part = Trainer::new(Stage1::new(&ds, config(), &maps));
-        while part.stage.iteration < at {
-            part.step().unwrap();
-        }
-        part.save(&ckpt).unwrap();
-        let meta = checkpoint_metadata(&ckpt).unwrap();
+        let meta = checkpoint_at(&ds, config(), &maps, at, &ckpt);
         let fp: DatasetFingerprint = serde_json::from_str(&meta[DATASET_META]).unwrap();
         assert_eq!(fp, DatasetFingerprint::of(&ds));
         // The maps exist from the bubble step's second iteration on, and into the smooth step
@@ -67,12 +96,10 @@ fn stage1_resumes_bit_for_bit_at_every_step_of_the_schedule() {
         let has_pdf = (11..=30).contains(&at) || (persist && at > 30);
         assert_eq!(meta.contains_key("pdf_maps"), has_pdf, "at {at}");
         assert!(meta.contains_key("rgb_error_maps"), "at {at}");
-        drop(part);
-        let mut b = Trainer::new(Stage1::resume(&ds, config(), &maps, &ckpt).unwrap());
-        while !b.done() {
-            b.step().unwrap();
-        }
-        assert!(params(&b.stage) == want, "resumed at {at}: the parameters differ");
+        assert!(
+            finish_resumed(&ds, config(), &maps, &ckpt) == want,
+            "resumed at {at}: the parameters differ"
+        );
     }
 }
 
@@ -115,23 +142,15 @@ fn stage1_resumes_bit_for_bit_after_the_sweep_for_depth() {
     // depths it keeps are none: what it finds is `i2sdf_data::photo_depth`'s test; here the
     // schedule, the checkpoint's tensor and the PDF maps made again at the sweep.)
     assert!(matches!(swept[..], [(20, _)]), "{swept:?}");
-    let params = |s: &Stage1| -> Vec<Vec<f32>> { s.scene.modules().iter().map(|(_, m)| m.values().to_vec()).collect() };
     let want = params(&full.stage);
     let runs = tempfile::tempdir().unwrap();
     for at in [15u64, 20, 21, 25] {
         let ckpt = runs.path().join(format!("at{at}.safetensors"));
-        let mut part = Trainer::new(Stage1::new(&ds, cfg(), &maps));
-        while part.stage.iteration < at {
-            part.step().unwrap();
-        }
-        part.save(&ckpt).unwrap();
-        let meta = checkpoint_metadata(&ckpt).unwrap();
+        let meta = checkpoint_at(&ds, cfg(), &maps, at, &ckpt);
         assert_eq!(meta.contains_key("photo_depth"), at > 20, "at {at}");
-        drop(part);
-        let mut b = Trainer::new(Stage1::resume(&ds, cfg(), &maps, &ckpt).unwrap());
-        while !b.done() {
-            b.step().unwrap();
-        }
-        assert!(params(&b.stage) == want, "resumed at {at}: the parameters differ");
+        assert!(
+            finish_resumed(&ds, cfg(), &maps, &ckpt) == want,
+            "resumed at {at}: the parameters differ"
+        );
     }
 }
