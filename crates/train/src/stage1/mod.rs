@@ -149,6 +149,13 @@ const RGB_PDF_META: &str = "rgb_error_maps";
 /// a floor keeps the restored block sums exact (see [`Stage1::restore_pdf`]).
 const RGB_ERROR_MIN: f32 = 0.01;
 
+/// A training image's frame as the dataset gives it: name, index and camera (world units).
+struct GivenView {
+    name: String,
+    frame: usize,
+    camera: i2sdf_data::Camera,
+}
+
 pub struct Stage1 {
     pub config: TrainConfig,
     pub scene: NeuralScene,
@@ -168,8 +175,8 @@ pub struct Stage1 {
     extra: Vec<f32>,
     /// The training views' pose corrections (None: the poses are used as given).
     pub poses: Option<PoseCorrection>,
-    /// Per training image: its frame's name, index and given pose (for `RUN/poses.json`).
-    given_poses: Vec<(String, usize, glam::DMat4)>,
+    /// Per training image: its frame as given (for `RUN/poses.json` and the sweep).
+    given_views: Vec<GivenView>,
     normalization: i2sdf_data::Normalization,
     /// The training images' smoothed gradients, made at the first photometric alignment.
     image_gradients: Option<Vec<photometric::ImageGradient>>,
@@ -180,8 +187,6 @@ pub struct Stage1 {
     /// The training data's fingerprint (JSON), kept in every checkpoint so that a resume or a
     /// stage 2 against other data is refused.
     dataset: String,
-    /// Per training image: its frame's camera at the given pose (world units), for the sweep.
-    cameras: Vec<i2sdf_data::Camera>,
     /// When the sweep for depth from the images runs (`maps.photo_depth`), and once it ran, the
     /// depths it found (per pixel, image after image; 0: none).
     photo_depth_at: Option<u64>,
@@ -237,28 +242,27 @@ impl Stage1 {
         let hash_grid = matches!(config.model.backbone, i2sdf_model::Backbone::HashGrid);
         let centres = images.iter().map(|im| im.origin).collect();
         let poses = PoseCorrection::new(dataset, &config.pose, hash_grid, centres, iterations);
-        let given_poses = images
+        let given_views = images
             .iter()
             .map(|im| {
                 let f = &dataset.frames[im.frame_index];
-                (f.name.clone(), im.frame_index, f.camera.c2w)
+                GivenView {
+                    name: f.name.clone(),
+                    frame: im.frame_index,
+                    camera: f.camera.clone(),
+                }
             })
             .collect();
         let no_depth = images.iter().all(|im| im.depth.iter().all(|d| *d <= 0.0));
-        let photo_depth_at = Self::photo_depth_at(&config, dataset.depth_exact, no_depth);
-        let cameras = images
-            .iter()
-            .map(|im| dataset.frames[im.frame_index].camera.clone())
-            .collect();
+        let photo_depth_at = Self::photo_depth_at(&config, maps.photo_depth, no_depth);
         let rgb_errors = (config.adaptive.rgb_rays > 0.0)
             .then(|| PdfMaps::over_all_pixels(images.iter().map(|im| im.pixels()), RGB_ERROR_MIN, 1.0));
         Stage1 {
             poses,
-            given_poses,
+            given_views,
             normalization: dataset.normalization,
             dataset: fingerprint,
             no_depth,
-            cameras,
             photo_depth_at,
             photo_depth: None,
             depth_noise_distance: maps.depth_noise_distance,
@@ -678,15 +682,16 @@ impl Stage1 {
     pub fn pose_corrections(&self) -> Option<PoseCorrections> {
         let poses = self.poses.as_ref()?;
         let views = self
-            .given_poses
+            .given_views
             .iter()
             .enumerate()
-            .map(|(i, (name, frame, given))| {
+            .map(|(i, v)| {
+                let given = v.camera.c2w;
                 CorrectedView::new(
-                    name,
-                    *frame,
-                    *given,
-                    poses.corrected_c2w(i, *given, &self.normalization),
+                    &v.name,
+                    v.frame,
+                    given,
+                    poses.corrected_c2w(i, given, &self.normalization),
                 )
             })
             .collect();

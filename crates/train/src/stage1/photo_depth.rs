@@ -20,15 +20,10 @@ pub(super) const PHOTO_PREFIX: &str = "adam.photo_depth";
 pub(super) const PHOTO_META: &str = "photo_depth";
 
 impl Stage1 {
-    /// The iteration at which the sweep runs: `maps.photo_depth` of the run, for depth a sensor
-    /// measured (not declared exact); `None` without depth or when off.
-    pub(super) fn photo_depth_at(
-        config: &crate::config::TrainConfig,
-        depth_exact: bool,
-        no_depth: bool,
-    ) -> Option<u64> {
-        let f = config.maps.photo_depth;
-        (f > 0.0 && !depth_exact && !no_depth).then(|| (f as f64 * config.iterations() as f64).round() as u64)
+    /// The iteration at which the sweep runs: at `fraction` of stage 1 (`TrainingMaps::photo_depth`,
+    /// which is 0 for exact depth); `None` without depth or when off.
+    pub(super) fn photo_depth_at(config: &crate::config::TrainConfig, fraction: f32, no_depth: bool) -> Option<u64> {
+        (fraction > 0.0 && !no_depth).then(|| (fraction as f64 * config.iterations() as f64).round() as u64)
     }
 
     /// Is the sweep due before the next step?
@@ -42,15 +37,15 @@ impl Stage1 {
     pub(super) fn sweep_photo_depth(&mut self) -> usize {
         let scale = self.normalization.scale;
         let cameras: Vec<Camera> = self
-            .cameras
+            .given_views
             .iter()
             .enumerate()
-            .map(|(i, cam)| match &self.poses {
+            .map(|(i, v)| match &self.poses {
                 Some(p) => Camera {
-                    c2w: p.corrected_c2w(i, cam.c2w, &self.normalization),
-                    ..cam.clone()
+                    c2w: p.corrected_c2w(i, v.camera.c2w, &self.normalization),
+                    ..v.camera.clone()
                 },
-                None => cam.clone(),
+                None => v.camera.clone(),
             })
             .collect();
         let rgb: Vec<ImageF32> = self
