@@ -127,8 +127,54 @@ impl MaterialAccumulator {
             roughness_l1: (self.rough_pixels > 0).then(|| self.rough_abs / self.rough_pixels as f64),
             albedo_scale,
             pixels: (n > 0).then_some(n),
+            albedo_psnr_seen: None,
+            seen_fraction: None,
         }
     }
+}
+
+/// Training views that must see a test pixel's surface for it to count in
+/// `MaterialMetrics::albedo_psnr_seen`.
+pub const SEEN_BY: u8 = 2;
+
+/// Per pixel of `frame`, how many training views of `dataset` see the surface at its depth
+/// (saturating at 255): the pixel's GT depth point projected into each training view lands in
+/// its image where that view's depth agrees within 2 %. `None` unless the depth is exact (the
+/// dataset declares `depth_exact`) and `frame` and every training view have it: sensor depth is
+/// too sparse and noisy to say what a view sees.
+pub fn training_views_seeing(dataset: &Dataset, frame: &Frame) -> Option<Vec<u8>> {
+    if !dataset.depth_exact {
+        return None;
+    }
+    let depth = frame.depth.as_ref()?;
+    let train: Vec<(&i2sdf_data::Camera, &ImageF32)> = dataset
+        .split(Split::Train)
+        .map(|f| Some((&f.camera, f.depth.as_ref()?)))
+        .collect::<Option<_>>()?;
+    let w = frame.camera.width;
+    Some(
+        depth
+            .data
+            .iter()
+            .step_by(depth.channels)
+            .enumerate()
+            .map(|(i, &z)| {
+                if !(z > 0.0 && z.is_finite()) {
+                    return 0;
+                }
+                let x = frame.camera.backproject(i % w, i / w, z as f64);
+                let seen = train.iter().filter(|(cam, d)| {
+                    let Some((u, v, zc)) = cam.project(x) else { return false };
+                    if !(u >= 0.0 && v >= 0.0 && (u as usize) < d.width && (v as usize) < d.height) {
+                        return false;
+                    }
+                    let dz = d.data[(v as usize * d.width + u as usize) * d.channels] as f64;
+                    (dz - zc).abs() < 0.02 * zc
+                });
+                seen.count().min(255) as u8
+            })
+            .collect(),
+    )
 }
 
 /// Distance from a point to an axis-aligned box, 0 inside.
@@ -237,6 +283,8 @@ pub fn intrinsic_metrics_with_progress(
 ) -> Result<(RerenderMetrics, MaterialMetrics, EmitterMetrics), DataError> {
     let (mut p, mut s) = (Vec::new(), Vec::new());
     let mut acc = MaterialAccumulator::default();
+    // The same over the pixels enough training views see (None: not measurable).
+    let mut seen_acc = Some(MaterialAccumulator::default());
     for (view, f) in dataset.split(Split::Test).enumerate() {
         let (w, h) = (f.camera.width, f.camera.height);
         for (what, map, ch) in [
@@ -277,12 +325,18 @@ pub fn intrinsic_metrics_with_progress(
             f.material_mask.as_ref(),
         );
         if let Some(a) = &f.albedo {
-            if a.channels == 3 {
-                acc.add_albedo(&v.kd, &a.data, &mask);
+            let rgb: Vec<f32> = if a.channels == 3 {
+                a.data.clone()
             } else {
-                let rgb: Vec<f32> = a.data.chunks(a.channels).flat_map(|c| [c[0], c[1], c[2]]).collect();
-                acc.add_albedo(&v.kd, &rgb, &mask);
-            }
+                a.data.chunks(a.channels).flat_map(|c| [c[0], c[1], c[2]]).collect()
+            };
+            acc.add_albedo(&v.kd, &rgb, &mask);
+            seen_acc = seen_acc.and_then(|mut sa| {
+                let seen = training_views_seeing(dataset, f).filter(|s| s.len() == mask.len())?;
+                let m: Vec<bool> = mask.iter().zip(&seen).map(|(m, s)| *m && *s >= SEEN_BY).collect();
+                sa.add_albedo(&v.kd, &rgb, &m);
+                Some(sa)
+            });
         }
         if let Some(r) = &f.roughness {
             acc.add_roughness(&v.roughness, &r.data, r.channels, &mask);
@@ -297,7 +351,13 @@ pub fn intrinsic_metrics_with_progress(
         denoised: options.denoise.is_some(),
     };
     let emitters = emitter_metrics(&fields.emitters, &dataset.emitters, dataset.radiometry.exposure);
-    Ok((rerender, acc.finish(), emitters))
+    let mut material = acc.finish();
+    if let (Some(sa), Some(n)) = (seen_acc, material.pixels) {
+        let seen = sa.finish();
+        material.albedo_psnr_seen = seen.albedo_psnr;
+        material.seen_fraction = Some(seen.pixels.unwrap_or(0) as f64 / n as f64);
+    }
+    Ok((rerender, material, emitters))
 }
 
 #[cfg(test)]
@@ -427,6 +487,37 @@ mod tests {
             distance_to_box([0.0, 0.0, 0.0], [1.0, 2.0, -1.0], [2.0, 3.0, 1.0]),
             5f64.sqrt()
         );
+    }
+
+    /// A view counts where its exact depth agrees with the point: a training view taken as the
+    /// test view sees all its own pixels, and stops seeing them once its depth is 10 % off;
+    /// sensor depth gives no figure.
+    #[test]
+    fn training_views_seeing_counts_the_views_whose_depth_agrees() {
+        let dir = tempfile::tempdir().unwrap();
+        i2sdf_data::fixture::write_native(dir.path(), &i2sdf_data::fixture::FixtureOptions::default());
+        let mut dataset = i2sdf_data::load(dir.path()).unwrap();
+        dataset.depth_exact = true;
+        let first = dataset.frames.iter().position(|f| f.split == Split::Train).unwrap();
+        let mut probe = dataset.frames[first].clone();
+        probe.split = Split::Test;
+        let before = training_views_seeing(&dataset, &probe).unwrap();
+        let depth = probe.depth.clone().unwrap();
+        assert!(depth.data.iter().filter(|z| **z > 0.0).count() > 100);
+        for d in dataset.frames[first].depth.as_mut().unwrap().data.iter_mut() {
+            *d *= 1.1;
+        }
+        let after = training_views_seeing(&dataset, &probe).unwrap();
+        for (i, z) in depth.data.iter().enumerate() {
+            if *z > 0.0 {
+                assert!(before[i] >= 1, "pixel {i}: its own view must see it");
+                assert_eq!(after[i] + 1, before[i], "pixel {i}");
+            } else {
+                assert_eq!(before[i], 0);
+            }
+        }
+        dataset.depth_exact = false;
+        assert!(training_views_seeing(&dataset, &probe).is_none());
     }
 
     /// End to end on the fixture dataset with an untrained tiny scene (an inverted sphere that

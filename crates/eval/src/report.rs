@@ -222,6 +222,16 @@ pub struct MaterialMetrics {
     pub albedo_scale: Option<[f64; 3]>,
     /// Pixels compared (albedo).
     pub pixels: Option<usize>,
+    /// Kd's PSNR over the compared pixels whose surface at least
+    /// [`crate::intrinsic::SEEN_BY`] training views see (the test view's GT depth point
+    /// projected into each, agreeing with its GT depth within 2 %): what stage 2 could learn, not
+    /// the guess it extrapolates onto surfaces the training views miss. `null` without exact
+    /// depth for every view (`depth_exact`).
+    #[serde(default)]
+    pub albedo_psnr_seen: Option<f64>,
+    /// The share of the compared pixels counted in `albedo_psnr_seen`.
+    #[serde(default)]
+    pub seen_fraction: Option<f64>,
 }
 
 /// The emitters stage 2 found (world units) and, where the dataset lists its GT emitters, how

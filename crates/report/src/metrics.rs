@@ -155,6 +155,12 @@ const ROWS: &[Row] = &[
     row("re-render SSIM", "rerender.ssim", None, "↑"),
     row("albedo PSNR (dB)", "material.albedo_psnr", None, "↑"),
     row("albedo PSNR, scaled (dB)", "material.albedo_psnr_scaled", None, "↑"),
+    row(
+        "albedo PSNR where ≥ 2 training views see the surface (dB)",
+        "material.albedo_psnr_seen",
+        None,
+        "↑",
+    ),
     row("roughness L1", "material.roughness_l1", None, "↓"),
     row("emitters found", "emitters.count", None, ""),
     row("relight PSNR, path traced (dB)", "relight.psnr", None, "↑"),
