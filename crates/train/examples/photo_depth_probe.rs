@@ -45,6 +45,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "min_baseline" => params.min_baseline = kv.1.parse()?,
             "full_baseline" => params.full_baseline = kv.1.parse()?,
             "slack" => params.slack = kv.1.parse()?,
+            "in_front" => params.in_front = kv.1.parse()?,
             "run" => {}
             k => return Err(format!("unknown parameter {k}").into()),
         }
