@@ -506,12 +506,10 @@ fn photo_depth_view(frames: &[PhotoView], i: usize, p: &PhotoDepthParams) -> Opt
                     continue;
                 }
                 let z_best = 1.0 / inv(best as f64);
-                // Behind a sample of its own view's: that sensor saw past the point too.
-                if p.in_front && z_best > (1.0 - p.min_gap) * nearest as f64 {
-                    what[x] = Outcome::SeenThrough as u8;
-                    continue;
-                }
-                if ns.iter().any(|n| n.sees_through(dir, z_best, p.min_gap)) {
+                // Behind a sample of its own view's, or in front of a neighbour's that lies behind
+                // it: a sensor saw past the point.
+                let behind_own = p.in_front && z_best > (1.0 - p.min_gap) * nearest as f64;
+                if behind_own || ns.iter().any(|n| n.sees_through(dir, z_best, p.min_gap)) {
                     what[x] = Outcome::SeenThrough as u8;
                     continue;
                 }

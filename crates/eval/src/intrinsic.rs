@@ -325,8 +325,8 @@ pub fn intrinsic_metrics_with_progress(
             f.material_mask.as_ref(),
         );
         if let Some(a) = &f.albedo {
-            let rgb: Vec<f32> = if a.channels == 3 {
-                a.data.clone()
+            let rgb: std::borrow::Cow<[f32]> = if a.channels == 3 {
+                (&a.data[..]).into()
             } else {
                 a.data.chunks(a.channels).flat_map(|c| [c[0], c[1], c[2]]).collect()
             };
