@@ -198,6 +198,103 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 );
             }
         }
+        // SHEEN=1: can the cache tell the floor's sheen (GT Ks ≈ 0.04, ρ ≈ 0.5) from a brighter
+        // Kd? Floor pixels are binned into 8 cm cells; in each, Kd = c·GT Kd with the c that
+        // minimizes the L1 of the cell's pixels, under the true specular and under alternatives.
+        if std::env::var("SHEEN").is_ok() {
+            let emission: Vec<Vec3> = (0..stage.fields.emitters.len())
+                .map(|k| stage.fields.emitters.emission(k))
+                .collect();
+            let hyp: [(f32, f32); 5] = [(-1.0, -1.0), (0.0, 0.9), (0.01, 0.9), (0.04, 0.9), (0.02, 0.5)];
+            let mut cells: std::collections::HashMap<[i32; 3], Vec<(Vec3, Vec3, Vec3, Vec<Vec3>, u32)>> =
+                std::collections::HashMap::new();
+            for px in &stage.pixels {
+                let PixelKind::Surface { index } = px.kind else {
+                    continue;
+                };
+                let fr = train[px.view as usize];
+                let (Some(kd), Some(ks), Some(r)) = (&fr.albedo, &fr.specular, &fr.roughness) else {
+                    continue;
+                };
+                let p = px.pixel as usize;
+                let (gks, gr) = (ks.data[p * 3], r.data[p]);
+                if !(0.03..0.05).contains(&gks) || !(0.45..0.55).contains(&gr) || px.saturated != 0 {
+                    continue;
+                }
+                let nv = px.point.normal.dot(px.point.view);
+                let i = index as usize;
+                let diffuse = stage.cache.shade(
+                    i,
+                    &i2sdf_render::GgxBrdf::new(Vec3::ONE, Vec3::ZERO, 1.0),
+                    nv,
+                    &emission,
+                );
+                let specs: Vec<Vec3> = hyp
+                    .iter()
+                    .map(|&(k, r0)| {
+                        let (k, r0) = if k < 0.0 { (gks, gr) } else { (k, r0) };
+                        stage.cache.shade(
+                            i,
+                            &i2sdf_render::GgxBrdf::new(Vec3::ZERO, Vec3::splat(k), r0),
+                            nv,
+                            &emission,
+                        )
+                    })
+                    .collect();
+                let q = (px.point.position / 0.02).floor().as_ivec3().to_array();
+                cells.entry(q).or_default().push((
+                    Vec3::from_slice(&kd.data[p * 3..p * 3 + 3]),
+                    diffuse,
+                    px.target,
+                    specs,
+                    px.view,
+                ));
+            }
+            let mut tot = vec![0.0f64; hyp.len() + 1];
+            const MIN_PX: usize = 4;
+            let (mut ncell, mut npx) = (0usize, 0usize);
+            let mut cs = vec![Vec::new(); hyp.len()];
+            for v in cells.values() {
+                let views: std::collections::HashSet<u32> = v.iter().map(|e| e.4).collect();
+                if v.len() < MIN_PX || views.len() < 2 {
+                    continue;
+                }
+                ncell += 1;
+                npx += v.len();
+                let l1 = |h: usize, c: f32| -> f64 {
+                    v.iter()
+                        .map(|(k, d, t, s, _)| ((*k * *d * c + s[h]) - *t).abs().element_sum() as f64)
+                        .sum()
+                };
+                tot[hyp.len()] += l1(0, 1.0);
+                for h in 0..hyp.len() {
+                    let best = (0..=600)
+                        .map(|j| 0.5 + j as f32 * 0.0025)
+                        .map(|c| (l1(h, c), c))
+                        .min_by(|a, b| a.0.total_cmp(&b.0))
+                        .unwrap();
+                    tot[h] += best.0;
+                    cs[h].push(best.1);
+                }
+            }
+            let n = (npx * 3) as f64;
+            let all: usize = cells.values().map(|v| v.len()).sum();
+            println!("  sheen: {} cells hold {all} floor px", cells.len());
+            println!(
+                "  sheen: {ncell} floor cells, {npx} px; L1 with GT material, c = 1: {:.5}",
+                tot[hyp.len()] / n
+            );
+            for (h, (k, r0)) in hyp.iter().enumerate() {
+                cs[h].sort_by(f32::total_cmp);
+                println!(
+                    "    Ks {} rho {}: best-c L1 {:.5}, median c {:.3}",
+                    if *k < 0.0 { "GT".to_string() } else { format!("{k}") },
+                    if *r0 < 0.0 { "GT".to_string() } else { format!("{r0}") },
+                    tot[h] / n,
+                    cs[h][cs[h].len() / 2]
+                );
+            }
+        }
         // GLOSSY_LIVE=N: the GT materials of (up to 4000) glossy pixels shaded from N samples
         // of their own GGX mixture (the live proposal): is the cache's floor noise or bias?
         if let Some(nl) = std::env::var("GLOSSY_LIVE").ok().and_then(|v| v.parse::<usize>().ok()) {
@@ -406,7 +503,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let m = materials_at(&stage, &world);
         let (mut se, mut cnt, mut rl1, mut ksl1) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
         let (mut pg, mut pp) = ([0.0f64; 3], [0.0f64; 3]);
-        let mut glossy = [[0.0f64; 6]; 2];
+        let mut glossy = [[0.0f64; 6]; 3];
         for (j, &i) in idx.iter().enumerate() {
             let (kd, ks, r) = gt[i];
             let o = &m[j * MATERIAL_CHANNELS..(j + 1) * MATERIAL_CHANNELS];
@@ -419,7 +516,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             cnt += 3.0;
             rl1 += (o[6] - r).abs() as f64;
             // Glossy (GT Ks > 0.2) against the rest: is ρ learnt where it is identifiable?
-            let g = &mut glossy[(ks.element_sum() / 3.0 > 0.2) as usize];
+            // 2: weak dielectric sheens (GT Ks 0.015–0.1, the floors).
+            let mks = ks.element_sum() / 3.0;
+            let g = &mut glossy[if mks > 0.2 {
+                1
+            } else if (0.015..0.1).contains(&mks) {
+                2
+            } else {
+                0
+            }];
             g[0] += 1.0;
             g[1] += (0..3).map(|c| ((o[c] - kd[c]) as f64).powi(2)).sum::<f64>() / 3.0;
             g[2] += o[6] as f64;
@@ -510,11 +615,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 acc[1][1]
             );
         }
-        for (name, g) in ["matte", "glossy"].iter().zip(&glossy) {
+        for (name, g) in ["matte", "glossy", "sheen"].iter().zip(&glossy) {
             let n = g[0].max(1.0);
             println!(
-                "    {name} (GT Ks {} 0.2): {} px, Kd PSNR {:.2}, rho {:.3} (GT {:.3}), Ks {:.3} (GT {:.3})",
-                if *name == "glossy" { ">" } else { "<=" },
+                "    {name} (GT Ks {}): {} px, Kd PSNR {:.2}, rho {:.3} (GT {:.3}), Ks {:.3} (GT {:.3})",
+                match *name {
+                    "glossy" => "> 0.2",
+                    "sheen" => "0.015–0.1",
+                    _ => "other",
+                },
                 g[0],
                 psnr_from_mse(g[1] / n),
                 g[2] / n,

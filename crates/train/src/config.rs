@@ -170,6 +170,16 @@ pub struct Stage2Config {
     /// (`surface_cache::SpecularBake`; ρ interpolated between levels): memory and loop time no
     /// longer grow with `cache_samples`.
     pub specular_bake: bool,
+    /// Pool each baked pixel's specular sums with nearby pixels whose mirror direction, normal
+    /// and position agree within this fraction of each level's lobe width α (δ ≤ κ·α; 0, the
+    /// default: each pixel's own samples): `SpecularBake::pooled`. Acts on the bake only
+    /// (`specular_bake`; a second copy of the bake while it runs). Off because the noise it removes is what drains Ks on matte surfaces:
+    /// pooled at 0.5, glossy Ks comes closer to the truth (0.29 → 0.35 of 0.39 on the default
+    /// room) but matte surfaces keep a rough lobe (Ks 0.18) and Kd falls 3 dB (docs/results.md,
+    /// seventeenth session).
+    pub specular_pool: f32,
+    /// Radius (normalized units) within which `specular_pool` looks for those pixels.
+    pub specular_pool_radius: f32,
     /// Shade training pixels with the dataset's normal maps where it has them (else the SDF's).
     pub input_normals: bool,
     /// Hits within the box of an emitter's points that no training camera saw are that emitter
@@ -268,6 +278,8 @@ impl Default for Stage2Config {
             cache_samples: 128,
             refresh_pixels: 0,
             specular_bake: true,
+            specular_pool: 0.0,
+            specular_pool_radius: 0.03,
             bake_resolution: 256,
             irradiance_radius: 0.024,
             normal_smoothing_radius: 0.03,
@@ -684,6 +696,8 @@ impl TrainConfig {
         int("stage2.refresh_pixels", s2.refresh_pixels, 0, MAX_POINTS)?;
         real("stage2.irradiance_radius", s2.irradiance_radius, 0.0, 0.5)?;
         real("stage2.normal_smoothing_radius", s2.normal_smoothing_radius, 0.0, 0.5)?;
+        real("stage2.specular_pool", s2.specular_pool, 0.0, 4.0)?;
+        real("stage2.specular_pool_radius", s2.specular_pool_radius, 0.0, 0.5)?;
         if s2.refresh_pixels > 0 && s2.irradiance_radius > 0.0 {
             // The pooled diffuse sums come from the samples traced at the start; refreshed
             // samples would leave them stale (and a resumed run could not rebuild them).

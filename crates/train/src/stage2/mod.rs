@@ -53,6 +53,10 @@ use serde::Serialize;
 use shading::{pool_diffuse, trace_incident, IncidentSample, ShadingPoint};
 use std::path::Path;
 use std::sync::Arc;
+
+/// The distance (normalized units) at which `stage2.specular_pool` takes an offset between two
+/// pixels as an angle: about what a lobe reflects in a room (half its normalized extent).
+const SPECULAR_POOL_PARALLAX: f32 = 0.5;
 use surface_cache::ShadingCache;
 pub use targets::{radiometry, target_views, TargetView, SATURATED};
 
@@ -256,6 +260,20 @@ impl Stage2 {
         // 4. Incident radiance of every surface pixel, traced once.
         let (mut cache, own, surface) = setup::trace_cache(&frozen, &pixels, &c2, seed, resume_at, progress);
         drop(frozen);
+        if let Some(bake) = cache
+            .bake
+            .as_mut()
+            .filter(|_| c2.specular_pool > 0.0 && c2.specular_pool_radius > 0.0)
+        {
+            progress("pooling the specular sums of pixels that reflect alike");
+            let pts: Vec<ShadingPoint> = surface.iter().map(|&i| pixels[i as usize].point).collect();
+            *bake = bake.pooled(
+                &pts,
+                c2.specular_pool_radius * scale,
+                c2.specular_pool,
+                SPECULAR_POOL_PARALLAX * scale,
+            );
+        }
         let pooled = (c2.irradiance_radius > 0.0).then(|| {
             progress("pooling the diffuse irradiance of nearby pixels");
             let pts: Vec<ShadingPoint> = surface.iter().map(|&i| pixels[i as usize].point).collect();
