@@ -53,12 +53,12 @@ use serde::Serialize;
 use shading::{pool_diffuse, trace_incident, IncidentSample, ShadingPoint};
 use std::path::Path;
 use std::sync::Arc;
+use surface_cache::ShadingCache;
+pub use targets::{radiometry, target_views, TargetView, SATURATED};
 
 /// The distance (normalized units) at which `stage2.specular_pool` takes an offset between two
 /// pixels as an angle: about what a lobe reflects in a room (half its normalized extent).
 const SPECULAR_POOL_PARALLAX: f32 = 0.5;
-use surface_cache::ShadingCache;
-pub use targets::{radiometry, target_views, TargetView, SATURATED};
 
 /// What a cached pixel sees.
 #[derive(Clone, Copy, Debug, PartialEq)]
