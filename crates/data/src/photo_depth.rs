@@ -605,8 +605,8 @@ mod tests {
 
     /// The bar the sensor lost is found from the images, within a few centimetres, on most of
     /// its pixels; no wall pixel gets a depth.
-    #[test]
-    fn a_thin_bar_the_sensor_lost_is_found_and_the_wall_is_left() {
+    /// Seven cameras along x looking at the wall, each with its rendering.
+    fn bar_scene() -> (Vec<Camera>, Vec<(ImageF32, ImageF32, Vec<bool>)>) {
         let cams: Vec<Camera> = (0..7)
             .map(|k| {
                 let eye = DVec3::new(-0.6 + 0.2 * k as f64, 0.05 * (k % 3) as f64, 0.0);
@@ -615,7 +615,13 @@ mod tests {
                 c
             })
             .collect();
-        let rendered: Vec<_> = cams.iter().map(render).collect();
+        let rendered = cams.iter().map(render).collect();
+        (cams, rendered)
+    }
+
+    #[test]
+    fn a_thin_bar_the_sensor_lost_is_found_and_the_wall_is_left() {
+        let (cams, rendered) = bar_scene();
         let views: Vec<PhotoView> = cams
             .iter()
             .zip(&rendered)
@@ -645,5 +651,56 @@ mod tests {
         );
         assert_eq!(bar_right, bar_found, "a bar pixel's depth off by over 5 cm");
         assert_eq!(pd.found, bar_found);
+    }
+
+    /// [`IN_FRONT`]: a depth found must lie in front of the *nearest* sensor sample around it.
+    /// The swept view's samples just left of the bar are set nearer than the bar (1.5 against
+    /// 2, as the edge of something the sensor saw would be), the wall's samples to its right
+    /// kept: the background and so the sweep are unchanged, and without the rule the bar is
+    /// found as before; with it every bar pixel is rejected as seen through.
+    #[test]
+    fn a_depth_behind_a_nearer_sample_beside_it_is_rejected() {
+        let (cams, mut rendered) = bar_scene();
+        let w = cams[3].width;
+        let (_, depth, bar) = &mut rendered[3];
+        let mut injected = 0;
+        for p in 0..depth.data.len() {
+            let (x, y) = (p % w, p / w);
+            // A bar pixel 1–6 columns to the right of this sample, in its row.
+            let left_of_bar = (x + 1..(x + 7).min(w)).any(|xx| bar[y * w + xx]);
+            if depth.data[p] > 0.0 && left_of_bar {
+                depth.data[p] = 1.5;
+                injected += 1;
+            }
+        }
+        assert!(injected > 10, "{injected} samples set nearer");
+        let views: Vec<PhotoView> = cams
+            .iter()
+            .zip(&rendered)
+            .map(|(camera, (rgb, depth, _))| PhotoView { camera, rgb, depth })
+            .collect();
+        let bar = &rendered[3].2;
+        let count = |in_front: bool| {
+            let params = PhotoDepthParams {
+                in_front,
+                ..PhotoDepthParams::default()
+            };
+            let found = photo_depth(&views, &[3], &params);
+            let pd = found[0].as_ref().expect("the view has depth");
+            let on_bar = |o: Outcome| (0..bar.len()).filter(|&p| bar[p] && pd.outcome[p] == o as u8).count();
+            (on_bar(Outcome::Found), on_bar(Outcome::SeenThrough))
+        };
+        let bar_pixels = bar.iter().filter(|b| **b).count();
+        let (found_off, _) = count(false);
+        let (found_on, seen_on) = count(true);
+        assert!(
+            found_off * 2 > bar_pixels,
+            "without the rule {found_off} of {bar_pixels} bar pixels found"
+        );
+        assert_eq!(found_on, 0, "with the rule a bar pixel behind a nearer sample was kept");
+        assert!(
+            seen_on >= found_off,
+            "with the rule {seen_on} bar pixels seen through, {found_off} found without"
+        );
     }
 }
