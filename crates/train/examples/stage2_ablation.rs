@@ -27,7 +27,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         std::process::exit(2);
     }
     let run = RunDir::new(std::path::Path::new(&args[1]));
-    let dataset = i2sdf_data::load(std::path::Path::new(&args[2]))?;
+    let mut dataset = i2sdf_data::load(std::path::Path::new(&args[2]))?;
+    // Stage 2 sees the training views where stage 1 put them.
+    if let Some(p) = i2sdf_model::poses::PoseCorrections::read(&run)? {
+        p.apply(&mut dataset, &run.poses_path())?;
+    }
     // GT_DATA=ROOM scores against another dataset of the same views (a capture's exact room).
     let gt_data = match std::env::var("GT_DATA") {
         Ok(p) => i2sdf_data::load(std::path::Path::new(&p))?,

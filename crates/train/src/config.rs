@@ -258,8 +258,8 @@ pub struct Stage2Config {
     /// Pieces marked in fewer training views than this are dropped (a hole of the SDF one view
     /// looked through, not a light).
     pub emitter_min_views: usize,
-    /// Pieces whose pixels the emitter masks mark less often than this are dropped (F_e above ½
-    /// on a highlight or reflection that only some views see).
+    /// Pieces that the emitter masks of the training views which see them mark less often than
+    /// this are dropped (F_e above ½ on a highlight or reflection that only some views see).
     pub emitter_mask_agreement: f32,
     /// F_e above this marks an emitter.
     pub emitter_threshold: f32,

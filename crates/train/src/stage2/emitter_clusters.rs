@@ -17,8 +17,9 @@
 //! - *one view*: marked in fewer than `min_views` training views. A light is seen from several
 //!   places; a piece only one view marks is where that view's rays crossed a hole of the SDF
 //!   (on that capture: 35 points 0.6 m above the ceiling, all from one view);
-//! - *mask disagrees*: F_e marks the piece but the views' masks mostly do not mark its pixels
-//!   (agreement under `mask_agreement`). F_e is one value per point, fitted to every view's mask;
+//! - *mask disagrees*: F_e marks the piece but the views' masks mostly do not mark it
+//!   (agreement under `mask_agreement`, over every view that sees its points where the caller
+//!   counted them: [`MarkedPoints::seen`]). F_e is one value per point, fitted to every view's mask;
 //!   it comes out above ½ on a highlight or a reflection that only some views see (on that
 //!   capture: a glossy ball reflecting the panel, 44 % agreement; the lights 91 % and 96 %).
 //!
@@ -66,6 +67,9 @@ pub struct MarkedPoints {
     pub positions: Vec<[f64; 3]>,
     pub views: Vec<u32>,
     pub in_mask: Vec<bool>,
+    /// Per point, of the training views that see it (its projection unoccluded), how many and
+    /// how many of those mark it in their mask ([`seen_by_views`]); empty when not measured.
+    pub seen: Vec<(u32, u32)>,
 }
 
 /// Why a connected piece of marked points is not an emitter.
@@ -88,7 +92,8 @@ pub struct LeftOut {
     pub points: usize,
     /// Training views that mark it.
     pub views: usize,
-    /// Fraction of its points whose pixel the view's mask marks.
+    /// Fraction of its points whose pixel the view's mask marks: over every view that sees each
+    /// point where [`MarkedPoints::seen`] has it, else over the views whose pixels hit it.
     pub agreement: f64,
     pub reason: LeftOutReason,
 }
@@ -106,7 +111,7 @@ impl LeftOut {
                 settings.min_views
             ),
             LeftOutReason::MaskDisagrees => format!(
-                "the masks mark {:.0} % of its pixels, under {:.0} % (stage2.emitter_mask_agreement): a highlight or reflection",
+                "the masks mark {:.0} % of it, under {:.0} % (stage2.emitter_mask_agreement): a highlight or reflection",
                 self.agreement * 100.0,
                 settings.mask_agreement * 100.0
             ),
@@ -325,6 +330,19 @@ fn piece_verdict(
     views.sort_unstable();
     views.dedup();
     let agreement = members.iter().filter(|&&i| marked.in_mask[i]).count() as f64 / members.len().max(1) as f64;
+    // Over every view that sees the piece where that was measured: its own pixels' views are
+    // those where F_e marked it, which a highlight that most views see at its mirror angle
+    // passes (seed 1's capture: a glossy ball's top, 82 % of its own pixels, 62 % of the views
+    // that see it; the lights 94 %).
+    let (seen, masked) = members
+        .iter()
+        .filter_map(|&i| marked.seen.get(i))
+        .fold((0u64, 0u64), |(a, b), s| (a + s.0 as u64, b + s.1 as u64));
+    let agreement = if seen > 0 {
+        masked as f64 / seen as f64
+    } else {
+        agreement
+    };
     let reason = if members.len() < min_points {
         Some(LeftOutReason::Stray)
     } else if views.len() < settings.min_views {
@@ -574,7 +592,7 @@ mod tests {
         assert_eq!(found.left_out[1].views, 1);
         assert_eq!(
             found.left_out[0].describe(&s),
-            "52 points in 15 views: the masks mark 44 % of its pixels, under 75 % \
+            "52 points in 15 views: the masks mark 44 % of it, under 75 % \
              (stage2.emitter_mask_agreement): a highlight or reflection"
         );
         assert_eq!(
@@ -588,6 +606,30 @@ mod tests {
             ..s
         };
         assert_eq!(cluster_emitters(&m, &lax, &mut rng).clusters.len(), 4);
+    }
+
+    /// Where the views that see each point were counted, the agreement is over them: a
+    /// highlight whose own pixels are all in their masks, but which most of the views that see
+    /// it do not mark, is left out; the panel, marked by all that see it, stays.
+    #[test]
+    fn a_piece_most_views_that_see_it_do_not_mark_is_left_out() {
+        let mut rng = Pcg64::seed_from_u64(5);
+        let panel = blob(&mut rng, [0.0, 0.9, 0.0], [0.3, 0.005, 0.2], 400);
+        let glint = blob(&mut rng, [0.5, 0.2, 0.5], [0.02, 0.02, 0.02], 40);
+        let mut m = marked(&[(panel, 8, 1.0), (glint, 6, 1.0)]);
+        // The panel: 10 views see each point, 9 mark it; the glint: 10 see it, 4 mark it.
+        m.seen = (0..440).map(|i| if i < 400 { (10, 9) } else { (10, 4) }).collect();
+        let found = cluster_emitters(&m, &settings(), &mut rng);
+        assert_eq!(found.clusters.len(), 1);
+        assert_eq!(found.clusters[0].members.len(), 400);
+        assert_eq!(found.left_out.len(), 1);
+        let glint = &found.left_out[0];
+        assert_eq!((glint.points, glint.reason), (40, LeftOutReason::MaskDisagrees));
+        assert!((glint.agreement - 0.4).abs() < 1e-9, "{}", glint.agreement);
+        assert!(glint.describe(&settings()).contains("the masks mark 40 % of it"));
+        // Without those counts the same glint passes on its own pixels.
+        m.seen.clear();
+        assert_eq!(cluster_emitters(&m, &settings(), &mut rng).clusters.len(), 2);
     }
 
     #[test]

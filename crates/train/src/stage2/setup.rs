@@ -128,6 +128,47 @@ pub(super) fn smoothing_radius(views: &[TargetView], c2: &Stage2Config) -> f32 {
 /// of its pixels (a lower bound where they are saturated). Without emitter masks F_e was never
 /// trained: no emitters (every traced ray takes F_c's radiance). Returns the table and the K
 /// chosen before small clusters were dropped.
+/// Per point, how many training views see it and how many of those mark it in their emitter
+/// mask: a view sees a point whose projection lands in its image where a cast pixel within one
+/// pixel of it hit the surface at the point's distance (within 3 %). A light is marked by every
+/// view that sees it; a highlight only by those at its mirror angle.
+pub(super) fn seen_by_views(cast: &Cast, views: &[TargetView], points: &[Vec3]) -> Vec<(u32, u32)> {
+    // Each view's cast pixels: distance of the hit from the camera (NaN: not cast or no hit).
+    let mut dist: Vec<Vec<f32>> = views.iter().map(|v| vec![f32::NAN; v.rgb.len()]).collect();
+    for (j, &o) in cast.hit_idx.iter().enumerate() {
+        let (v, p) = cast.order[o];
+        let c = views[v as usize].camera.center().as_vec3();
+        dist[v as usize][p as usize] = (cast.points[j] - c).length();
+    }
+    points
+        .iter()
+        .map(|x| {
+            let (mut seen, mut masked) = (0u32, 0u32);
+            for (v, view) in views.iter().enumerate() {
+                let cam = &view.camera;
+                let Some((u, vv, _)) = cam.project(x.as_dvec3()) else {
+                    continue;
+                };
+                if !(u >= 0.0 && vv >= 0.0 && u < cam.width as f64 && vv < cam.height as f64) {
+                    continue;
+                }
+                let (cx, cy) = (u as usize, vv as usize);
+                let r = (*x - cam.center().as_vec3()).length();
+                let visible = (cy.saturating_sub(1)..(cy + 2).min(cam.height)).any(|y| {
+                    (cx.saturating_sub(1)..(cx + 2).min(cam.width))
+                        .any(|xx| (dist[v][y * cam.width + xx] - r).abs() <= 0.03 * r)
+                });
+                if visible {
+                    seen += 1;
+                    let mask = view.emitter_mask.as_ref().expect("masks");
+                    masked += mask[cy * cam.width + cx] as u32;
+                }
+            }
+            (seen, masked)
+        })
+        .collect()
+}
+
 pub(super) fn cluster_new_emitters(
     scene: &NeuralScene,
     views: &[TargetView],
@@ -152,6 +193,10 @@ pub(super) fn cluster_new_emitters(
             points.views.push(v);
             points.in_mask.push(mask[p as usize]);
         }
+    }
+    if has_masks {
+        let world: Vec<Vec3> = marked.iter().map(|&j| cast.points[j]).collect();
+        points.seen = seen_by_views(cast, views, &world);
     }
     progress(&format!("clustering {} emitter points", points.positions.len()));
     let settings = ClusterSettings {
@@ -767,6 +812,56 @@ mod tests {
             points: vec![Vec3::ZERO; 3],
             emitter_prob: vec![0.0; 3],
         }
+    }
+
+    /// A point is seen by a view where a cast pixel beside its projection hit the surface at
+    /// its distance, and counted as marked where that view's mask marks its pixel; a point
+    /// behind the surface the view hit there, behind the camera, or where the view cast no pixel
+    /// is not seen.
+    #[test]
+    fn views_see_a_point_where_the_cast_hit_it() {
+        let camera = i2sdf_data::fixture::cameras(&Default::default())[0].clone();
+        let (w, h) = (camera.width, camera.height);
+        let c = camera.center().as_vec3();
+        // Every pixel of the view cast, hitting a surface at distance 2 from the camera.
+        let order: Vec<(u32, u32)> = (0..(w * h) as u32).map(|p| (0, p)).collect();
+        let dirs: Vec<Vec3> = (0..w * h)
+            .map(|p| {
+                let x = camera
+                    .backproject_at((p % w) as f64 + 0.5, (p / w) as f64 + 0.5, 1.0)
+                    .as_vec3();
+                (x - c).normalize()
+            })
+            .collect();
+        let cast = Cast {
+            rays: Vec::new(),
+            hits: Vec::new(),
+            hit_idx: (0..w * h).collect(),
+            points: dirs.iter().map(|d| c + 2.0 * *d).collect(),
+            emitter_prob: vec![0.0; w * h],
+            order,
+        };
+        let mut mask = vec![false; w * h];
+        let (mx, my) = (w / 2, h / 2);
+        mask[my * w + mx] = true;
+        let view = |mask: Vec<bool>| TargetView {
+            camera: camera.clone(),
+            rgb: vec![[0.5; 3]; w * h],
+            saturated: vec![0; w * h],
+            emitter_mask: Some(mask),
+            material_mask: None,
+            normal: None,
+        };
+        let on = |px: usize, r: f32| c + r * dirs[px];
+        let points = [
+            on(my * w + mx, 2.0),        // on the surface, in the mask
+            on(my * w + mx + 3, 2.0),    // on the surface, not in the mask
+            on(my * w + mx, 2.5),        // behind the surface
+            c - 2.0 * dirs[my * w + mx], // behind the camera
+        ];
+        // View 1 (the same camera) cast no pixel: it cannot tell, and does not count.
+        let seen = seen_by_views(&cast, &[view(mask.clone()), view(mask)], &points);
+        assert_eq!(seen, [(1, 1), (1, 0), (0, 0), (0, 0)]);
     }
 
     /// A surface pixel the dataset's material mask marks non-GGX is not fitted; an emitter pixel
