@@ -260,15 +260,15 @@ impl Stage2 {
         // 4. Incident radiance of every surface pixel, traced once.
         let (mut cache, own, surface) = setup::trace_cache(&frozen, &pixels, &c2, seed, resume_at, progress);
         drop(frozen);
+        let surface_points: Vec<ShadingPoint> = surface.iter().map(|&i| pixels[i as usize].point).collect();
         if let Some(bake) = cache
             .bake
             .as_mut()
             .filter(|_| c2.specular_pool > 0.0 && c2.specular_pool_radius > 0.0)
         {
             progress("pooling the specular sums of pixels that reflect alike");
-            let pts: Vec<ShadingPoint> = surface.iter().map(|&i| pixels[i as usize].point).collect();
             *bake = bake.pooled(
-                &pts,
+                &surface_points,
                 c2.specular_pool_radius * scale,
                 c2.specular_pool,
                 SPECULAR_POOL_PARALLAX * scale,
@@ -276,8 +276,7 @@ impl Stage2 {
         }
         let pooled = (c2.irradiance_radius > 0.0).then(|| {
             progress("pooling the diffuse irradiance of nearby pixels");
-            let pts: Vec<ShadingPoint> = surface.iter().map(|&i| pixels[i as usize].point).collect();
-            pool_diffuse(&pts, &own, c2.irradiance_radius * scale)
+            pool_diffuse(&surface_points, &own, c2.irradiance_radius * scale)
         });
         // 5. The emission of lights the images saw only clipped, from the light they throw.
         let held_emission = saturated_emitters(&pixels, emitters.len());

@@ -123,11 +123,6 @@ pub(super) fn smoothing_radius(views: &[TargetView], c2: &Stage2Config) -> f32 {
     }
 }
 
-/// K-means on the surface points F_e marks (normalized frame), K chosen unless
-/// `stage2.emitters` sets it; each L\[k\] starts at what the images show of it, the mean target
-/// of its pixels (a lower bound where they are saturated). Without emitter masks F_e was never
-/// trained: no emitters (every traced ray takes F_c's radiance). Returns the table and the K
-/// chosen before small clusters were dropped.
 /// Per point, how many training views see it and how many of those mark it in their emitter
 /// mask: a view sees a point whose projection lands in its image where a cast pixel within one
 /// pixel of it hit the surface at the point's distance (within 3 %). A light is marked by every
@@ -169,6 +164,11 @@ pub(super) fn seen_by_views(cast: &Cast, views: &[TargetView], points: &[Vec3]) 
         .collect()
 }
 
+/// K-means on the surface points F_e marks (normalized frame), K chosen unless
+/// `stage2.emitters` sets it; each L\[k\] starts at what the images show of it, the mean target
+/// of its pixels (a lower bound where they are saturated). Without emitter masks F_e was never
+/// trained: no emitters (every traced ray takes F_c's radiance). Returns the table and the K
+/// chosen before small clusters were dropped.
 pub(super) fn cluster_new_emitters(
     scene: &NeuralScene,
     views: &[TargetView],
