@@ -199,7 +199,7 @@ pub struct Stage2Config {
     pub fit_bulbs: bool,
     /// A bulb's sphere takes the radius its emitter masks give (the median disc of its whole,
     /// unoccluded mask pieces at its centre's depth) instead of its surface fit's, which stage 1's
-    /// inflated small bright objects make too large (`setup::size_bulbs_by_masks`). Needs emitter
+    /// inflated small bright objects make too large (`emitter_setup::size_bulbs_by_masks`). Needs emitter
     /// masks (given or found) and `fit_bulbs`.
     pub size_bulbs_by_masks: bool,
     /// Lights that no surface carries (stage 1 built no surface for them: a clipped bulb the

@@ -25,6 +25,7 @@ use crate::config::TrainConfig;
 use crate::driver::{StepOutcome, TrainStage};
 pub mod emission_from_shading;
 pub mod emitter_clusters;
+mod emitter_setup;
 pub mod emitter_triangulation;
 pub mod losses;
 mod mixture;
@@ -223,7 +224,7 @@ impl Stage2 {
             }
             None => {
                 let (emitters, k) =
-                    setup::cluster_new_emitters(&scene, views, radiometry, &cast, &c2, &mut rng, progress);
+                    emitter_setup::cluster_new_emitters(&scene, views, radiometry, &cast, &c2, &mut rng, progress);
                 let material = MaterialField::new(&config.material, scene.feature_dim(), seed.wrapping_add(17));
                 (material, emitters, k)
             }
