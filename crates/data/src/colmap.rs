@@ -432,7 +432,7 @@ fn load_frame(image: &ColmapImage, camera: &Camera, split: Split, dirs: &FrameDi
         })
         .transpose()?;
     let (depth, dropped) = match depth {
-        Some((d, dropped)) => (Some(d), dropped),
+        Some((d, dropped, _)) => (Some(d), dropped),
         None => (None, Default::default()),
     };
     let emitter_mask = find_with_extension(&dirs.masks.join(&stem), &["png"])?
@@ -447,6 +447,7 @@ fn load_frame(image: &ColmapImage, camera: &Camera, split: Split, dirs: &FrameDi
         rgb,
         hdr: None,
         depth,
+        depth_low: None,
         normal: None,
         emitter_mask,
         material_mask: None,

@@ -60,6 +60,9 @@ pub struct Frame {
     pub hdr: Option<ImageF32>,
     /// z-depth (along the optical axis) in world units, 1 channel; 0 marks a pixel without depth.
     pub depth: Option<ImageF32>,
+    /// 1 over the footprints of the depth samples the sensor's confidence map marked below the
+    /// dataset's minimum (dropped from `depth`), 0 elsewhere; `None` without a confidence map.
+    pub depth_low: Option<ImageF32>,
     /// World-space unit normals, 3 channels; (0,0,0) marks a pixel without a normal.
     pub normal: Option<ImageF32>,
     /// 1 where the pixel sees an emitter, else 0.

@@ -427,6 +427,7 @@ mod tests {
             rgb,
             hdr: hdr.then_some(radiance),
             depth: Some(depth),
+            depth_low: None,
             normal: None,
             emitter_mask: None,
             material_mask: None,

@@ -184,19 +184,19 @@ fn load_frame(
         .map(|p| dataset::load_rgb(&p, &camera))
         .transpose()?;
     let confidence_path = path("confidence_file_path")?;
-    let (depth, depth_dropped) = match path("depth_file_path")? {
+    let (depth, depth_dropped, depth_low) = match path("depth_file_path")? {
         Some(p) => {
             let confidence = confidence_path.as_deref().map(|path| Confidence {
                 path,
                 min: units.confidence_min,
             });
-            let (depth, dropped) = sensor_depth::load_depth(&p, &camera, units.png_scale, confidence)?;
-            (Some(depth), dropped)
+            let (depth, dropped, low) = sensor_depth::load_depth(&p, &camera, units.png_scale, confidence)?;
+            (Some(depth), dropped, low)
         }
         None if confidence_path.is_some() => {
             return Err(ctx.err("confidence_file_path", "given without a depth_file_path"))
         }
-        None => (None, DepthDropped::default()),
+        None => (None, DepthDropped::default(), None),
     };
     let normal = path("normal_file_path")?
         .map(|p| dataset::load_normal(&p, &camera, None))
@@ -225,6 +225,7 @@ fn load_frame(
         rgb,
         hdr,
         depth,
+        depth_low,
         normal,
         emitter_mask,
         material_mask: None,

@@ -292,7 +292,7 @@ fn load_frame(
     let rot = camera.rotation();
     let (depth, depth_dropped) = match &annotations.depths {
         Some(d) => {
-            let (depth, dropped) = sensor_depth::load_depth(&d[i], &camera, 1.0, None)?;
+            let (depth, dropped, _) = sensor_depth::load_depth(&d[i], &camera, 1.0, None)?;
             (Some(depth), dropped)
         }
         None => (None, DepthDropped::default()),
@@ -327,6 +327,7 @@ fn load_frame(
         rgb,
         hdr,
         depth,
+        depth_low: None,
         normal,
         emitter_mask,
         material_mask,

@@ -76,14 +76,16 @@ pub struct Confidence<'a> {
 /// Reads a depth map (EXR or `.npy` float in world units, the first channel; or a PNG of integers
 /// times `png_scale`), drops the samples without valid depth (non-finite, ≤ 0, below the
 /// confidence minimum) and maps the sensor grid onto `cam`'s pixels ([`map_to_image`]). The
-/// result has the image's size, 0 where there is no depth. A depth map whose aspect ratio is not
-/// the image's, or a confidence map not of the depth map's size, is an error naming the file.
+/// result has the image's size, 0 where there is no depth. With a confidence map, also the
+/// footprints of the samples dropped as low confidence ([`low_footprints`]). A depth map whose
+/// aspect ratio is not the image's, or a confidence map not of the depth map's size, is an error
+/// naming the file.
 pub fn load_depth(
     path: &Path,
     cam: &Camera,
     png_scale: f64,
     confidence: Option<Confidence>,
-) -> Result<(ImageF32, DepthDropped)> {
+) -> Result<(ImageF32, DepthDropped, Option<ImageF32>)> {
     let is_png = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"));
     let samples = if is_png {
         let mut raw = imageio::read_png_raw_gray(path)?;
@@ -122,7 +124,30 @@ pub fn load_depth(
     let depth = map_to_image(&valid, cam.width, cam.height);
     dropped.kept = depth.data.iter().filter(|d| **d > 0.0).count() as u64;
     dropped.superseded = before - dropped.kept;
-    Ok((depth, dropped))
+    let low = conf.map(|(c, min)| {
+        let low: Vec<bool> = c.iter().map(|v| *v < min).collect();
+        low_footprints(&low, samples.width, samples.height, cam.width, cam.height)
+    });
+    Ok((depth, dropped, low))
+}
+
+/// The image pixels (`width`×`height`) inside the footprint of a sensor sample marked `low` (a
+/// `grid_w`×`grid_h` grid over the image): 1 there, else 0. Where a sensor straddles a depth edge
+/// it marks its sample low, so these footprints outline what it saw only in part: a thin object
+/// narrower than a sample leaves a trail of them in every view (used by the photometric depth's
+/// edge support, `photo_depth::EDGE_MIN_SUPPORT`).
+pub fn low_footprints(low: &[bool], grid_w: usize, grid_h: usize, width: usize, height: usize) -> ImageF32 {
+    let mut out = ImageF32::new(width, height, 1);
+    for y in 0..height {
+        let v = (y * grid_h / height).min(grid_h - 1);
+        for x in 0..width {
+            let u = (x * grid_w / width).min(grid_w - 1);
+            if low[v * grid_w + u] {
+                out.data[y * width + x] = 1.0;
+            }
+        }
+    }
+    out
 }
 
 fn check_aspect(path: &Path, depth: &ImageF32, cam: &Camera) -> Result<()> {

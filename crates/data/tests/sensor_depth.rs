@@ -67,7 +67,7 @@ fn png16_millimetre_depth_round_trips() {
     let mm: Vec<u16> = (0..cam.width * cam.height).map(|k| 500 + 7 * k as u16).collect();
     let p = dir.path().join("d.png");
     imageio::write_png16_raw(&p, cam.width, cam.height, 1, &mm).unwrap();
-    let (depth, dropped) = sensor_depth::load_depth(&p, cam, 0.001, None).unwrap();
+    let (depth, dropped, _) = sensor_depth::load_depth(&p, cam, 0.001, None).unwrap();
     for (d, m) in depth.data.iter().zip(&mm) {
         assert_eq!(*d, (*m as f64 * 0.001) as f32);
     }
@@ -81,7 +81,7 @@ fn png16_millimetre_depth_round_trips() {
         &p8,
         &ImageF32::from_data(cam.width, cam.height, 1, vec![200.0; cam.width * cam.height]),
     );
-    let (depth, _) = sensor_depth::load_depth(&p8, cam, 0.01, None).unwrap();
+    let (depth, _, _) = sensor_depth::load_depth(&p8, cam, 0.01, None).unwrap();
     assert!(depth.data.iter().all(|d| *d == 2.0), "{:?}", &depth.data[..3]);
 
     // Through a dataset, with another unit: 0.1 mm.
@@ -313,6 +313,19 @@ fn low_confidence_samples_are_dropped_before_the_mapping() {
     let depth = ds.frames[0].depth.as_ref().unwrap();
     assert_eq!(depth.pixel(2, 2)[0], 0.0, "sample (0, 0) had confidence 0");
     assert!(depth.pixel(6, 2)[0] > 0.0, "sample (1, 0) had confidence 1");
+    // The dropped samples' footprints, 4×4 pixels each, are kept for the photometric depth.
+    let low = ds.frames[0]
+        .depth_low
+        .as_ref()
+        .expect("a confidence map gives the footprints");
+    for j in 0..24 {
+        for i in 0..32 {
+            let (u, v) = (i / 4, j / 4);
+            let expected = ((u + v) % 3 == 0) as u8 as f32;
+            assert_eq!(low.pixel(i, j)[0], expected, "pixel ({i}, {j}) in sample ({u}, {v})");
+        }
+    }
+    assert!(truth.frames[0].depth_low.is_none(), "no confidence map, no footprints");
 }
 
 #[test]

@@ -5,7 +5,10 @@
 //! it is to the true depth. Made for `docs/results.md`:
 //! `cargo run --release -p i2sdf-train --example photo_depth_probe -- CAP [true | run=RUN] [key=value …]` on a room
 //! written by `i2sdf synth --capture` (its `depth_gt/` maps and `poses_true.json`; `true`: sweep
-//! with the true poses instead of the perturbed ones, to see what the pose noise costs).
+//! with the true poses instead of the perturbed ones, to see what the pose noise costs; `per_shape`:
+//! each shape on its own line, a table's legs apart; `key=value`: a `PhotoDepthParams` field, the
+//! edge support's included; `VIS=DIR` in the environment writes each view with its depths found
+//! coloured by their distance to the true surface).
 use glam::DMat4;
 use i2sdf_data::{imageio, photo_depth, Camera, Split};
 use i2sdf_synth::scene::SceneDesc;
@@ -25,6 +28,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().collect();
     let dir = Path::new(a.get(1).ok_or("usage: photo_depth_probe CAP [true]")?);
     let use_true = a.iter().any(|s| s == "true");
+    // `per_shape`: each shape of an object on its own line (a table's four legs apart).
+    let per_shape = a.iter().any(|s| s == "per_shape");
     let run = a.iter().find_map(|s| s.strip_prefix("run="));
     let mut params = photo_depth::PhotoDepthParams::default();
     for kv in a.iter().skip(2).filter_map(|s| s.split_once('=')) {
@@ -46,6 +51,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "full_baseline" => params.full_baseline = kv.1.parse()?,
             "slack" => params.slack = kv.1.parse()?,
             "in_front" => params.in_front = kv.1.parse()?,
+            "edge_min_support" => params.edge_min_support = kv.1.parse()?,
+            "edge_steps" => params.edge_steps = kv.1.parse()?,
+            "edge_window" => params.edge_window = kv.1.parse()?,
+            "edge_seen_through" => params.edge_seen_through = kv.1.parse()?,
+            "edge_contrast" => params.edge_contrast = kv.1.parse()?,
+            "edge_min_ratio" => params.edge_min_ratio = kv.1.parse()?,
+            "edge_through_weight" => params.edge_through_weight = kv.1.parse()?,
             "run" => {}
             k => return Err(format!("unknown parameter {k}").into()),
         }
@@ -81,9 +93,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         i2sdf_model::poses::with_corrected_poses(&i2sdf_model::RunDir::new(Path::new(run)), &mut ds)?;
     }
     // The thin, suspended and small shapes, grouped by object.
-    let groups = desc.solid_shapes_tagged(&["thin", "suspended", "small"]);
-    // The furniture, for where the depths found off any true surface come from.
-    let furniture = desc.solid_shapes_tagged(&["furniture"]);
+    let mut groups = desc.solid_shapes_tagged(&["thin", "suspended", "small"]);
+    if per_shape {
+        groups = groups
+            .into_iter()
+            .flat_map(|(_, shapes)| shapes.into_iter().map(|s| (desc.shapes[s].name.clone(), vec![s])))
+            .collect();
+    }
+    // Every object with a solid shape, for where the depths found off any true surface come from.
+    let furniture = desc.solid_shapes_tagged(&["furniture", "room", "thin", "suspended", "small"]);
     let mut on_furniture = vec![(0usize, 0usize); furniture.len()];
     let dist = |g: &[usize], p: glam::DVec3| {
         g.iter()
@@ -119,13 +137,25 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     // Per group: pixels seeing it, given a depth, within 2 cm of it.
     let mut per_group = vec![(0usize, 0usize, 0usize); groups.len()];
-    let mut outcomes = vec![[0usize; 10]; groups.len()];
+    let mut outcomes = vec![[0usize; 11]; groups.len()];
+    // Per group, depths found at an edge more than 2 cm behind / in front of the pixel's truth.
+    let mut sign = vec![(0usize, 0usize); groups.len()];
     let (mut swept, mut errs, mut surf) = (0, Vec::new(), Vec::new());
     for (k, pd) in found.iter().enumerate() {
         let Some(pd) = pd else { continue };
         swept += pd.swept;
         let (f, g_depth, tcam) = (refs[k], &gt[train[k]], &true_cams[train[k]]);
         let w = f.camera.width;
+        // `VIS=DIR`: each view's image in grey, a depth found within 2 cm of a true surface in
+        // green, within 5 cm in yellow, farther in red; by colour dim, at an edge bright.
+        let mut vis = std::env::var("VIS").ok().map(|_| {
+            let mut im = f.rgb.clone();
+            for px in im.data.chunks_mut(3) {
+                let g = (px[0] + px[1] + px[2]) / 3.0 * 0.6;
+                px.copy_from_slice(&[g, g, g]);
+            }
+            im
+        });
         for p in 0..f.pixel_count() {
             let (x, y) = (p % w, p / w);
             let z = g_depth.data[p];
@@ -136,6 +166,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let at = f.camera.backproject(x, y, zf as f64).as_vec3();
                 let off = tree.nearest_distance(at.to_array());
                 surf.push(off);
+                if let Some(im) = vis.as_mut() {
+                    let b = if pd.outcome[p] == 10 { 1.0 } else { 0.5 };
+                    let c = if off < 0.02 {
+                        [0.0, b, 0.0]
+                    } else if off < 0.05 {
+                        [b, b, 0.0]
+                    } else {
+                        [b, 0.0, 0.0]
+                    };
+                    im.pixel_mut(x, y).copy_from_slice(&c);
+                }
                 let seen = tcam.backproject(x, y, z as f64);
                 if let Some(fi) = furniture.iter().position(|(_, shapes)| dist(shapes, seen) < 0.01) {
                     on_furniture[fi].0 += 1;
@@ -154,12 +195,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                         per_group[gi].1 += 1;
                         let at = f.camera.backproject(x, y, zf as f64);
                         per_group[gi].2 += (dist(shapes, at) < 0.02) as usize;
+                        if pd.outcome[p] == 10 {
+                            sign[gi].0 += (zf > z + 0.02) as usize;
+                            sign[gi].1 += (zf < z - 0.02) as usize;
+                        }
                     }
                 }
             }
         }
+        if let (Some(im), Ok(d)) = (vis.as_ref(), std::env::var("VIS")) {
+            imageio::write_png(&Path::new(&d).join(format!("{k:04}.png")), im)?;
+        }
     }
     errs.sort_by(f32::total_cmp);
+    if let Ok(d) = std::env::var("VIS") {
+        println!("(images written to {d})");
+    }
     let q = |x: f64| {
         errs.get(((errs.len().max(1) - 1) as f64 * x) as usize)
             .copied()
@@ -186,7 +237,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for (off, n, name) in worst {
         println!("{name:24} depths found on its pixels {n:5}, over 5 cm off any true surface {off:5}");
     }
-    println!("outcomes: sensed, no background, too few views, background explains, cost too high, ratio too low, not unique, seen through, unconfirmed, found");
+    println!("outcomes: sensed, no background, too few views, background explains, cost too high, ratio too low, not unique, seen through, unconfirmed, found, found at an edge");
     surf.sort_by(f32::total_cmp);
     let near = |t: f32| surf.iter().filter(|e| **e < t).count();
     println!(
@@ -197,8 +248,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         surf[surf.len() / 2],
         surf[surf.len() * 9 / 10]
     );
-    for (((name, _), (seen, given, near)), o) in groups.iter().zip(&per_group).zip(&outcomes) {
-        println!("{name:24} pixels {seen:6}  given a depth {given:5}  within 2 cm of it {near:5}  {o:?}");
+    for (gi, (((name, _), (seen, given, near)), o)) in groups.iter().zip(&per_group).zip(&outcomes).enumerate() {
+        println!("{name:24} pixels {seen:6}  given a depth {given:5}  within 2 cm of it {near:5}  {o:?}  at edges behind / in front {:?}", sign[gi]);
     }
     Ok(())
 }

@@ -154,6 +154,8 @@ struct GivenView {
     name: String,
     frame: usize,
     camera: i2sdf_data::Camera,
+    /// The sensor's low-confidence footprints, for the photometric depth's edge support.
+    depth_low: Option<i2sdf_data::ImageF32>,
 }
 
 pub struct Stage1 {
@@ -250,6 +252,7 @@ impl Stage1 {
                     name: f.name.clone(),
                     frame: im.frame_index,
                     camera: f.camera.clone(),
+                    depth_low: f.depth_low.clone(),
                 }
             })
             .collect();

@@ -71,7 +71,13 @@ impl Stage1 {
             .iter()
             .zip(&rgb)
             .zip(&depth)
-            .map(|((camera, rgb), depth)| PhotoView { camera, rgb, depth })
+            .zip(&self.given_views)
+            .map(|(((camera, rgb), depth), given)| PhotoView {
+                camera,
+                rgb,
+                depth,
+                low: given.depth_low.as_ref(),
+            })
             .collect();
         let all: Vec<usize> = (0..views.len()).collect();
         let found = photo_depth(&views, &all, &PhotoDepthParams::default());

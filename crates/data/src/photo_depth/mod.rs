@@ -34,6 +34,20 @@
 //!    6 cm (docs/results.md, fifteenth session; thresholds chosen there with the probe
 //!    `photo_depth_probe`).
 //!
+//! 6. Edge support, for what the colours cannot place (a leg of its wall's grey, a pole blended
+//!    into one pixel): where the sensor has a confidence map, a pixel inside the footprint of a
+//!    sample it marked low is placed where the other views' low-confidence footprints meet along
+//!    its ray (a sensor marks low every sample whose footprint straddles a depth edge, so a thin
+//!    object leaves a trail of them in every view that sees it), less the views whose sensor saw
+//!    through the point; the peak must stand [`EDGE_CONTRAST`] above the background's own
+//!    support (a region low in every view, a shelf of books, supports every depth before it
+//!    alike), and the colour cost refines it within [`EDGE_WINDOW`], at most 1/[`EDGE_MIN_RATIO`]
+//!    of the background's there (the wall pixels that share a leg's footprints keep the wall).
+//!    These depths go through the fusion of step 5 like the others. On the seed-1 phone capture
+//!    at a run's corrected poses it gives the side table's legs 339 pixels (228 within 2 cm of
+//!    them) where the colours gave 4, the lamp pole 88 (61) where they gave none
+//!    (docs/results.md, eighteenth session).
+//!
 //! The cost of one depth is the colour difference (mean absolute over RGB, display values) to each
 //! neighbour view's pixel there, the best of five positions 0.5 px apart (poses off by up to a
 //! pixel, as a tracker's are), averaged over the better half of the views that see the point
@@ -45,6 +59,9 @@ use crate::camera::Camera;
 use crate::imageio::ImageF32;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
+
+mod edge;
+use edge::{footprint_depth, EdgeView};
 
 /// Neighbour views compared per view.
 pub const NEIGHBOURS: usize = 8;
@@ -87,6 +104,28 @@ pub const MIN_VIEWS: usize = 3;
 /// (docs/results.md, sixteenth session).
 pub const IN_FRONT: bool = true;
 
+/// Edge support: a pixel in the footprint of a sample its sensor marked low confidence, which the
+/// colours did not place, is placed where the most other views' low-confidence footprints meet
+/// along its ray, less the views whose sensor saw through the point ([`edge_support`]); this many
+/// at least (0: off).
+pub const EDGE_MIN_SUPPORT: i32 = 3;
+/// Steps of the edge-support sweep (uniform in inverse depth, over the colour sweep's range).
+pub const EDGE_STEPS: usize = 128;
+/// The edge support's peak is refined by the colour cost within this fraction of its depth.
+pub const EDGE_WINDOW: f64 = 0.04;
+/// The peak's support exceeds the background's by at least this much.
+pub const EDGE_CONTRAST: i32 = 2;
+/// The colour cost at the background is at least this many times the edge depth's.
+pub const EDGE_MIN_RATIO: f32 = 1.5;
+/// A view whose sensor saw through a point counts this much against it. A sensor's point samples
+/// miss an object thinner than their spacing (the seed-1 capture's lamp pole: about as many views
+/// see through its true position as mark it), but 0.5 costs F: stage 1 + 2 of the seed-0 and
+/// seed-1 captures, thin @ 2 cm 0.569 / 0.444 and F 0.953 / 0.953 at 1, 0.567 / 0.479 and F
+/// 0.947 / 0.954 at 0.5 (docs/results.md, eighteenth session).
+pub const EDGE_THROUGH_WEIGHT: f32 = 1.0;
+/// A view's kept sample this much (relative) behind a point saw through it.
+pub const EDGE_SEEN_THROUGH: f64 = 0.05;
+
 /// The sweep's settings; [`PhotoDepthParams::default`] holds the constants above.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PhotoDepthParams {
@@ -109,6 +148,14 @@ pub struct PhotoDepthParams {
     /// A depth found must lie in front of every sensor sample within the background's radius,
     /// not only the farthest ([`IN_FRONT`]).
     pub in_front: bool,
+    /// [`EDGE_MIN_SUPPORT`], [`EDGE_STEPS`], [`EDGE_WINDOW`], [`EDGE_SEEN_THROUGH`].
+    pub edge_min_support: i32,
+    pub edge_steps: usize,
+    pub edge_window: f64,
+    pub edge_seen_through: f64,
+    pub edge_contrast: i32,
+    pub edge_min_ratio: f32,
+    pub edge_through_weight: f32,
 }
 
 impl Default for PhotoDepthParams {
@@ -131,17 +178,27 @@ impl Default for PhotoDepthParams {
             full_baseline: FULL_BASELINE,
             slack: SLACK,
             in_front: IN_FRONT,
+            edge_min_support: EDGE_MIN_SUPPORT,
+            edge_steps: EDGE_STEPS,
+            edge_window: EDGE_WINDOW,
+            edge_seen_through: EDGE_SEEN_THROUGH,
+            edge_contrast: EDGE_CONTRAST,
+            edge_min_ratio: EDGE_MIN_RATIO,
+            edge_through_weight: EDGE_THROUGH_WEIGHT,
         }
     }
 }
 
 /// One view as the sweep sees it: its camera (at the best poses known), LDR colour (3 channels)
-/// and sensor z-depth (1 channel, world units, 0: none), all at the image's size.
+/// and sensor z-depth (1 channel, world units, 0: none), all at the image's size; where the
+/// sensor has a confidence map, `low` is 1 over the footprints of the samples it marked low (see
+/// [`crate::dataset::Frame::depth_low`]).
 #[derive(Clone, Copy, Debug)]
 pub struct PhotoView<'a> {
     pub camera: &'a Camera,
     pub rgb: &'a ImageF32,
     pub depth: &'a ImageF32,
+    pub low: Option<&'a ImageF32>,
 }
 
 impl<'a> PhotoView<'a> {
@@ -151,6 +208,7 @@ impl<'a> PhotoView<'a> {
             camera: &frame.camera,
             rgb: &frame.rgb,
             depth: frame.depth.as_ref()?,
+            low: frame.depth_low.as_ref(),
         })
     }
 }
@@ -181,6 +239,8 @@ pub enum Outcome {
     SeenThrough = 7,
     Unconfirmed = 8,
     Found = 9,
+    /// Placed by the low-confidence footprints ([`EDGE_MIN_SUPPORT`]).
+    FoundAtEdge = 10,
 }
 
 /// One neighbour view, set up for the reference view `cam`: a point `z · d` along the reference
@@ -238,9 +298,17 @@ impl Neighbour<'_> {
 /// Photometric depth for every training view in `views` (indices into `frames`, which all serve as
 /// neighbours): per view `None` where it has no sensor depth to take a background from.
 pub fn photo_depth(frames: &[PhotoView], views: &[usize], p: &PhotoDepthParams) -> Vec<Option<PhotoDepth>> {
+    // Each kept sample spread over its footprint, for the edge support's see-through test.
+    let footprints: Vec<Option<ImageF32>> = frames
+        .par_iter()
+        .map(|f| {
+            let cell = grid_cell(f.depth)?;
+            (p.edge_min_support > 0 && f.low.is_some()).then(|| footprint_depth(f.depth, cell))
+        })
+        .collect();
     let mut swept: Vec<Option<(PhotoDepth, Vec<usize>)>> = (0..frames.len())
         .into_par_iter()
-        .map(|i| photo_depth_view(frames, i, p))
+        .map(|i| photo_depth_view(frames, &footprints, i, p))
         .collect();
     // Fusion: a depth stands where other views found the same point (within
     // `consistency` of their own depth, a pixel around its projection).
@@ -402,8 +470,92 @@ fn cost(
     Some(scratch[..keep].iter().sum::<f32>() / keep as f32)
 }
 
+/// One pixel's ray: its camera-space direction, colour, background (the farthest sensor sample
+/// around it) and the nearest sample around it (z-depths).
+struct Ray {
+    dir: DVec3,
+    colour: [f32; 3],
+    background: f64,
+    nearest: f64,
+}
+
+impl Ray {
+    /// The colour sweep (steps 1–4 of the module's doc): the depth found, or why none; and whether
+    /// the pixel got past the background test.
+    fn by_colour(
+        &self,
+        ns: &[Neighbour],
+        costs: &mut [f32],
+        scratch: &mut Vec<f32>,
+        p: &PhotoDepthParams,
+    ) -> (Result<f64, Outcome>, bool) {
+        let (dir, colour, zb) = (self.dir, self.colour, self.background);
+        let bg_cost = self.background_cost(ns, scratch, p);
+        if !bg_cost.is_finite() {
+            return (Err(Outcome::TooFewViews), false);
+        }
+        if bg_cost < p.background_explains {
+            return (Err(Outcome::BackgroundExplains), false);
+        }
+        let (inv_near, inv_far) = (1.0 / (p.near_fraction * zb), 1.0 / ((1.0 - p.min_gap) * zb));
+        let inv = |k: f64| inv_near + (inv_far - inv_near) * k / (p.steps - 1) as f64;
+        for (k, c) in costs.iter_mut().enumerate() {
+            *c = cost(ns, dir, 1.0 / inv(k as f64), colour, scratch, p).unwrap_or(f32::INFINITY);
+        }
+        let (best, &c_best) = costs.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).unwrap();
+        if !(c_best < p.max_cost) {
+            return (Err(Outcome::CostTooHigh), true);
+        }
+        if bg_cost < p.min_ratio * c_best {
+            return (Err(Outcome::RatioTooLow), true);
+        }
+        let unique = costs
+            .iter()
+            .enumerate()
+            .all(|(k, c)| k.abs_diff(best) <= 2 || *c >= p.uniqueness * c_best);
+        if !unique {
+            return (Err(Outcome::NotUnique), true);
+        }
+        let z_best = 1.0 / inv(best as f64);
+        // Behind a sample of its own view's, or in front of a neighbour's that lies behind it: a
+        // sensor saw past the point.
+        if self.behind_own(z_best, p) || ns.iter().any(|n| n.sees_through(dir, z_best, p.min_gap)) {
+            return (Err(Outcome::SeenThrough), true);
+        }
+        // Parabola through the best step and its neighbours, in steps.
+        let mut k = best as f64;
+        if best > 0 && best + 1 < p.steps {
+            let (a, b, c) = (costs[best - 1], c_best, costs[best + 1]);
+            let denom = a - 2.0 * b + c;
+            if a.is_finite() && c.is_finite() && denom > 1e-9 {
+                k += (0.5 * (a - c) / denom).clamp(-0.5, 0.5) as f64;
+            }
+        }
+        (Ok(1.0 / inv(k)), true)
+    }
+
+    /// The colour cost at the background: the best within ±`min_gap` of its depth; infinite
+    /// where too few views see it.
+    fn background_cost(&self, ns: &[Neighbour], scratch: &mut Vec<f32>, p: &PhotoDepthParams) -> f32 {
+        [1.0 - p.min_gap, 1.0, 1.0 + p.min_gap]
+            .iter()
+            .filter_map(|s| cost(ns, self.dir, self.background * s, self.colour, scratch, p))
+            .fold(f32::INFINITY, f32::min)
+    }
+
+    /// Whether a depth lies behind the nearest sample around the pixel ([`IN_FRONT`]).
+    fn behind_own(&self, z: f64, p: &PhotoDepthParams) -> bool {
+        p.in_front && z > (1.0 - p.min_gap) * self.nearest
+    }
+}
+
 /// The sweep for one view.
-fn photo_depth_view(frames: &[PhotoView], i: usize, p: &PhotoDepthParams) -> Option<(PhotoDepth, Vec<usize>)> {
+fn photo_depth_view(
+    frames: &[PhotoView],
+    footprints: &[Option<ImageF32>],
+    i: usize,
+    p: &PhotoDepthParams,
+) -> Option<(PhotoDepth, Vec<usize>)> {
     let frame = &frames[i];
     let depth = frame.depth;
     let cam = &frame.camera;
@@ -428,6 +580,25 @@ fn photo_depth_view(frames: &[PhotoView], i: usize, p: &PhotoDepthParams) -> Opt
             }
         })
         .collect();
+    // Every other view with a confidence map, for the edge support.
+    let own_low = frame.low.filter(|_| p.edge_min_support > 0);
+    let edge_views: Vec<EdgeView> = match own_low {
+        Some(_) => (0..frames.len())
+            .filter(|&j| j != i)
+            .filter_map(|j| {
+                let cj = &frames[j].camera;
+                let r_jt = cj.rotation().transpose();
+                Some(EdgeView {
+                    cam: cj,
+                    low: frames[j].low?,
+                    footprint: footprints[j].as_ref()?,
+                    m: r_jt * r_i,
+                    b: r_jt * (cam.center() - cj.center()),
+                })
+            })
+            .collect(),
+        None => Vec::new(),
+    };
     let mut out = ImageF32::new(w, h, 1);
     if ns.len() < p.min_views {
         return Some((
@@ -448,6 +619,7 @@ fn photo_depth_view(frames: &[PhotoView], i: usize, p: &PhotoDepthParams) -> Opt
             let (mut swept, mut found) = (0, 0);
             let mut scratch = Vec::with_capacity(p.neighbours);
             let mut costs = vec![f32::INFINITY; p.steps];
+            let mut support = vec![0.0f32; p.edge_steps];
             for x in 0..w {
                 if depth.data[y * w + x] > 0.0 {
                     continue;
@@ -466,65 +638,32 @@ fn photo_depth_view(frames: &[PhotoView], i: usize, p: &PhotoDepthParams) -> Opt
                     what[x] = Outcome::NoBackground as u8;
                     continue;
                 }
-                let zb = background as f64;
-                let dir = cam.pixel_center_dir_cam(x, y);
-                let px = frame.rgb.pixel(x, y);
-                let colour = [px[0], px[1], px[2]];
-                let bg_cost = [1.0 - p.min_gap, 1.0, 1.0 + p.min_gap]
-                    .iter()
-                    .filter_map(|s| cost(&ns, dir, zb * s, colour, &mut scratch, p))
-                    .fold(f32::INFINITY, f32::min);
-                if !bg_cost.is_finite() {
-                    what[x] = Outcome::TooFewViews as u8;
-                    continue;
-                }
-                if bg_cost < p.background_explains {
-                    what[x] = Outcome::BackgroundExplains as u8;
-                    continue;
-                }
-                swept += 1;
-                let (inv_near, inv_far) = (1.0 / (p.near_fraction * zb), 1.0 / ((1.0 - p.min_gap) * zb));
-                let inv = |k: f64| inv_near + (inv_far - inv_near) * k / (p.steps - 1) as f64;
-                for (k, c) in costs.iter_mut().enumerate() {
-                    *c = cost(&ns, dir, 1.0 / inv(k as f64), colour, &mut scratch, p).unwrap_or(f32::INFINITY);
-                }
-                let (best, &c_best) = costs.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).unwrap();
-                if !(c_best < p.max_cost) {
-                    what[x] = Outcome::CostTooHigh as u8;
-                    continue;
-                }
-                if bg_cost < p.min_ratio * c_best {
-                    what[x] = Outcome::RatioTooLow as u8;
-                    continue;
-                }
-                let unique = costs
-                    .iter()
-                    .enumerate()
-                    .all(|(k, c)| k.abs_diff(best) <= 2 || *c >= p.uniqueness * c_best);
-                if !unique {
-                    what[x] = Outcome::NotUnique as u8;
-                    continue;
-                }
-                let z_best = 1.0 / inv(best as f64);
-                // Behind a sample of its own view's, or in front of a neighbour's that lies behind
-                // it: a sensor saw past the point.
-                let behind_own = p.in_front && z_best > (1.0 - p.min_gap) * nearest as f64;
-                if behind_own || ns.iter().any(|n| n.sees_through(dir, z_best, p.min_gap)) {
-                    what[x] = Outcome::SeenThrough as u8;
-                    continue;
-                }
-                // Parabola through the best step and its neighbours, in steps.
-                let mut k = best as f64;
-                if best > 0 && best + 1 < p.steps {
-                    let (a, b, c) = (costs[best - 1], c_best, costs[best + 1]);
-                    let denom = a - 2.0 * b + c;
-                    if a.is_finite() && c.is_finite() && denom > 1e-9 {
-                        k += (0.5 * (a - c) / denom).clamp(-0.5, 0.5) as f64;
+                let ray = Ray {
+                    dir: cam.pixel_center_dir_cam(x, y),
+                    colour: {
+                        let px = frame.rgb.pixel(x, y);
+                        [px[0], px[1], px[2]]
+                    },
+                    background: background as f64,
+                    nearest: nearest as f64,
+                };
+                let (placed, past_background) = ray.by_colour(&ns, &mut costs, &mut scratch, p);
+                swept += past_background as usize;
+                let placed = match placed {
+                    Err(why) if own_low.is_some_and(|l| l.data[y * w + x] > 0.5) => ray
+                        .by_edges(&edge_views, &ns, &mut support, &mut scratch, p)
+                        .map(|z| (z, Outcome::FoundAtEdge))
+                        .ok_or(why),
+                    placed => placed.map(|z| (z, Outcome::Found)),
+                };
+                match placed {
+                    Ok((z, how)) => {
+                        row[x] = z as f32;
+                        what[x] = how as u8;
+                        found += 1;
                     }
+                    Err(why) => what[x] = why as u8,
                 }
-                row[x] = (1.0 / inv(k)) as f32;
-                what[x] = Outcome::Found as u8;
-                found += 1;
             }
             (row, what, swept, found)
         })
@@ -548,159 +687,4 @@ fn photo_depth_view(frames: &[PhotoView], i: usize, p: &PhotoDepthParams) -> Opt
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::camera::look_at;
-
-    /// A textured wall at z = 3 and a thin bar of one colour at z = 2 in front of it (x ∈
-    /// [−0.02, 0.02], all y), seen by cameras along x at z = 0 looking down +z.
-    fn scene_hit(o: DVec3, d: DVec3) -> (f64, [f32; 3]) {
-        let t_bar = (2.0 - o.z) / d.z;
-        let xb = o.x + t_bar * d.x;
-        if xb.abs() <= 0.02 {
-            return (t_bar, [0.9, 0.1, 0.1]);
-        }
-        let t = (3.0 - o.z) / d.z;
-        let p = o + t * d;
-        // A smooth but non-repeating texture (no two wall points alike along a ray's sweep).
-        let v = |a: f64| (0.5 + 0.4 * (a).sin()) as f32;
-        (
-            t,
-            [
-                v(7.0 * p.x + 3.0 * p.y),
-                v(5.0 * p.y - 11.0 * p.x),
-                v(13.0 * p.x * p.y + 2.0 * p.x),
-            ],
-        )
-    }
-
-    /// Renders a view: colour everywhere, and a sensor depth on every fourth pixel that drops the
-    /// samples whose 4×4 footprint touches the bar (a flying pixel, low confidence).
-    fn render(cam: &Camera) -> (ImageF32, ImageF32, Vec<bool>) {
-        let (w, h) = (cam.width, cam.height);
-        let mut rgb = ImageF32::new(w, h, 3);
-        let mut depth = ImageF32::new(w, h, 1);
-        let mut bar = vec![false; w * h];
-        let mut z_of = vec![0.0; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let (o, d, cos) = cam.ray(x as f64 + 0.5, y as f64 + 0.5);
-                let (t, c) = scene_hit(o, d);
-                rgb.pixel_mut(x, y).copy_from_slice(&c);
-                z_of[y * w + x] = (t * cos) as f32;
-                bar[y * w + x] = c == [0.9, 0.1, 0.1];
-            }
-        }
-        for y in (2..h).step_by(4) {
-            for x in (2..w).step_by(4) {
-                let touches = (y.saturating_sub(2)..(y + 2).min(h))
-                    .any(|yy| (x.saturating_sub(2)..(x + 2).min(w)).any(|xx| bar[yy * w + xx]));
-                if !touches {
-                    depth.data[y * w + x] = z_of[y * w + x];
-                }
-            }
-        }
-        (rgb, depth, bar)
-    }
-
-    /// The bar the sensor lost is found from the images, within a few centimetres, on most of
-    /// its pixels; no wall pixel gets a depth.
-    /// Seven cameras along x looking at the wall, each with its rendering.
-    fn bar_scene() -> (Vec<Camera>, Vec<(ImageF32, ImageF32, Vec<bool>)>) {
-        let cams: Vec<Camera> = (0..7)
-            .map(|k| {
-                let eye = DVec3::new(-0.6 + 0.2 * k as f64, 0.05 * (k % 3) as f64, 0.0);
-                let mut c = Camera::from_opengl_c2w(96, 72, 80.0, 80.0, 48.0, 36.0, glam::DMat4::IDENTITY);
-                c.c2w = look_at(eye, DVec3::new(0.0, 0.0, 3.0), DVec3::new(0.0, -1.0, 0.0));
-                c
-            })
-            .collect();
-        let rendered = cams.iter().map(render).collect();
-        (cams, rendered)
-    }
-
-    #[test]
-    fn a_thin_bar_the_sensor_lost_is_found_and_the_wall_is_left() {
-        let (cams, rendered) = bar_scene();
-        let views: Vec<PhotoView> = cams
-            .iter()
-            .zip(&rendered)
-            .map(|(camera, (rgb, depth, _))| PhotoView { camera, rgb, depth })
-            .collect();
-        let found = photo_depth(&views, &[3], &PhotoDepthParams::default());
-        let pd = found[0].as_ref().expect("the view has depth");
-        let (_, _, bar) = &rendered[3];
-        let cam = &cams[3];
-        let (mut bar_pixels, mut bar_found, mut bar_right) = (0, 0, 0);
-        for (p, &z) in pd.depth.data.iter().enumerate() {
-            if bar[p] {
-                bar_pixels += 1;
-                if z > 0.0 {
-                    bar_found += 1;
-                    let (_, _, cos) = cam.ray((p % cam.width) as f64 + 0.5, (p / cam.width) as f64 + 0.5);
-                    bar_right += ((z as f64 / cos - 2.0 / cos).abs() < 0.05) as usize;
-                }
-            } else {
-                assert_eq!(z, 0.0, "a wall pixel got depth {z} (pixel {p})");
-            }
-        }
-        assert!(bar_pixels > 100, "{bar_pixels}");
-        assert!(
-            bar_found * 2 > bar_pixels,
-            "found {bar_found} of the bar's {bar_pixels} pixels"
-        );
-        assert_eq!(bar_right, bar_found, "a bar pixel's depth off by over 5 cm");
-        assert_eq!(pd.found, bar_found);
-    }
-
-    /// [`IN_FRONT`]: a depth found must lie in front of the *nearest* sensor sample around it.
-    /// The swept view's samples just left of the bar are set nearer than the bar (1.5 against
-    /// 2, as the edge of something the sensor saw would be), the wall's samples to its right
-    /// kept: the background and so the sweep are unchanged, and without the rule the bar is
-    /// found as before; with it every bar pixel is rejected as seen through.
-    #[test]
-    fn a_depth_behind_a_nearer_sample_beside_it_is_rejected() {
-        let (cams, mut rendered) = bar_scene();
-        let w = cams[3].width;
-        let (_, depth, bar) = &mut rendered[3];
-        let mut injected = 0;
-        for p in 0..depth.data.len() {
-            let (x, y) = (p % w, p / w);
-            // A bar pixel 1–6 columns to the right of this sample, in its row.
-            let left_of_bar = (x + 1..(x + 7).min(w)).any(|xx| bar[y * w + xx]);
-            if depth.data[p] > 0.0 && left_of_bar {
-                depth.data[p] = 1.5;
-                injected += 1;
-            }
-        }
-        assert!(injected > 10, "{injected} samples set nearer");
-        let views: Vec<PhotoView> = cams
-            .iter()
-            .zip(&rendered)
-            .map(|(camera, (rgb, depth, _))| PhotoView { camera, rgb, depth })
-            .collect();
-        let bar = &rendered[3].2;
-        let count = |in_front: bool| {
-            let params = PhotoDepthParams {
-                in_front,
-                ..PhotoDepthParams::default()
-            };
-            let found = photo_depth(&views, &[3], &params);
-            let pd = found[0].as_ref().expect("the view has depth");
-            let on_bar = |o: Outcome| (0..bar.len()).filter(|&p| bar[p] && pd.outcome[p] == o as u8).count();
-            (on_bar(Outcome::Found), on_bar(Outcome::SeenThrough))
-        };
-        let bar_pixels = bar.iter().filter(|b| **b).count();
-        let (found_off, _) = count(false);
-        let (found_on, seen_on) = count(true);
-        assert!(
-            found_off * 2 > bar_pixels,
-            "without the rule {found_off} of {bar_pixels} bar pixels found"
-        );
-        assert_eq!(found_on, 0, "with the rule a bar pixel behind a nearer sample was kept");
-        assert!(
-            seen_on >= found_off,
-            "with the rule {seen_on} bar pixels seen through, {found_off} found without"
-        );
-    }
-}
+mod tests;
