@@ -41,16 +41,21 @@ pub struct DatasetShape {
     pub train_views: usize,
     /// Side lengths of the scene's bounds (any unit: only their ratios matter).
     pub extent: [f64; 3],
+    /// Bytes of the training views' low-confidence footprints, which stage 1 keeps a copy of for
+    /// the photometric depth.
+    pub train_low_bytes: f64,
 }
 
 impl DatasetShape {
     pub fn of(dataset: &i2sdf_data::Dataset) -> DatasetShape {
+        let low_bytes = |f: &i2sdf_data::Frame| f.depth_low.as_ref().map_or(0.0, |m| m.data.len() as f64 * 4.0);
         let frame_bytes = |f: &i2sdf_data::Frame| {
             f.maps()
                 .into_iter()
                 .flatten()
                 .map(|m| m.data.len() as f64 * 4.0)
                 .sum::<f64>()
+                + low_bytes(f)
         };
         let relit = dataset.relight.iter().flat_map(|s| s.frames.iter());
         let train: Vec<_> = dataset.split(i2sdf_data::Split::Train).collect();
@@ -59,6 +64,7 @@ impl DatasetShape {
             train_pixels: train.iter().map(|f| f.pixel_count()).sum(),
             train_views: train.len(),
             extent: std::array::from_fn(|k| dataset.bounds.max[k] - dataset.bounds.min[k]),
+            train_low_bytes: train.iter().map(|f| low_bytes(f)).sum(),
         }
     }
 }
@@ -253,6 +259,9 @@ fn stage1(shape: &DatasetShape, config: &TrainConfig) -> StageMemory {
     s.add("process", PROCESS_BYTES);
     s.add("dataset", shape.bytes);
     s.add("training rays", shape.train_pixels as f64 * (48.0 + 6.0));
+    if shape.train_low_bytes > 0.0 {
+        s.add("low-confidence footprints", shape.train_low_bytes);
+    }
     let f = stage1_shapes(config);
     let enc = f.enc;
     s.add("fields + Adam", f.params * 4.0 * 4.0);
@@ -366,6 +375,7 @@ mod tests {
             train_pixels: 40 * 19200,
             train_views: 40,
             extent: [5.0, 3.7, 2.0],
+            train_low_bytes: 0.0,
         }
     }
 

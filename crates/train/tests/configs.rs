@@ -95,6 +95,7 @@ fn the_memory_estimate_holds_for_the_paper_config() {
         train_pixels: 40 * 19200,
         train_views: 40,
         extent: [5.0, 3.7, 2.0],
+        train_low_bytes: 0.0,
     };
     let stage1 = i2sdf_train::memory::estimate(&room, &shipped("paper.toml")).stage1;
     let measured = 3.24e9;

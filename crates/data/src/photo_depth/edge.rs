@@ -66,17 +66,9 @@ impl Ray {
                 a.0.total_cmp(&b.0)
                     .then((a.1 - z_peak).abs().total_cmp(&(b.1 - z_peak).abs()))
             });
-        let z = match best {
-            Some((c, z)) => {
-                let explained = self.background_cost(ns, scratch, p) < p.edge_min_ratio * c;
-                if !(c < p.max_cost) || explained {
-                    return None;
-                }
-                z
-            }
-            None => return None,
-        };
-        (!self.behind_own(z, p)).then_some(z)
+        let (c, z) = best?;
+        let explained = self.background_cost(ns, scratch, p) < p.edge_min_ratio * c;
+        (c < p.max_cost && !explained && !self.behind_own(z, p)).then_some(z)
     }
 }
 
