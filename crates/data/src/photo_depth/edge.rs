@@ -8,7 +8,7 @@ use crate::imageio::ImageF32;
 use glam::{DMat3, DVec3};
 
 /// Another view as the edge support sees it: where the reference view's points land in it
-/// (`m·d·z + b` in its camera space, as [`Neighbour`]), its low-confidence footprints and its kept
+/// (`m·d·z + b` in its camera space, as [`Neighbour`], from `camera_to_camera`), its low-confidence footprints and its kept
 /// samples spread over their footprints.
 pub(super) struct EdgeView<'a> {
     pub(super) cam: &'a Camera,

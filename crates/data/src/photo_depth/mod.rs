@@ -106,8 +106,8 @@ pub const IN_FRONT: bool = true;
 
 /// Edge support: a pixel in the footprint of a sample its sensor marked low confidence, which the
 /// colours did not place, is placed where the most other views' low-confidence footprints meet
-/// along its ray, less the views whose sensor saw through the point ([`edge_support`]); this many
-/// at least (0: off).
+/// along its ray, less the views whose sensor saw through the point (step 6 of the module's doc);
+/// this many at least (0: off).
 pub const EDGE_MIN_SUPPORT: i32 = 3;
 /// Steps of the edge-support sweep (uniform in inverse depth, over the colour sweep's range).
 pub const EDGE_STEPS: usize = 128;
@@ -253,6 +253,13 @@ struct Neighbour<'a> {
     /// Its sensor depth, and how near a sample a point must project to be seen through (pixels).
     depth: &'a ImageF32,
     half_cell: f64,
+}
+
+/// The map from `from`'s camera space to `to`'s: a point `z · d` along a camera-space direction
+/// `d` of `from` lies at `m·d·z + b` in `to`'s camera space.
+fn camera_to_camera(from: &Camera, to: &Camera) -> (DMat3, DVec3) {
+    let r_to = to.rotation().transpose();
+    (r_to * from.rotation(), r_to * (from.center() - to.center()))
 }
 
 /// The sensor grid's spacing in a depth map's image pixels, from the share of pixels with a
@@ -562,19 +569,16 @@ fn photo_depth_view(
     let (w, h) = (cam.width, cam.height);
     let cell = grid_cell(depth)?;
     let radius = (p.background_radius_cells * cell).ceil() as isize;
-    let r_i = cam.rotation();
     let chosen = neighbours(frames, i, p);
     let ns: Vec<Neighbour> = chosen
         .iter()
-        .map(|&j| j)
-        .map(|j| {
-            let cj = &frames[j].camera;
-            let r_jt = cj.rotation().transpose();
+        .map(|&j| {
+            let (m, b) = camera_to_camera(cam, frames[j].camera);
             Neighbour {
-                cam: cj,
+                cam: frames[j].camera,
                 rgb: frames[j].rgb,
-                m: r_jt * r_i,
-                b: r_jt * (cam.center() - cj.center()),
+                m,
+                b,
                 depth: frames[j].depth,
                 half_cell: p.see_through_radius,
             }
@@ -586,14 +590,13 @@ fn photo_depth_view(
         Some(_) => (0..frames.len())
             .filter(|&j| j != i)
             .filter_map(|j| {
-                let cj = &frames[j].camera;
-                let r_jt = cj.rotation().transpose();
+                let (m, b) = camera_to_camera(cam, frames[j].camera);
                 Some(EdgeView {
-                    cam: cj,
+                    cam: frames[j].camera,
                     low: frames[j].low?,
                     footprint: footprints[j].as_ref()?,
-                    m: r_jt * r_i,
-                    b: r_jt * (cam.center() - cj.center()),
+                    m,
+                    b,
                 })
             })
             .collect(),
