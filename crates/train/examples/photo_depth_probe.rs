@@ -58,6 +58,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "edge_contrast" => params.edge_contrast = kv.1.parse()?,
             "edge_min_ratio" => params.edge_min_ratio = kv.1.parse()?,
             "edge_through_weight" => params.edge_through_weight = kv.1.parse()?,
+            "edge_clear_radius" => params.edge_clear_radius = kv.1.parse()?,
+            "edge_clear_depth" => params.edge_clear_depth = kv.1.parse()?,
+            "edge_clear_count" => params.edge_clear_count = kv.1.parse()?,
             "run" => {}
             k => return Err(format!("unknown parameter {k}").into()),
         }
@@ -140,6 +143,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut outcomes = vec![[0usize; 11]; groups.len()];
     // Per group, depths found at an edge more than 2 cm behind / in front of the pixel's truth.
     let mut sign = vec![(0usize, 0usize); groups.len()];
+    // Per group, halo depths (by colour, at an edge): pixels whose ray passes the object by (its
+    // true depth over 5 cm behind) but whose depth found lies within 2 cm of the object's surface:
+    // the object inflated by them.
+    let mut halo = vec![(0usize, 0usize); groups.len()];
     let (mut swept, mut errs, mut surf) = (0, Vec::new(), Vec::new());
     for (k, pd) in found.iter().enumerate() {
         let Some(pd) = pd else { continue };
@@ -168,7 +175,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 surf.push(off);
                 if let Some(im) = vis.as_mut() {
                     let b = if pd.outcome[p] == 10 { 1.0 } else { 0.5 };
-                    let c = if off < 0.02 {
+                    let c = if z > zf + 0.05 {
+                        // The pixel's ray passes the point by: a halo.
+                        [b, 0.0, b]
+                    } else if off < 0.02 {
                         [0.0, b, 0.0]
                     } else if off < 0.05 {
                         [b, b, 0.0]
@@ -188,6 +198,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
             let seen = tcam.backproject(x, y, z as f64);
             for (gi, (_, shapes)) in groups.iter().enumerate() {
+                if zf > 0.0 && z > zf + 0.05 && dist(shapes, seen) >= 0.01 {
+                    let at = f.camera.backproject(x, y, zf as f64);
+                    if dist(shapes, at) < 0.02 {
+                        if pd.outcome[p] == 10 {
+                            halo[gi].1 += 1;
+                        } else {
+                            halo[gi].0 += 1;
+                        }
+                    }
+                }
                 if dist(shapes, seen) < 0.01 {
                     per_group[gi].0 += 1;
                     outcomes[gi][pd.outcome[p] as usize] += 1;
@@ -249,7 +269,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         surf[surf.len() * 9 / 10]
     );
     for (gi, (((name, _), (seen, given, near)), o)) in groups.iter().zip(&per_group).zip(&outcomes).enumerate() {
-        println!("{name:24} pixels {seen:6}  given a depth {given:5}  within 2 cm of it {near:5}  {o:?}  at edges behind / in front {:?}", sign[gi]);
+        println!("{name:24} pixels {seen:6}  given a depth {given:5}  within 2 cm of it {near:5}  {o:?}  at edges behind / in front {:?}  halo (colour, edge) {:?}", sign[gi], halo[gi]);
     }
     Ok(())
 }

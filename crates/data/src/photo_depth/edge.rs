@@ -1,8 +1,9 @@
 //! The edge support ([`super::EDGE_MIN_SUPPORT`], step 6 of the module's doc): where the colours
 //! cannot place a pixel inside a low-confidence footprint, the other views' low-confidence
-//! footprints along its ray can.
+//! footprints along its ray can; and the clearing (step 7) of the edge depths that ring what
+//! the colours found.
 
-use super::{cost, Neighbour, PhotoDepthParams, Ray};
+use super::{cost, Neighbour, Outcome, PhotoDepthParams, Ray};
 use crate::camera::Camera;
 use crate::imageio::ImageF32;
 use glam::{DMat3, DVec3};
@@ -113,4 +114,39 @@ pub(super) fn footprint_depth(depth: &ImageF32, cell: f64) -> ImageF32 {
         }
     }
     out
+}
+
+/// Drops the edge depths within `edge_clear_radius` pixels of a depth the colours found at
+/// about the same depth (`edge_clear_depth`): there the colours already see the object, and the
+/// low-confidence footprints, a grid cell wide, ring it with depths whose rays pass it by.
+/// Returns how many were dropped.
+pub(super) fn clear_edges_near_colour(depth: &mut ImageF32, outcome: &mut [u8], p: &PhotoDepthParams) -> usize {
+    let r = p.edge_clear_radius as isize;
+    if r == 0 {
+        return 0;
+    }
+    let (w, h) = (depth.width as isize, depth.height as isize);
+    let drop: Vec<usize> = (0..depth.data.len())
+        .filter(|&k| outcome[k] == Outcome::FoundAtEdge as u8)
+        .filter(|&k| {
+            let (x, y, z) = (k as isize % w, k as isize / w, depth.data[k] as f64);
+            let near = (y - r..=y + r)
+                .filter(|yy| (0..h).contains(yy))
+                .flat_map(|yy| {
+                    (x - r..=x + r)
+                        .filter(|xx| (0..w).contains(xx))
+                        .map(move |xx| (yy * w + xx) as usize)
+                })
+                .filter(|&j| {
+                    outcome[j] == Outcome::Found as u8 && (depth.data[j] as f64 - z).abs() <= p.edge_clear_depth * z
+                })
+                .count();
+            near >= p.edge_clear_count
+        })
+        .collect();
+    for &k in &drop {
+        depth.data[k] = 0.0;
+        outcome[k] = Outcome::Unconfirmed as u8;
+    }
+    drop.len()
 }

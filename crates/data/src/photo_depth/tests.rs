@@ -230,3 +230,59 @@ fn a_bar_of_the_walls_colour_is_placed_by_the_low_confidence_footprints() {
     };
     assert_eq!(run(true, &off).found, 0);
 }
+
+#[test]
+fn edge_depths_ringing_what_the_colours_found_are_cleared_and_a_lone_line_is_kept() {
+    // A 4×4 block the colours found at 2 m, ringed by edge depths at 2.05 m; a line of edge
+    // depths at 2 m eight pixels away; one edge depth beside the block but 30 % nearer.
+    let (w, h) = (24, 12);
+    let mut depth = ImageF32::new(w, h, 1);
+    let mut outcome = vec![Outcome::Sensed as u8; w * h];
+    fn put(depth: &mut ImageF32, outcome: &mut [u8], x: usize, y: usize, z: f32, o: Outcome) {
+        depth.data[y * depth.width + x] = z;
+        outcome[y * depth.width + x] = o as u8;
+    }
+    macro_rules! set {
+        ($($a:expr),*) => { put(&mut depth, &mut outcome, $($a),*) };
+    }
+    for y in 3..9 {
+        for x in 3..9 {
+            let inside = (4..8).contains(&x) && (4..8).contains(&y);
+            let (z, o) = if inside {
+                (2.0, Outcome::Found)
+            } else {
+                (2.05, Outcome::FoundAtEdge)
+            };
+            set!(x, y, z, o);
+        }
+    }
+    for y in 1..11 {
+        set!(17, y, 2.0, Outcome::FoundAtEdge);
+    }
+    set!(9, 6, 1.4, Outcome::FoundAtEdge);
+    let p = PhotoDepthParams::default();
+    assert!(p.edge_clear_radius > 0, "the clearing is on by default");
+    let dropped = clear_edges_near_colour(&mut depth, &mut outcome, &p);
+    let at = |x: usize, y: usize| (depth.data[y * w + x], outcome[y * w + x]);
+    // The ring's 20 pixels each have at least three of the block's within two pixels.
+    assert_eq!(dropped, 20);
+    for (x, y) in [(3, 3), (8, 3), (3, 8), (8, 8), (5, 3), (8, 6)] {
+        assert_eq!(at(x, y), (0.0, Outcome::Unconfirmed as u8), "ring pixel ({x}, {y})");
+    }
+    for y in 1..11 {
+        assert_eq!(at(17, y), (2.0, Outcome::FoundAtEdge as u8), "line pixel {y}");
+    }
+    assert_eq!(
+        at(9, 6),
+        (1.4, Outcome::FoundAtEdge as u8),
+        "the nearer edge depth is another object"
+    );
+    assert_eq!(at(5, 5), (2.0, Outcome::Found as u8));
+    // Off: nothing dropped.
+    let off = PhotoDepthParams {
+        edge_clear_radius: 0,
+        ..p
+    };
+    set!(3, 3, 2.05, Outcome::FoundAtEdge);
+    assert_eq!(clear_edges_near_colour(&mut depth, &mut outcome, &off), 0);
+}
