@@ -124,12 +124,14 @@ pub const EDGE_WINDOW: f64 = 0.04;
 pub const EDGE_CONTRAST: i32 = 2;
 /// The colour cost at the background is at least this many times the edge depth's.
 pub const EDGE_MIN_RATIO: f32 = 1.5;
-/// A view whose sensor saw through a point counts this much against it. A sensor's point samples
-/// miss an object thinner than their spacing (the seed-1 capture's lamp pole: about as many views
-/// see through its true position as mark it), but 0.5 costs F: stage 1 + 2 of the seed-0 and
-/// seed-1 captures, thin @ 2 cm 0.569 / 0.444 and F 0.953 / 0.953 at 1, 0.567 / 0.479 and F
-/// 0.947 / 0.954 at 0.5 (docs/results.md, eighteenth session).
-pub const EDGE_THROUGH_WEIGHT: f32 = 1.0;
+/// A view whose sensor saw through a point counts this much against it, half a view that marks
+/// it: a sensor's point samples miss an object thinner than their spacing (the seed-1 capture's
+/// lamp pole: about as many views see through its true position as mark it). Without the
+/// clearing of step 7, half weight cost seed 0's F (0.947); with it, stage 1 + 2 of the seed-0
+/// and seed-1 captures give thin @ 2 cm 0.571 / 0.427 and F 0.955 / 0.942 at 1, 0.563 / 0.510
+/// and F 0.952 / 0.950 at 0.5 (docs/results.md, nineteenth session; single runs, whose F
+/// spreads by ±0.005).
+pub const EDGE_THROUGH_WEIGHT: f32 = 0.5;
 /// A view's kept sample this much (relative) behind a point saw through it.
 pub const EDGE_SEEN_THROUGH: f64 = 0.05;
 /// Clearing (step 7 of the module's doc): an edge depth with [`EDGE_CLEAR_COUNT`] depths the
