@@ -140,7 +140,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     // Per group: pixels seeing it, given a depth, within 2 cm of it.
     let mut per_group = vec![(0usize, 0usize, 0usize); groups.len()];
-    let mut outcomes = vec![[0usize; 11]; groups.len()];
+    let mut outcomes = vec![[0usize; 12]; groups.len()];
     // Per group, depths found at an edge more than 2 cm behind / in front of the pixel's truth.
     let mut sign = vec![(0usize, 0usize); groups.len()];
     // Per group, halo depths (by colour, at an edge): pixels whose ray passes the object by (its
@@ -257,7 +257,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for (off, n, name) in worst {
         println!("{name:24} depths found on its pixels {n:5}, over 5 cm off any true surface {off:5}");
     }
-    println!("outcomes: sensed, no background, too few views, background explains, cost too high, ratio too low, not unique, seen through, unconfirmed, found, found at an edge");
+    println!("outcomes: sensed, no background, too few views, background explains, cost too high, ratio too low, not unique, seen through, unconfirmed, found, found at an edge, cleared");
     surf.sort_by(f32::total_cmp);
     let near = |t: f32| surf.iter().filter(|e| **e < t).count();
     println!(

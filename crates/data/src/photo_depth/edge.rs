@@ -116,10 +116,10 @@ pub(super) fn footprint_depth(depth: &ImageF32, cell: f64) -> ImageF32 {
     out
 }
 
-/// Drops the edge depths within `edge_clear_radius` pixels of a depth the colours found at
-/// about the same depth (`edge_clear_depth`): there the colours already see the object, and the
-/// low-confidence footprints, a grid cell wide, ring it with depths whose rays pass it by.
-/// Returns how many were dropped.
+/// Drops the edge depths with at least `edge_clear_count` depths the colours found within
+/// `edge_clear_radius` pixels and `edge_clear_depth` of theirs: there the colours already see
+/// the object, and the low-confidence footprints, a grid cell wide, ring it with depths whose
+/// rays pass it by. Returns how many were dropped ([`Outcome::Cleared`]).
 pub(super) fn clear_edges_near_colour(depth: &mut ImageF32, outcome: &mut [u8], p: &PhotoDepthParams) -> usize {
     let r = p.edge_clear_radius as isize;
     if r == 0 {
@@ -146,7 +146,7 @@ pub(super) fn clear_edges_near_colour(depth: &mut ImageF32, outcome: &mut [u8], 
         .collect();
     for &k in &drop {
         depth.data[k] = 0.0;
-        outcome[k] = Outcome::Unconfirmed as u8;
+        outcome[k] = Outcome::Cleared as u8;
     }
     drop.len()
 }

@@ -264,6 +264,9 @@ pub enum Outcome {
     Found = 9,
     /// Placed by the low-confidence footprints ([`EDGE_MIN_SUPPORT`]).
     FoundAtEdge = 10,
+    /// Placed by the low-confidence footprints, then dropped as the rim of what the colours
+    /// found ([`EDGE_CLEAR_RADIUS`]).
+    Cleared = 11,
 }
 
 /// One neighbour view, set up for the reference view `cam`: a point `z · d` along the reference

@@ -267,7 +267,7 @@ fn edge_depths_ringing_what_the_colours_found_are_cleared_and_a_lone_line_is_kep
     // The ring's 20 pixels each have at least three of the block's within two pixels.
     assert_eq!(dropped, 20);
     for (x, y) in [(3, 3), (8, 3), (3, 8), (8, 8), (5, 3), (8, 6)] {
-        assert_eq!(at(x, y), (0.0, Outcome::Unconfirmed as u8), "ring pixel ({x}, {y})");
+        assert_eq!(at(x, y), (0.0, Outcome::Cleared as u8), "ring pixel ({x}, {y})");
     }
     for y in 1..11 {
         assert_eq!(at(17, y), (2.0, Outcome::FoundAtEdge as u8), "line pixel {y}");
