@@ -28,11 +28,12 @@ impl Ray {
     /// views. Views in which the point is outside the image or behind a nearer sample do not vote.
     /// The peak (the middle of the steps at the highest support, at least `edge_min_support`) is
     /// refined by the colour cost within `edge_window` of its depth; `None` without a peak or
-    /// when the depth is behind the pixel's nearest sample.
+    /// when the depth is behind the pixel's nearest sample. `bg_cost`: [`Ray::background_cost`].
     pub(super) fn by_edges(
         &self,
         views: &[EdgeView],
         ns: &[Neighbour],
+        bg_cost: f32,
         support: &mut [f32],
         scratch: &mut Vec<f32>,
         p: &PhotoDepthParams,
@@ -54,8 +55,10 @@ impl Ray {
         if top - at_background < p.edge_contrast as f32 {
             return None;
         }
-        let at_top: Vec<usize> = (0..support.len()).filter(|&k| support[k] == top).collect();
-        let k_peak = at_top.iter().sum::<usize>() as f64 / at_top.len() as f64;
+        let (sum, n) = (0..support.len())
+            .filter(|&k| support[k] == top)
+            .fold((0, 0), |(sum, n), k| (sum + k, n + 1));
+        let k_peak = sum as f64 / n as f64;
         let z_peak = 1.0 / inv(k_peak);
         // The colour cost's best within the window.
         let refine_steps = 21;
@@ -68,7 +71,7 @@ impl Ray {
                     .then((a.1 - z_peak).abs().total_cmp(&(b.1 - z_peak).abs()))
             });
         let (c, z) = best?;
-        let explained = self.background_cost(ns, scratch, p) < p.edge_min_ratio * c;
+        let explained = bg_cost < p.edge_min_ratio * c;
         (c < p.max_cost && !explained && !self.behind_own(z, p)).then_some(z)
     }
 }

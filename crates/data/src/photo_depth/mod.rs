@@ -518,16 +518,16 @@ struct Ray {
 
 impl Ray {
     /// The colour sweep (steps 1–4 of the module's doc): the depth found, or why none; and whether
-    /// the pixel got past the background test.
+    /// the pixel got past the background test. `bg_cost`: [`Ray::background_cost`].
     fn by_colour(
         &self,
         ns: &[Neighbour],
+        bg_cost: f32,
         costs: &mut [f32],
         scratch: &mut Vec<f32>,
         p: &PhotoDepthParams,
     ) -> (Result<f64, Outcome>, bool) {
         let (dir, colour, zb) = (self.dir, self.colour, self.background);
-        let bg_cost = self.background_cost(ns, scratch, p);
         if !bg_cost.is_finite() {
             return (Err(Outcome::TooFewViews), false);
         }
@@ -680,11 +680,13 @@ fn photo_depth_view(
                     background: background as f64,
                     nearest: nearest as f64,
                 };
-                let (placed, past_background) = ray.by_colour(&ns, &mut costs, &mut scratch, p);
+                // Once per pixel: both the colour sweep and the edge support compare with it.
+                let bg_cost = ray.background_cost(&ns, &mut scratch, p);
+                let (placed, past_background) = ray.by_colour(&ns, bg_cost, &mut costs, &mut scratch, p);
                 swept += past_background as usize;
                 let placed = match placed {
                     Err(why) if own_low.is_some_and(|l| l.data[y * w + x] > 0.5) => ray
-                        .by_edges(&edge_views, &ns, &mut support, &mut scratch, p)
+                        .by_edges(&edge_views, &ns, bg_cost, &mut support, &mut scratch, p)
                         .map(|z| (z, Outcome::FoundAtEdge))
                         .ok_or(why),
                     placed => placed.map(|z| (z, Outcome::Found)),
