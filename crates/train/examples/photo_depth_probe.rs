@@ -8,7 +8,10 @@
 //! with the true poses instead of the perturbed ones, to see what the pose noise costs; `per_shape`:
 //! each shape on its own line, a table's legs apart; `key=value`: a `PhotoDepthParams` field, the
 //! edge support's included; `VIS=DIR` in the environment writes each view with its depths found
-//! coloured by their distance to the true surface).
+//! coloured by their distance to the true surface; `field=RUN`: render each depth found with that
+//! run's stage-1 field — a checkpoint taken just before its own sweep, `train.checkpoint_every` —
+//! and print how the render tells halos from the depths that are right, with `explained=TAU` and
+//! `explained_ratio=R` to drop the ones `maps.photo_depth_explained` would).
 use glam::DMat4;
 use i2sdf_data::{imageio, photo_depth, Camera, Split};
 use i2sdf_synth::scene::SceneDesc;
@@ -61,7 +64,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "edge_clear_radius" => params.edge_clear_radius = kv.1.parse()?,
             "edge_clear_depth" => params.edge_clear_depth = kv.1.parse()?,
             "edge_clear_count" => params.edge_clear_count = kv.1.parse()?,
-            "run" => {}
+            "run" | "field" | "explained" | "explained_ratio" => {}
             k => return Err(format!("unknown parameter {k}").into()),
         }
     }
@@ -126,7 +129,72 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let cloud = i2sdf_data::paper_write::sample_surface(&gt_mesh, 1e5);
     let tree = i2sdf_data::KdTree::new(&cloud.positions);
     let t0 = std::time::Instant::now();
-    let found = photo_depth::photo_depth(&photo_views, &views, &params);
+    let mut found = photo_depth::photo_depth(&photo_views, &views, &params);
+    // `field=RUN`: render each depth found with that run's field (a stage-1 checkpoint taken just
+    // before its own sweep) and show how its render separates halos from thin objects; with
+    // `explained=TAU` (and `explained_ratio=R`, default 1.5) drop the depths whose render lies
+    // over R times as far and matches the pixel's colour within TAU.
+    if let Some(fr) = a.iter().find_map(|s| s.strip_prefix("field=")) {
+        let arg = |k: &str| a.iter().find_map(|s| s.strip_prefix(k)).map(|v| v.parse::<f32>());
+        let tau = arg("explained=").transpose()?;
+        let ratio_min = arg("explained_ratio=").transpose()?.unwrap_or(1.5);
+        let (scene, _) = i2sdf_model::NeuralScene::load(&Path::new(fr).join("checkpoint.safetensors"))?;
+        let cfg = i2sdf_train::config::TrainConfig::load(Some(&Path::new(fr).join("config.toml")), &[])?;
+        let settings = i2sdf_train::stage1::render_settings(&cfg);
+        let scale = scene.normalization.scale;
+        // Per class (halo: the pixel's truth over 5 cm behind; good: within 2 cm; other): (ratio, err).
+        let mut classes: [Vec<(f32, f32)>; 3] = Default::default();
+        let mut dropped = [0usize; 3];
+        for (k, pd) in found.iter_mut().enumerate() {
+            let Some(pd) = pd else { continue };
+            let f = refs[k];
+            let im = i2sdf_train::stage1::rays::TrainImage::new(train[k], f, &scene.normalization, None, None);
+            let px: Vec<usize> = (0..f.pixel_count()).filter(|&p| pd.depth.data[p] > 0.0).collect();
+            let t: Vec<f32> = px
+                .iter()
+                .map(|&p| (pd.depth.data[p] as f64 / im.cos[p] as f64 / scale) as f32)
+                .collect();
+            let r = i2sdf_train::stage1::photo_depth::field_render_at(&scene, &settings, &im, &px, &t);
+            for (&p, &(ratio, err)) in px.iter().zip(&r) {
+                let (z, zf) = (gt[train[k]].data[p], pd.depth.data[p]);
+                let c = if z > zf + 0.05 {
+                    0
+                } else if (z - zf).abs() < 0.02 {
+                    1
+                } else {
+                    2
+                };
+                classes[c].push((ratio, err));
+                if tau.is_some_and(|tau| ratio > ratio_min && err < tau) {
+                    pd.depth.data[p] = 0.0;
+                    dropped[c] += 1;
+                }
+            }
+        }
+        for (name, v) in ["halo (truth > 5 cm behind)", "good (within 2 cm)", "other"]
+            .iter()
+            .zip(&classes)
+        {
+            let q = |f: fn(&(f32, f32)) -> f32, x: f64| {
+                let mut s: Vec<f32> = v.iter().map(f).collect();
+                s.sort_by(f32::total_cmp);
+                s.get(((s.len().max(1) - 1) as f64 * x) as usize)
+                    .copied()
+                    .unwrap_or(f32::NAN)
+            };
+            println!(
+                "{name:28} {:5}: render/found depth 10/50/90 % {:.2} {:.2} {:.2}; colour error {:.3} {:.3} {:.3}",
+                v.len(),
+                q(|x| x.0, 0.1),
+                q(|x| x.0, 0.5),
+                q(|x| x.0, 0.9),
+                q(|x| x.1, 0.1),
+                q(|x| x.1, 0.5),
+                q(|x| x.1, 0.9)
+            );
+        }
+        println!("explained and dropped (halo, good, other): {dropped:?}");
+    }
     println!(
         "poses: {}; sweep {:.1} s",
         if use_true {

@@ -112,6 +112,12 @@ pub struct MapsConfig {
     /// Late, so that the pose correction (from half of stage 1) has brought the poses within a
     /// fraction of a pixel: the sweep compares single pixels. Exact depth has no such holes.
     pub photo_depth: f32,
+    /// Of the depths the sweep finds, drop those the field already explains: where the field's
+    /// own render of the pixel lies over 1.1 times as far and matches the pixel's colour within
+    /// this mean absolute difference (0: keep every depth). The edge support fills a sensor's
+    /// dropped flying pixels with the foreground's depth, halos on pixels that see the
+    /// background; a thin object the field lost renders the background's colour instead.
+    pub photo_depth_explained: f32,
 }
 
 impl Default for MapsConfig {
@@ -122,6 +128,7 @@ impl Default for MapsConfig {
             depth_noise_distance: 0.0,
             depth_noise_sigma: 0.0,
             photo_depth: 0.75,
+            photo_depth_explained: 0.02,
         }
     }
 }
@@ -664,6 +671,7 @@ impl TrainConfig {
         real("maps.depth_noise_distance", self.maps.depth_noise_distance, 0.0, 1e3)?;
         real("maps.depth_noise_sigma", self.maps.depth_noise_sigma, 0.0, 1.0)?;
         real("maps.photo_depth", self.maps.photo_depth, 0.0, 0.99)?;
+        real("maps.photo_depth_explained", self.maps.photo_depth_explained, 0.0, 1.0)?;
         let l = &self.loss;
         for (key, v) in [
             ("loss.rgb", l.rgb),

@@ -14,7 +14,7 @@
 
 pub mod losses;
 pub mod pdf_map;
-mod photo_depth;
+pub mod photo_depth;
 pub mod photometric;
 pub mod pose_correction;
 pub mod rays;
@@ -77,6 +77,10 @@ pub struct StepStats {
     /// Pixels the sweep for depth from the images gave a depth, at the step it ran.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub photo_depth: Option<usize>,
+    /// Of the depths the sweep found, those dropped as already explained by the field
+    /// (`maps.photo_depth_explained`), at the step it ran.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub photo_depth_explained: Option<usize>,
     /// The step produced a non-finite loss and was skipped.
     pub skipped: bool,
     /// Milliseconds spent placing samples (and the extra points), in the render forward, in the

@@ -47,7 +47,7 @@ struct RayGradients {
 impl Stage1 {
     /// One iteration with the iteration's RNG. A non-finite loss skips the update.
     pub(super) fn step_with(&mut self, rng: &mut Pcg64) -> StepOutcome<StepStats> {
-        let photo_depth = self.needs_photo_depth().then(|| self.sweep_photo_depth());
+        let sweep = self.needs_photo_depth().then(|| self.sweep_photo_depth());
         let (phase, w) = self.enter_phase();
         self.draw_rays(rng);
         let t0 = std::time::Instant::now();
@@ -73,7 +73,8 @@ impl Stage1 {
             beta: self.scene.beta.value(),
             bubble_points: counts.bubble,
             smooth_pairs: counts.smooth,
-            photo_depth,
+            photo_depth: sweep.map(|s| s.0),
+            photo_depth_explained: sweep.map(|s| s.1),
             ..Default::default()
         };
         let ray_grads = self.ray_losses(&w, &mut st);
