@@ -464,6 +464,21 @@ fn resume_refuses_other_data_and_incompatible_configs() {
     let o = output(&train_args(&r.data, &run, true, &["--set", "stage2.cache_samples=8"]));
     expect(&o, 2, &["stage2.cache_samples: 4 → 8"]);
     assert!(files(&run) == before, "a refused resume changed the run");
+    // The run's own config.toml edited by hand: its [model] is checked against the checkpoint's
+    // (the fields are rebuilt from the checkpoint's, so the edit would do nothing).
+    let cfg = run.join("config.toml");
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    let edited = text.replacen("beta_min = 0.0001", "beta_min = 0.002", 1);
+    assert_ne!(edited, text, "the run's config.toml has model.beta_min = 0.0001");
+    std::fs::write(&cfg, &edited).unwrap();
+    let o = output(&train_args(&r.data, &run, true, &[]));
+    expect(
+        &o,
+        2,
+        &["config.toml", "model.beta_min: 0.0001 → 0.002", "cannot change"],
+    );
+    std::fs::write(&cfg, &text).unwrap();
+    assert!(files(&run) == before, "a refused resume changed the run");
     // The same data elsewhere: accepted (a no-op on the finished run).
     let moved = dir.path().join("moved");
     copy_dir(&r.data, &moved);

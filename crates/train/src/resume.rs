@@ -138,6 +138,48 @@ pub fn check_config(
     ))
 }
 
+/// Refuses, as bad input, a run configuration (`run_config`, `RUN/config.toml`) whose `[model]`
+/// is not the one its stage-1 `checkpoint` was built with: the fields are rebuilt from the
+/// checkpoint's own `model_config`, so an edit of the file's `[model]` would otherwise be
+/// ignored without a word (a `model.beta_min` edited before a resume changed nothing).
+pub fn check_model(checkpoint: &Path, run_config: &Path, model: &i2sdf_model::ModelConfig) -> Result<(), DataError> {
+    let meta = checkpoint_metadata(checkpoint)?;
+    // Loading the checkpoint reports a missing or unreadable `model_config` in its own words.
+    let Some(Ok(trained)) = meta
+        .get("model_config")
+        .map(|s| serde_json::from_str::<i2sdf_model::ModelConfig>(s))
+    else {
+        return Ok(());
+    };
+    if trained == *model {
+        return Ok(());
+    }
+    // Both sides through the same serializer, so that an f32 compares with itself; shown as f32.
+    let show = |v: &serde_json::Value| match v.as_f64() {
+        Some(x) if v.is_f64() => format!("{}", x as f32),
+        _ => v.to_string(),
+    };
+    let (a, b) = (serde_json::to_value(&trained), serde_json::to_value(model));
+    let (Ok(serde_json::Value::Object(a)), Ok(serde_json::Value::Object(b))) = (a, b) else {
+        return Err(DataError::file(run_config, "[model] differs from the checkpoint's"));
+    };
+    let changes: Vec<String> = a
+        .iter()
+        .filter_map(|(k, x)| {
+            let y = b.get(k)?;
+            (x != y).then(|| format!("model.{k}: {} → {}", show(x), show(y)))
+        })
+        .collect();
+    Err(DataError::file(
+        run_config,
+        format!(
+            "[model] differs from the one {} was trained with, and a trained model cannot change: {}",
+            checkpoint.display(),
+            changes.join("; ")
+        ),
+    ))
+}
+
 /// Removes what killed writers left in the run directory: the temporaries of atomic writes
 /// (`.NAME.PID.partial.EXT`, of processes other than this one; a run has one trainer at a time),
 /// and a last log line cut short (the record of a step whose checkpoint never happened anyway).

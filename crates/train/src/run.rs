@@ -7,7 +7,7 @@
 use crate::config::TrainConfig;
 use crate::driver::{drive, DriveOptions, Event, Trainer};
 use crate::maps::TrainingMaps;
-use crate::resume::{check_config, check_dataset, repair};
+use crate::resume::{check_config, check_dataset, check_model, repair};
 use crate::stage1::{render_settings, Stage1, StepStats};
 use crate::stage2::{radiometry, target_views, Stage2, Stage2Stats};
 use i2sdf_data::{DataError, Dataset};
@@ -83,14 +83,18 @@ fn continued_config(
     frozen_stage2: bool,
 ) -> Result<TrainConfig, DataError> {
     let own = read_run_config(run)?;
-    Ok(match config {
+    let config = match config {
         Some(mut c) => {
             let _ = c.resolve(dataset);
             check_config(&run.config_path(), &own, &c, frozen_stage2)?;
             c
         }
         None => own,
-    })
+    };
+    if run.checkpoint_path().is_file() {
+        check_model(&run.checkpoint_path(), &run.config_path(), &config.model)?;
+    }
+    Ok(config)
 }
 
 /// Opens a run directory for training: a fresh one (refused if it already holds a run) or, with
