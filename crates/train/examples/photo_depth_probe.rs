@@ -132,12 +132,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut found = photo_depth::photo_depth(&photo_views, &views, &params);
     // `field=RUN`: render each depth found with that run's field (a stage-1 checkpoint taken just
     // before its own sweep) and show how its render separates halos from thin objects; with
-    // `explained=TAU` (and `explained_ratio=R`, default 1.5) drop the depths whose render lies
-    // over R times as far and matches the pixel's colour within TAU.
+    // `explained=TAU` (and `explained_ratio=R`, default stage 1's `EXPLAINED_RATIO`) drop the
+    // depths whose render lies over R times as far and matches the pixel's colour within TAU.
     if let Some(fr) = a.iter().find_map(|s| s.strip_prefix("field=")) {
         let arg = |k: &str| a.iter().find_map(|s| s.strip_prefix(k)).map(|v| v.parse::<f32>());
         let tau = arg("explained=").transpose()?;
-        let ratio_min = arg("explained_ratio=").transpose()?.unwrap_or(1.5);
+        let ratio_min = arg("explained_ratio=")
+            .transpose()?
+            .unwrap_or(i2sdf_train::stage1::photo_depth::EXPLAINED_RATIO);
         let (scene, _) = i2sdf_model::NeuralScene::load(&Path::new(fr).join("checkpoint.safetensors"))?;
         let cfg = i2sdf_train::config::TrainConfig::load(Some(&Path::new(fr).join("config.toml")), &[])?;
         let settings = i2sdf_train::stage1::render_settings(&cfg);

@@ -116,7 +116,9 @@ pub struct MapsConfig {
     /// own render of the pixel lies over 1.1 times as far and matches the pixel's colour within
     /// this mean absolute difference (0: keep every depth). The edge support fills a sensor's
     /// dropped flying pixels with the foreground's depth, halos on pixels that see the
-    /// background; a thin object the field lost renders the background's colour instead.
+    /// background; a thin object the field lost renders the background's colour instead. On the
+    /// seed-1 capture at 0.02 it drops 300 of the 1344 depths whose pixel sees over 5 cm behind
+    /// them and 40 of the 1028 right ones (docs/results.md, twentieth session).
     pub photo_depth_explained: f32,
 }
 
