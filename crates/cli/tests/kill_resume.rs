@@ -477,6 +477,12 @@ fn resume_refuses_other_data_and_incompatible_configs() {
         2,
         &["config.toml", "model.beta_min: 0.0001 → 0.002", "cannot change"],
     );
+    // And its [material] against the stage-2 checkpoint's.
+    let edited = text.replacen("rho_min = 0.05", "rho_min = 0.1", 1);
+    assert_ne!(edited, text, "the run's config.toml has material.rho_min = 0.05");
+    std::fs::write(&cfg, &edited).unwrap();
+    let o = output(&train_args(&r.data, &run, true, &[]));
+    expect(&o, 2, &["config.toml", "material.rho_min: 0.05 → 0.1", "cannot change"]);
     std::fs::write(&cfg, &text).unwrap();
     assert!(files(&run) == before, "a refused resume changed the run");
     // The same data elsewhere: accepted (a no-op on the finished run).

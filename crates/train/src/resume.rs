@@ -138,20 +138,27 @@ pub fn check_config(
     ))
 }
 
-/// Refuses, as bad input, a run configuration (`run_config`, `RUN/config.toml`) whose `[model]`
-/// is not the one its stage-1 `checkpoint` was built with: the fields are rebuilt from the
-/// checkpoint's own `model_config`, so an edit of the file's `[model]` would otherwise be
-/// ignored without a word (a `model.beta_min` edited before a resume changed nothing).
-pub fn check_model(checkpoint: &Path, run_config: &Path, model: &i2sdf_model::ModelConfig) -> Result<(), DataError> {
+/// Refuses, as bad input, a run configuration (`run_config`, `RUN/config.toml`) whose section
+/// `section` (`model`, `material`) is not the one `checkpoint` was built with, as its metadata
+/// `key` (`model_config`, `material_config`) records it: the fields are rebuilt from the
+/// checkpoint's own, so an edit of the file's section would otherwise be ignored without a word
+/// (a `model.beta_min` edited before a resume changed nothing).
+pub fn check_trained_section<C>(
+    checkpoint: &Path,
+    run_config: &Path,
+    key: &str,
+    section: &str,
+    now: &C,
+) -> Result<(), DataError>
+where
+    C: serde::Serialize + serde::de::DeserializeOwned + PartialEq,
+{
     let meta = checkpoint_metadata(checkpoint)?;
-    // Loading the checkpoint reports a missing or unreadable `model_config` in its own words.
-    let Some(Ok(trained)) = meta
-        .get("model_config")
-        .map(|s| serde_json::from_str::<i2sdf_model::ModelConfig>(s))
-    else {
+    // Loading the checkpoint reports a missing or unreadable entry in its own words.
+    let Some(Ok(trained)) = meta.get(key).map(|s| serde_json::from_str::<C>(s)) else {
         return Ok(());
     };
-    if trained == *model {
+    if trained == *now {
         return Ok(());
     }
     // Both sides through the same serializer, so that an f32 compares with itself; shown as f32.
@@ -159,21 +166,32 @@ pub fn check_model(checkpoint: &Path, run_config: &Path, model: &i2sdf_model::Mo
         Some(x) if v.is_f64() => format!("{}", x as f32),
         _ => v.to_string(),
     };
-    let (a, b) = (serde_json::to_value(&trained), serde_json::to_value(model));
-    let (Ok(serde_json::Value::Object(a)), Ok(serde_json::Value::Object(b))) = (a, b) else {
-        return Err(DataError::file(run_config, "[model] differs from the checkpoint's"));
+    let differs = || {
+        DataError::file(
+            run_config,
+            format!(
+                "[{section}] differs from the one {} was trained with",
+                checkpoint.display()
+            ),
+        )
+    };
+    let (serde_json::Value::Object(a), serde_json::Value::Object(b)) = (
+        serde_json::to_value(&trained).map_err(|_| differs())?,
+        serde_json::to_value(now).map_err(|_| differs())?,
+    ) else {
+        return Err(differs());
     };
     let changes: Vec<String> = a
         .iter()
         .filter_map(|(k, x)| {
             let y = b.get(k)?;
-            (x != y).then(|| format!("model.{k}: {} → {}", show(x), show(y)))
+            (x != y).then(|| format!("{section}.{k}: {} → {}", show(x), show(y)))
         })
         .collect();
     Err(DataError::file(
         run_config,
         format!(
-            "[model] differs from the one {} was trained with, and a trained model cannot change: {}",
+            "[{section}] differs from the one {} was trained with, and a trained field cannot change: {}",
             checkpoint.display(),
             changes.join("; ")
         ),
