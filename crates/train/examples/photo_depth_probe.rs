@@ -130,6 +130,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let tree = i2sdf_data::KdTree::new(&cloud.positions);
     let t0 = std::time::Instant::now();
     let mut found = photo_depth::photo_depth(&photo_views, &views, &params);
+    let sweep_s = t0.elapsed().as_secs_f64();
     // `field=RUN`: render each depth found with that run's field (a stage-1 checkpoint taken just
     // before its own sweep) and show how its render separates halos from thin objects; with
     // `explained=TAU` (and `explained_ratio=R`, default stage 1's `EXPLAINED_RATIO`) drop the
@@ -206,7 +207,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         } else {
             "as given"
         },
-        t0.elapsed().as_secs_f64()
+        sweep_s
     );
     // Per group: pixels seeing it, given a depth, within 2 cm of it.
     let mut per_group = vec![(0usize, 0usize, 0usize); groups.len()];

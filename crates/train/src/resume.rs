@@ -138,64 +138,46 @@ pub fn check_config(
     ))
 }
 
-/// Refuses, as bad input, a run configuration (`run_config`, `RUN/config.toml`) whose section
-/// `section` (`model`, `material`) is not the one `checkpoint` was built with, as its metadata
-/// `key` (`model_config`, `material_config`) records it: the fields are rebuilt from the
-/// checkpoint's own, so an edit of the file's section would otherwise be ignored without a word
-/// (a `model.beta_min` edited before a resume changed nothing).
-pub fn check_trained_section<C>(
-    checkpoint: &Path,
+/// Refuses, as bad input, a run configuration (`run_config`, `RUN/config.toml`) whose `[model]`
+/// or `[material]` is not the one the stage-1 or stage-2 checkpoint (where there is one) was
+/// built with, as their metadata records it: the fields are rebuilt from the checkpoint's own,
+/// so an edit of the file's section would otherwise be ignored without a word (a `model.beta_min`
+/// edited before a resume changed nothing). The differences are [`config_changes`]'.
+pub fn check_trained_fields(
     run_config: &Path,
-    key: &str,
-    section: &str,
-    now: &C,
-) -> Result<(), DataError>
-where
-    C: serde::Serialize + serde::de::DeserializeOwned + PartialEq,
-{
-    let meta = checkpoint_metadata(checkpoint)?;
-    // Loading the checkpoint reports a missing or unreadable entry in its own words.
-    let Some(Ok(trained)) = meta.get(key).map(|s| serde_json::from_str::<C>(s)) else {
-        return Ok(());
-    };
-    if trained == *now {
+    config: &TrainConfig,
+    stage1: &Path,
+    stage2: &Path,
+) -> Result<(), DataError> {
+    let mut trained = config.clone();
+    if let Some(m) = trained_entry(stage1, "model_config")? {
+        trained.model = m;
+    }
+    if let Some(m) = trained_entry(stage2, "material_config")? {
+        trained.material = m;
+    }
+    let changes = config_changes(&trained, config, true);
+    if changes.is_empty() {
         return Ok(());
     }
-    // Both sides through the same serializer, so that an f32 compares with itself; shown as f32.
-    let show = |v: &serde_json::Value| match v.as_f64() {
-        Some(x) if v.is_f64() => format!("{}", x as f32),
-        _ => v.to_string(),
-    };
-    let differs = || {
-        DataError::file(
-            run_config,
-            format!(
-                "[{section}] differs from the one {} was trained with",
-                checkpoint.display()
-            ),
-        )
-    };
-    let (serde_json::Value::Object(a), serde_json::Value::Object(b)) = (
-        serde_json::to_value(&trained).map_err(|_| differs())?,
-        serde_json::to_value(now).map_err(|_| differs())?,
-    ) else {
-        return Err(differs());
-    };
-    let changes: Vec<String> = a
-        .iter()
-        .filter_map(|(k, x)| {
-            let y = b.get(k)?;
-            (x != y).then(|| format!("{section}.{k}: {} → {}", show(x), show(y)))
-        })
-        .collect();
     Err(DataError::file(
         run_config,
         format!(
-            "[{section}] differs from the one {} was trained with, and a trained field cannot change: {}",
-            checkpoint.display(),
+            "differs from what the run's checkpoints were trained with, and a trained field cannot change: {}",
             changes.join("; ")
         ),
     ))
+}
+
+/// A checkpoint's metadata entry `key` as a configuration section; `None` without the file or
+/// the entry, or where it does not parse (loading the checkpoint reports that in its own words).
+fn trained_entry<C: serde::de::DeserializeOwned>(checkpoint: &Path, key: &str) -> Result<Option<C>, DataError> {
+    if !checkpoint.is_file() {
+        return Ok(None);
+    }
+    Ok(checkpoint_metadata(checkpoint)?
+        .get(key)
+        .and_then(|s| serde_json::from_str(s).ok()))
 }
 
 /// Removes what killed writers left in the run directory: the temporaries of atomic writes

@@ -7,7 +7,7 @@
 use crate::config::TrainConfig;
 use crate::driver::{drive, DriveOptions, Event, Trainer};
 use crate::maps::TrainingMaps;
-use crate::resume::{check_config, check_dataset, check_trained_section, repair};
+use crate::resume::{check_config, check_dataset, check_trained_fields, repair};
 use crate::stage1::{render_settings, Stage1, StepStats};
 use crate::stage2::{radiometry, target_views, Stage2, Stage2Stats};
 use i2sdf_data::{DataError, Dataset};
@@ -91,19 +91,12 @@ fn continued_config(
         }
         None => own,
     };
-    let (stage1, stage2) = (run.checkpoint_path(), run.stage2_checkpoint_path());
-    if stage1.is_file() {
-        check_trained_section(&stage1, &run.config_path(), "model_config", "model", &config.model)?;
-    }
-    if stage2.is_file() {
-        check_trained_section(
-            &stage2,
-            &run.config_path(),
-            "material_config",
-            "material",
-            &config.material,
-        )?;
-    }
+    check_trained_fields(
+        &run.config_path(),
+        &config,
+        &run.checkpoint_path(),
+        &run.stage2_checkpoint_path(),
+    )?;
     Ok(config)
 }
 
