@@ -1,12 +1,14 @@
 //! Mesh accuracy, completeness, precision, recall and F-score (the paper's Sec. 6 and supp. Sec.
 //! D, as the README's `eval` row lists), on points sampled uniformly by area on both meshes (a GT
 //! point cloud, a PLY without faces, gives its points as they are) and culled to what the training
-//! views can see: the
-//! paper's evaluation re-fuses both meshes from the training views, and the equivalent on points is
-//! that a ground-truth point counts where some view's GT depth sees it, and a predicted point counts
-//! unless the GT surface hides it from every view (so floaters in free space still cost precision);
-//! see [`visible_from_views`]. Recall is also reported per GT object and for groups of objects
-//! (the thin and suspended ones) at thresholds of their own.
+//! views can see: the paper's evaluation re-fuses both meshes from the training views, and the
+//! equivalent on points is that a ground-truth point counts where some view sees it (on a GT mesh
+//! exactly, by a ray through the mesh: [`seen`]; on a GT point cloud by the views' GT depth), and
+//! a predicted point counts unless the GT surface hides it from every view (so floaters in free
+//! space still cost precision; see [`visible_from_views`]). A predicted point's distance is taken
+//! to the whole GT surface, seen or not: a point on a surface no view sees is still on it.
+//! Recall is also reported per GT object and for groups of objects (the thin and suspended ones)
+//! at thresholds of their own.
 
 use crate::mesh::TriangleMesh;
 use crate::progress::{self, EvalProgress, NoProgress};
@@ -16,6 +18,8 @@ use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashSet};
+
+mod seen;
 
 /// A training view for visibility culling: the dataset's camera (OpenCV axes, pixel centres at
 /// +0.5) with the ground-truth z-depth it sees.
@@ -77,12 +81,13 @@ fn valid_depth(d: f32) -> bool {
 /// that view's GT depth at its pixel by more than `tolerance` (a pixel without GT depth hides
 /// nothing).
 ///
-/// One rule serves both meshes. For a predicted point it is the paper's re-fusion rule, "no GT surface hides it
-/// from every view", so floaters in free space count. For a GT point it is "some view's depth sees
-/// it": the stricter |z − depth| ≤ tolerance differs only where a point lies in front of its pixel's
-/// depth by more than the tolerance, which for a point on the GT surface happens only through pixel
-/// discretization at silhouettes and grazing angles, where the point is in fact visible. Using one
-/// rule also makes identical meshes cull identically (F-score exactly 1).
+/// For a predicted point it is the paper's re-fusion rule, "no GT surface hides it from every
+/// view", so floaters in free space count, and a surface reconstructed up to the tolerance behind
+/// the true one is scored by its distance rather than dropped. For the points of a GT point cloud
+/// it stands for "some view's depth sees it": the stricter |z − depth| ≤ tolerance differs only
+/// where a point lies in front of its pixel's depth by more than the tolerance, which for a point
+/// on the GT surface happens only through pixel discretization at silhouettes and grazing angles,
+/// where the point is in fact visible. A GT mesh is culled exactly instead (`seen`).
 pub fn visible_from_views(points: &[[f32; 3]], views: &[CullingView], tolerance: f64) -> Result<Vec<bool>, DataError> {
     visible_reporting(points, views, tolerance, &|_| {})
 }
@@ -296,7 +301,7 @@ pub fn mesh_metrics_with_progress(
         (pred_points.len() + gt_points.len()) as u64,
     );
     let on_answered = |n: usize| progress.inc(n as u64);
-    let (pred_tree, gt_tree) = rayon::join(|| KdTree::new(pred_points), || KdTree::new(gt_points));
+    let (pred_tree, gt_tree) = rayon::join(|| KdTree::new(pred_points), || KdTree::new(&samples.gt_all));
     let pred_to_gt = gt_tree.nearest_distances(pred_points, &on_answered);
     let gt_to_pred = pred_tree.nearest_distances(gt_points, &on_answered);
     let t = options.threshold;
@@ -364,6 +369,9 @@ struct VisibleSamples {
     pred: Vec<[f32; 3]>,
     gt: Vec<[f32; 3]>,
     gt_faces: Vec<u32>,
+    /// Every GT sample, seen or not: what a predicted point's distance to the GT surface is
+    /// measured against (a predicted point on a surface no view sees is on the surface).
+    gt_all: Vec<[f32; 3]>,
 }
 
 /// Samples `options.num_points` on each mesh and keeps those the views see (all of them without
@@ -393,10 +401,12 @@ fn visible_samples(
         (vec![true; pred_all.len()], vec![true; gt_all.len()])
     } else {
         progress.step(progress::CULLING, (pred_all.len() + gt_all.len()) as u64);
-        (
-            visible_reporting(&pred_all, views, tolerance, &on_done)?,
-            visible_reporting(&gt_all, views, tolerance, &on_done)?,
-        )
+        let gt_keep = if gt_is_cloud {
+            visible_reporting(&gt_all, views, tolerance, &on_done)?
+        } else {
+            seen::seen_on_mesh(&gt_all, gt, views, tolerance, &on_done)?
+        };
+        (visible_reporting(&pred_all, views, tolerance, &on_done)?, gt_keep)
     };
     let pred_points: Vec<[f32; 3]> = pred_all
         .iter()
@@ -415,6 +425,7 @@ fn visible_samples(
         pred: pred_points,
         gt: gt_points,
         gt_faces,
+        gt_all,
     })
 }
 
@@ -663,6 +674,32 @@ mod tests {
         // Without culling, both count.
         let m = mesh_metrics(&walls, &gt, &[], &options()).unwrap();
         assert!(m.recall.unwrap() < 0.97);
+    }
+
+    /// A screen 3 cm thick, 17 cm in front of a wall: its back faces the wall, so no view sees it,
+    /// though it lies within the depth tolerance behind the front every view sees. A prediction
+    /// that fills the gap behind the screen with a solid block (what a reconstruction that never
+    /// saw the gap does) recalls every point the views see; the back face does not count.
+    #[test]
+    fn gt_faces_hidden_within_the_tolerance_do_not_count() {
+        let mut walls = room();
+        walls.face_object_ids = Some(vec![0; 12]);
+        let mut screen = box_mesh([1.5, 1.0, 2.30], [2.5, 1.6, 2.33]);
+        screen.face_object_ids = Some(vec![5; 12]);
+        let gt = concat(&[walls, screen]);
+        let mut views = room_views(&gt);
+        views.push(render_view(&gt, [2.0, 0.8, 0.4], [2.0, 1.6, 2.5]));
+        let block = concat(&[room(), box_mesh([1.5, 1.0, 2.30], [2.5, 1.6, 2.5])]);
+        let m = mesh_metrics(&block, &gt, &views, &options()).unwrap();
+        let screen = &m.per_object_recall[1];
+        assert_eq!((screen.object_id, screen.recall), (5, Some(1.0)), "{screen:?}");
+        // At most its front and rims (0.70 of its 1.26 m²) count; the 0.6 m² back does not.
+        let unculled = mesh_metrics(&block, &gt, &[], &options()).unwrap().per_object_recall[1].points;
+        let counted = screen.points as f64 / unculled as f64;
+        assert!(counted < 0.58, "{counted} of the screen's points counted");
+        // The GT itself still scores perfectly: a predicted point on the hidden back is on the GT.
+        let m = mesh_metrics(&gt, &gt, &views, &options()).unwrap();
+        assert_eq!(m.fscore, Some(1.0));
     }
 
     #[test]
