@@ -38,6 +38,11 @@ struct Projector<'a> {
 }
 
 impl<'a> Projector<'a> {
+    /// One per view, in order; an error names the first view that cannot project.
+    fn all(views: &'a [CullingView]) -> Result<Vec<Self>, DataError> {
+        views.iter().enumerate().map(|(i, v)| Projector::new(v, i)).collect()
+    }
+
     fn new(view: &'a CullingView, index: usize) -> Result<Self, DataError> {
         let bad = |msg: String| DataError::invalid(format!("culling view {index}: {msg}"));
         let c = &view.camera;
@@ -102,11 +107,7 @@ fn visible_reporting(
     tolerance: f64,
     on_done: &(dyn Fn(u64) + Sync),
 ) -> Result<Vec<bool>, DataError> {
-    let projectors = views
-        .iter()
-        .enumerate()
-        .map(|(i, v)| Projector::new(v, i))
-        .collect::<Result<Vec<_>, _>>()?;
+    let projectors = Projector::all(views)?;
     Ok(points
         .par_chunks(REPORT_BATCH)
         .flat_map_iter(|batch| {

@@ -31,11 +31,7 @@ pub(super) fn seen_on_mesh(
     tolerance: f64,
     on_done: &(dyn Fn(u64) + Sync),
 ) -> Result<Vec<bool>, DataError> {
-    let projectors = views
-        .iter()
-        .enumerate()
-        .map(|(i, v)| Projector::new(v, i))
-        .collect::<Result<Vec<_>, _>>()?;
+    let projectors = Projector::all(views)?;
     let centres: Vec<Vec3> = views.iter().map(|v| v.camera.center().as_vec3()).collect();
     let bvh = Bvh::build(mesh);
     Ok(points
