@@ -260,6 +260,8 @@ pub struct MeshMetrics {
     /// Points left after culling.
     pub pred_points: usize,
     pub gt_points: usize,
+    /// How each mesh's points were culled, in words (the report's `culling`).
+    pub culling: String,
     /// Per GT object (when the GT mesh has per-face object ids), sorted by id.
     pub per_object_recall: Vec<ObjectRecall>,
     /// One per `MeshMetricsOptions::object_groups`, in order.
@@ -306,6 +308,7 @@ pub fn mesh_metrics_with_progress(
     let pred_to_gt = gt_tree.nearest_distances(pred_points, &on_answered);
     let gt_to_pred = pred_tree.nearest_distances(gt_points, &on_answered);
     let t = options.threshold;
+    let culling = culling_rule(views.len(), gt.num_faces() == 0, options);
     let mut metrics = MeshMetrics {
         accuracy: None,
         completeness: None,
@@ -315,6 +318,7 @@ pub fn mesh_metrics_with_progress(
         threshold: t,
         pred_points: pred_points.len(),
         gt_points: gt_points.len(),
+        culling,
         per_object_recall: Vec::new(),
         group_recall: Vec::new(),
     };
@@ -343,6 +347,24 @@ pub fn mesh_metrics_with_progress(
         metrics.per_object_recall = per_object_recall(ids, &samples.gt_faces, &gt_to_pred, t);
     }
     Ok(metrics)
+}
+
+/// The culling [`mesh_metrics`] applies with `views` training views to a GT mesh or point cloud,
+/// in words.
+fn culling_rule(views: usize, gt_is_cloud: bool, options: &MeshMetricsOptions) -> String {
+    if views == 0 {
+        return "none: no training view with GT depth, every sampled point counts".into();
+    }
+    let tolerance = options.depth_tolerance.unwrap_or(options.threshold);
+    let gt = if gt_is_cloud {
+        "GT points (a point cloud) where some view's GT depth does not hide them"
+    } else {
+        "GT points where some view sees them (a ray through the GT mesh) and its pixel's GT depth does not hide them"
+    };
+    format!(
+        "{views} training views: {gt}; predicted points where no GT surface hides them from every view \
+         (GT depth, {tolerance} behind the surface allowed); precision against the whole GT surface"
+    )
 }
 
 /// Refuses a main threshold or an object group's threshold that is not positive and finite.
@@ -618,8 +640,10 @@ mod tests {
             positions: cloud.positions.iter().map(|p| p.map(|x| x + 0.1)).collect(),
             ..Default::default()
         };
+        assert!(m.culling.contains("(a point cloud)"), "{}", m.culling);
         let m = mesh_metrics(&gt, &far, &[], &options()).unwrap();
         assert_eq!(m.gt_points, 200_000, "without views every point counts");
+        assert!(m.culling.starts_with("none"), "{}", m.culling);
         assert!(m.recall.unwrap() < 0.25, "{m:?}");
     }
 
@@ -694,6 +718,7 @@ mod tests {
         let m = mesh_metrics(&block, &gt, &views, &options()).unwrap();
         let screen = &m.per_object_recall[1];
         assert_eq!((screen.object_id, screen.recall), (5, Some(1.0)), "{screen:?}");
+        assert!(m.culling.starts_with("5 training views") && m.culling.contains("a ray through the GT mesh"));
         // At most its front and rims (0.70 of its 1.26 m²) count; the 0.6 m² back does not.
         let unculled = mesh_metrics(&block, &gt, &[], &options()).unwrap().per_object_recall[1].points;
         let counted = screen.points as f64 / unculled as f64;

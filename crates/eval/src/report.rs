@@ -138,6 +138,12 @@ pub struct MeshReport {
     pub recall: Option<f64>,
     pub fscore: Option<f64>,
     pub threshold: Option<f64>,
+    /// The sampled points that survived culling: predicted and GT.
+    pub pred_points: Option<usize>,
+    pub gt_points: Option<usize>,
+    /// How the points were culled to what the training views see, in words (`eval` before
+    /// 2026-12-07 also counted GT surfaces hidden less than the threshold behind a seen one).
+    pub culling: Option<String>,
     /// Recall per ground-truth object, `null` when the GT mesh has no object ids.
     pub per_object_recall: Option<Vec<ObjectRecallReport>>,
 }
@@ -177,6 +183,9 @@ impl From<&MeshMetrics> for MeshReport {
             recall: m.recall,
             fscore: m.fscore,
             threshold: Some(m.threshold),
+            pred_points: Some(m.pred_points),
+            gt_points: Some(m.gt_points),
+            culling: Some(m.culling.clone()),
             per_object_recall: (!m.per_object_recall.is_empty()).then(|| {
                 m.per_object_recall
                     .iter()
@@ -462,6 +471,7 @@ mod tests {
             threshold: 0.05,
             pred_points: 10,
             gt_points: 10,
+            culling: "none".into(),
             per_object_recall: vec![
                 ObjectRecall {
                     object_id: 3,
