@@ -168,7 +168,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     2
                 };
                 classes[c].push((ratio, err));
-                if tau.is_some_and(|tau| ratio > ratio_min && err < tau) {
+                if tau.is_some_and(|tau| i2sdf_train::stage1::photo_depth::is_explained(ratio, err, ratio_min, tau)) {
                     pd.depth.data[p] = 0.0;
                     dropped[c] += 1;
                 }

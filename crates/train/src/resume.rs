@@ -124,18 +124,22 @@ pub fn check_config(
     new: &TrainConfig,
     frozen_stage2: bool,
 ) -> Result<(), DataError> {
-    let changes = config_changes(old, new, frozen_stage2);
+    refuse_changes(
+        run_config,
+        &format!(
+            "the resumed run was trained with other values (only {} may change)",
+            FREE_KEYS.join(", ")
+        ),
+        config_changes(old, new, frozen_stage2),
+    )
+}
+
+/// Ok without `changes`; else bad input naming `run_config`: `why`, then each change.
+fn refuse_changes(run_config: &Path, why: &str, changes: Vec<String>) -> Result<(), DataError> {
     if changes.is_empty() {
         return Ok(());
     }
-    Err(DataError::file(
-        run_config,
-        format!(
-            "the resumed run was trained with other values (only {} may change): {}",
-            FREE_KEYS.join(", "),
-            changes.join("; ")
-        ),
-    ))
+    Err(DataError::file(run_config, format!("{why}: {}", changes.join("; "))))
 }
 
 /// Refuses, as bad input, a run configuration (`run_config`, `RUN/config.toml`) whose `[model]`
@@ -156,17 +160,11 @@ pub fn check_trained_fields(
     if let Some(m) = trained_entry(stage2, "material_config")? {
         trained.material = m;
     }
-    let changes = config_changes(&trained, config, true);
-    if changes.is_empty() {
-        return Ok(());
-    }
-    Err(DataError::file(
+    refuse_changes(
         run_config,
-        format!(
-            "differs from what the run's checkpoints were trained with, and a trained field cannot change: {}",
-            changes.join("; ")
-        ),
-    ))
+        "differs from what the run's checkpoints were trained with, and a trained field cannot change",
+        config_changes(&trained, config, true),
+    )
 }
 
 /// A checkpoint's metadata entry `key` as a configuration section; `None` without the file or

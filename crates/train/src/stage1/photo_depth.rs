@@ -187,8 +187,15 @@ pub fn explained_by_field(
 ) -> Vec<bool> {
     field_render_at(scene, settings, im, pixels, t)
         .into_iter()
-        .map(|(ratio, err)| ratio > EXPLAINED_RATIO && err < tolerance)
+        .map(|(ratio, err)| is_explained(ratio, err, EXPLAINED_RATIO, tolerance))
         .collect()
+}
+
+/// The rule of [`explained_by_field`] on one pixel's render ([`field_render_at`]: its depth as
+/// a multiple of the depth found, its colour error): rendered over `ratio_min` times as far, in
+/// the pixel's colour within `tolerance`.
+pub fn is_explained(ratio: f32, err: f32, ratio_min: f32, tolerance: f32) -> bool {
+    ratio > ratio_min && err < tolerance
 }
 
 #[cfg(test)]
