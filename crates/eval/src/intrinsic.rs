@@ -13,7 +13,7 @@ use i2sdf_data::{DataError, Dataset, Frame, ImageF32, Split};
 use i2sdf_model::images::rerender_ldr;
 use i2sdf_model::intrinsic_io::IntrinsicFields;
 use i2sdf_model::{rerender_view, EmitterTable, FrozenScene};
-use i2sdf_render::ViewRender;
+use i2sdf_render::{luminance, ViewRender};
 
 /// Options of [`intrinsic_metrics`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -68,7 +68,14 @@ pub struct MaterialAccumulator {
     albedo_pixels: usize,
     rough_abs: f64,
     rough_pixels: usize,
+    /// The same over the pixels with a specular lobe (GT Ks luminance ≥ [`LOBE_KS`]).
+    lobe_abs: f64,
+    lobe_pixels: usize,
 }
+
+/// GT Ks luminance from which a pixel counts in `MaterialMetrics::roughness_l1_lobe`: below it
+/// the lobe is a fraction of the 4 % of a common dielectric and ρ hardly changes the pixel.
+pub const LOBE_KS: f32 = 0.01;
 
 impl MaterialAccumulator {
     /// Adds a view's Kd (per pixel) against its GT albedo (3 channels) over `mask`.
@@ -90,13 +97,30 @@ impl MaterialAccumulator {
     }
 
     /// Adds a view's roughness against its GT roughness (first channel of `gt`, `channels` per
-    /// pixel) over `mask`.
-    pub fn add_roughness(&mut self, pred: &[f32], gt: &[f32], channels: usize, mask: &[bool]) {
+    /// pixel) over `mask`; `gt_ks` (the GT Ks map and its channels per pixel, where the dataset
+    /// has one) also counts the pixels with a lobe apart.
+    pub fn add_roughness(
+        &mut self,
+        pred: &[f32],
+        gt: &[f32],
+        channels: usize,
+        mask: &[bool],
+        gt_ks: Option<(&[f32], usize)>,
+    ) {
         for (i, p) in pred.iter().enumerate() {
             let g = gt[i * channels];
             if mask[i] && g.is_finite() {
-                self.rough_abs += (*p as f64 - g as f64).abs();
+                let e = (*p as f64 - g as f64).abs();
+                self.rough_abs += e;
                 self.rough_pixels += 1;
+                if let Some((ks, c)) = gt_ks {
+                    let k = &ks[i * c..(i + 1) * c];
+                    let lum = if c >= 3 { luminance(Vec3::new(k[0], k[1], k[2])) } else { k[0] };
+                    if lum >= LOBE_KS {
+                        self.lobe_abs += e;
+                        self.lobe_pixels += 1;
+                    }
+                }
             }
         }
     }
@@ -129,6 +153,9 @@ impl MaterialAccumulator {
             pixels: (n > 0).then_some(n),
             albedo_psnr_seen: None,
             seen_fraction: None,
+            roughness_l1_lobe: (self.lobe_pixels > 0).then(|| self.lobe_abs / self.lobe_pixels as f64),
+            lobe_fraction: (self.lobe_pixels > 0 && self.rough_pixels > 0)
+                .then(|| self.lobe_pixels as f64 / self.rough_pixels as f64),
         }
     }
 }
@@ -290,6 +317,7 @@ pub fn intrinsic_metrics_with_progress(
         for (what, map, ch) in [
             ("albedo", &f.albedo, 3),
             ("roughness", &f.roughness, 1),
+            ("specular", &f.specular, 1),
             ("emitter mask", &f.emitter_mask, 1),
             ("material mask", &f.material_mask, 1),
         ] {
@@ -339,7 +367,8 @@ pub fn intrinsic_metrics_with_progress(
             });
         }
         if let Some(r) = &f.roughness {
-            acc.add_roughness(&v.roughness, &r.data, r.channels, &mask);
+            let ks = f.specular.as_ref().map(|k| (&k.data[..], k.channels));
+            acc.add_roughness(&v.roughness, &r.data, r.channels, &mask, ks);
         }
         if let Some(keep) = keep.as_deref_mut() {
             keep.push(v);
@@ -441,8 +470,26 @@ mod tests {
             &[0.3, 9.0, f32::NAN, 0.0],
             1,
             &[true, false, true, true],
+            None,
         );
-        assert!((acc.finish().roughness_l1.unwrap() - (0.2 + 0.9) / 2.0).abs() < 1e-6);
+        let m = acc.finish();
+        assert!((m.roughness_l1.unwrap() - (0.2 + 0.9) / 2.0).abs() < 1e-6);
+        assert_eq!((m.roughness_l1_lobe, m.lobe_fraction), (None, None));
+        // With GT Ks: the lobe figure counts only the pixels whose Ks luminance reaches LOBE_KS
+        // (here the first: 0.04), the overall figure all of them as before.
+        let mut acc = MaterialAccumulator::default();
+        let ks = [0.04, 0.04, 0.04, 0.5, 0.5, 0.5, 0.0, 0.0, 0.0, 0.005, 0.005, 0.005];
+        acc.add_roughness(
+            &[0.5, 0.1, 0.2, 0.9],
+            &[0.3, 9.0, f32::NAN, 0.0],
+            1,
+            &[true, false, true, true],
+            Some((&ks, 3)),
+        );
+        let m = acc.finish();
+        assert!((m.roughness_l1.unwrap() - (0.2 + 0.9) / 2.0).abs() < 1e-6);
+        assert!((m.roughness_l1_lobe.unwrap() - 0.2).abs() < 1e-6);
+        assert!((m.lobe_fraction.unwrap() - 0.5).abs() < 1e-12);
     }
 
     #[test]

@@ -241,6 +241,15 @@ pub struct MaterialMetrics {
     /// The share of the compared pixels counted in `albedo_psnr_seen`.
     #[serde(default)]
     pub seen_fraction: Option<f64>,
+    /// Mean |ρ − ρ_gt| over the compared pixels whose GT Ks luminance is at least
+    /// [`crate::intrinsic::LOBE_KS`]: where ρ changes what a camera sees. Elsewhere (Ks = 0) ρ
+    /// changes no pixel, and `roughness_l1` there measures only the fit's prior. `null` without
+    /// GT Ks maps or where no pixel has a lobe.
+    #[serde(default)]
+    pub roughness_l1_lobe: Option<f64>,
+    /// The share of the roughness pixels counted in `roughness_l1_lobe`.
+    #[serde(default)]
+    pub lobe_fraction: Option<f64>,
 }
 
 /// The emitters stage 2 found (world units) and, where the dataset lists its GT emitters, how

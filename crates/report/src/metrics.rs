@@ -162,6 +162,12 @@ const ROWS: &[Row] = &[
         "↑",
     ),
     row("roughness L1", "material.roughness_l1", None, "↓"),
+    row(
+        "roughness L1 where the surface has a specular lobe",
+        "material.roughness_l1_lobe",
+        None,
+        "↓",
+    ),
     row("emitters found", "emitters.count", None, ""),
     row("relight PSNR, path traced (dB)", "relight.psnr", None, "↑"),
     row("relight SSIM, path traced", "relight.ssim", None, "↑"),
