@@ -115,7 +115,11 @@ impl MaterialAccumulator {
                 self.rough_pixels += 1;
                 if let Some((ks, c)) = gt_ks {
                     let k = &ks[i * c..(i + 1) * c];
-                    let lum = if c >= 3 { luminance(Vec3::new(k[0], k[1], k[2])) } else { k[0] };
+                    let lum = if c >= 3 {
+                        luminance(Vec3::new(k[0], k[1], k[2]))
+                    } else {
+                        k[0]
+                    };
                     if lum >= LOBE_KS {
                         self.lobe_abs += e;
                         self.lobe_pixels += 1;
