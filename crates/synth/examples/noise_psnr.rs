@@ -8,7 +8,11 @@
 //! PSNR between the two (the bias, nearly free of noise since the paths agree until a vertex is
 //! regularized).
 //!
-//! `cargo run --release -p i2sdf-synth --example noise_psnr -- [preset|scene.toml] [spp] [view] [seed] [out_dir] [--unbiased] [--regularize=RHO]`
+//! `--relit=SPEC.toml` scores the view relit by that edit spec (a dataset's `relight/*.toml`: the
+//! emitters' gains applied to both renders, as `synth` writes its relit test views) and
+//! `--exposure=E` exposes with E (a dataset's `ldr.exposure`) instead of the view's own.
+//!
+//! `cargo run --release -p i2sdf-synth --example noise_psnr -- [preset|scene.toml] [spp] [view] [seed] [out_dir] [--unbiased] [--regularize=RHO] [--relit=SPEC.toml] [--exposure=E]`
 
 use glam::Vec3;
 use i2sdf_eval::image_metrics::psnr_from_mse;
@@ -24,6 +28,11 @@ fn main() {
         .iter()
         .find_map(|a| a.strip_prefix("--regularize="))
         .map(|r| r.parse().expect("--regularize=ROUGHNESS"));
+    let relit: Option<String> = args.iter().find_map(|a| a.strip_prefix("--relit=")).map(str::to_string);
+    let fixed_exposure: Option<f32> = args
+        .iter()
+        .find_map(|a| a.strip_prefix("--exposure="))
+        .map(|e| e.parse().expect("--exposure=E"));
     args.retain(|a| !a.starts_with("--"));
     let name = args.get(1).map(String::as_str).unwrap_or("livingroom");
     let spp: u32 = args
@@ -63,8 +72,14 @@ fn main() {
     let t = std::time::Instant::now();
     let hi = render(&scene, 4 * spp, seed + 1_000_003);
     let t_hi = t.elapsed().as_secs_f64();
-    let exposure = auto_exposure(&[(&views[view], &hi)]);
-    let ones = vec![Vec3::ONE; lo.emitters];
+    let exposure = fixed_exposure.unwrap_or_else(|| auto_exposure(&[(&views[view], &hi)]));
+    let ones = match &relit {
+        Some(spec) => {
+            let spec = i2sdf_data::EditSpec::read(std::path::Path::new(spec)).expect("relight spec");
+            i2sdf_synth::edit::emitter_gains(&spec, &scene.emitters)
+        }
+        None => vec![Vec3::ONE; lo.emitters],
+    };
     let (a, b) = (lo.hdr(&ones), hi.hdr(&ones));
     let psnr = |f: &dyn Fn(f32) -> f32| {
         let mse = a
