@@ -583,6 +583,11 @@ mod tests {
             let (w, h) = (f.camera.width, f.camera.height);
             f.albedo = Some(ImageF32::from_data(w, h, 3, vec![0.5; w * h * 3]));
             f.roughness = Some(ImageF32::from_data(w, h, 1, vec![0.5; w * h]));
+            // A lobe on the left half only: the lobe figure counts half the pixels.
+            let ks: Vec<f32> = (0..w * h)
+                .flat_map(|i| [if i % w < w / 2 { 0.04 } else { 0.0 }; 3])
+                .collect();
+            f.specular = Some(ImageF32::from_data(w, h, 3, ks));
         }
         let config = ModelConfig {
             hash_levels: 4,
@@ -617,6 +622,9 @@ mod tests {
         assert!(material.albedo_psnr.unwrap().is_finite(), "{material:?}");
         assert!(material.albedo_psnr_scaled.unwrap() >= material.albedo_psnr.unwrap() - 1e-9);
         assert!(material.roughness_l1.unwrap().is_finite());
+        assert!(material.roughness_l1_lobe.unwrap().is_finite(), "{material:?}");
+        let lobe = material.lobe_fraction.unwrap();
+        assert!(lobe > 0.0 && lobe < 1.0, "{material:?}");
         assert_eq!(emitters.count, Some(1));
         let f = dataset.split(Split::Test).next().unwrap();
         let v = rerender_view(&frozen, &fields.material, &f.camera, 1, 0, 0, &|| {});
