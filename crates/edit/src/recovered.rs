@@ -98,6 +98,7 @@ impl RecoveredSurface {
             i2sdf_render::simplify::simplify_labelled(&mesh, &labels, i2sdf_model::TRACED_SIMPLIFY_VOXELS * voxel);
         let normals: Vec<Vec3> = kept.iter().map(|&v| normals[v as usize]).collect();
         let (mesh, labels, normals) = fitted_bulbs(mesh, labels, normals, frozen.emitters);
+        let (mesh, labels, normals) = fitted_panels(mesh, labels, normals, frozen.emitters);
         for (t, &l) in labels.iter().enumerate() {
             if l > 0 {
                 emitter_faces[l as usize - 1].push(t as u32);
@@ -163,6 +164,47 @@ fn fitted_bulbs(
         }
         kept_faces.extend(unit.faces.iter().map(|f| f.map(|i| i + base)));
         kept_labels.extend(std::iter::repeat(k as u32 + 1).take(unit.faces.len()));
+    }
+    let mesh = TriangleMesh {
+        positions,
+        faces: kept_faces,
+        face_object_ids: None,
+    };
+    (mesh, kept_labels, normals)
+}
+
+/// Each flat emitter's rectangle ([`i2sdf_model::emitter_panel`]) replaces the recovered panel
+/// as [`FrozenScene::cast`] sees it: the triangles in its slab over the rectangle go, two
+/// triangles facing the room, labelled as the emitter, come in.
+fn fitted_panels(
+    mesh: TriangleMesh,
+    labels: Vec<u32>,
+    mut normals: Vec<Vec3>,
+    table: &EmitterTable,
+) -> (TriangleMesh, Vec<u32>, Vec<Vec3>) {
+    let panels = table.panels();
+    if panels.is_empty() {
+        return (mesh, labels, normals);
+    }
+    let TriangleMesh {
+        mut positions, faces, ..
+    } = mesh;
+    let (mut kept_faces, mut kept_labels) = (Vec::with_capacity(faces.len()), Vec::with_capacity(faces.len()));
+    for (f, &l) in faces.iter().zip(&labels) {
+        let centroid = f.iter().map(|&i| Vec3::from(positions[i as usize])).sum::<Vec3>() / 3.0;
+        if !panels.iter().any(|(_, p)| p.holds(centroid)) {
+            kept_faces.push(*f);
+            kept_labels.push(l);
+        }
+    }
+    for (k, p) in &panels {
+        let base = positions.len() as u32;
+        for c in p.corners() {
+            positions.push(c.to_array());
+            normals.push(p.normal());
+        }
+        kept_faces.extend([[base, base + 1, base + 2], [base, base + 2, base + 3]]);
+        kept_labels.extend([*k as u32 + 1; 2]);
     }
     let mesh = TriangleMesh {
         positions,
@@ -379,6 +421,55 @@ mod tests {
     use super::*;
     use i2sdf_render::Visibility;
 
+    /// A panel: the recovered surface in its slab over the rectangle goes (a bulge 3 cm below
+    /// it, labelled or not), the ceiling beside it and a lamp 10 cm below stay, and the
+    /// rectangle comes in as two triangles labelled as the emitter, facing the room.
+    #[test]
+    fn a_panel_replaces_the_recovered_one() {
+        let tri = |m: &mut TriangleMesh, a: [f32; 3], b: [f32; 3], c: [f32; 3]| {
+            let base = m.positions.len() as u32;
+            m.positions.extend([a, b, c]);
+            m.faces.push([base, base + 1, base + 2]);
+        };
+        let mut mesh = TriangleMesh {
+            positions: Vec::new(),
+            faces: Vec::new(),
+            face_object_ids: None,
+        };
+        tri(&mut mesh, [0.2, 2.57, 0.2], [0.4, 2.57, 0.2], [0.3, 2.57, 0.4]); // the bulge
+        tri(&mut mesh, [0.3, 2.58, 0.3], [0.5, 2.58, 0.3], [0.4, 2.58, 0.5]); // labelled
+        tri(&mut mesh, [1.2, 2.6, 0.2], [1.4, 2.6, 0.2], [1.3, 2.6, 0.4]); // the ceiling beside
+        tri(&mut mesh, [0.5, 2.5, 0.2], [0.6, 2.5, 0.2], [0.55, 2.5, 0.4]); // a lamp below
+        let labels = vec![0, 1, 0, 0];
+        let normals = vec![-Vec3::Y; mesh.positions.len()];
+        let bounds = [[0.0, 2.58, 0.0], [1.0, 2.62, 0.8]];
+        let panel = i2sdf_model::emitter_panel::Panel::of_box(bounds, [0.5, 1.3, 0.4], 0.02);
+        let table = EmitterTable::new(
+            vec![i2sdf_model::emitters::Emitter {
+                centre: [0.5, 2.6, 0.4],
+                extent: [1.0, 0.04, 0.8],
+                radius: 0.65,
+                points: 10,
+                sphere: None,
+                bounds: Some(bounds),
+                panel,
+            }],
+            &[[5.0; 3]],
+        );
+        let (out, labels, normals) = fitted_panels(mesh, labels, normals, &table);
+        assert_eq!(
+            labels,
+            [0, 0, 1, 1],
+            "the ceiling and the lamp stayed, the rectangle came"
+        );
+        assert_eq!(normals.len(), out.positions.len());
+        for f in &out.faces[2..] {
+            let p = f.map(|i| Vec3::from(out.positions[i as usize]));
+            assert!((p[1] - p[0]).cross(p[2] - p[0]).y < 0.0, "faces the room below");
+            assert!(p.iter().all(|q| (q.y - 2.6).abs() < 1e-6));
+        }
+    }
+
     /// A bulb with a fitted sphere: the recovered bulb (a coarse ball about the centre, larger
     /// than the sphere, partly labelled) goes, a wall within the clearance that faces the bulb
     /// stays, and the sphere comes in whole with the emitter's label and radial normals.
@@ -414,6 +505,7 @@ mod tests {
                 points: 10,
                 sphere: Some([c.x as f64, c.y as f64, c.z as f64, r as f64]),
                 bounds: None,
+                panel: None,
             }],
             &[[5.0; 3]],
         );

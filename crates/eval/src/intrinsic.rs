@@ -409,6 +409,7 @@ mod tests {
             points: 5,
             sphere: None,
             bounds: None,
+            panel: None,
         }
     }
 

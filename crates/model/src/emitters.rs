@@ -8,6 +8,7 @@
 //! the same relative rate — the LDR radiance field under-estimates emitters by a factor that is
 //! unknown per emitter, which is exactly what L\[k\] has to learn.
 
+use crate::emitter_panel::Panel;
 use crate::scene::{GroupSpec, LrClass, ParamBlock, SceneModule, Update};
 use glam::{DVec3, Vec3};
 use i2sdf_data::DataError;
@@ -42,6 +43,11 @@ pub struct Emitter {
     /// written before it was kept.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bounds: Option<[[f64; 3]; 2]>,
+    /// The rectangle a flat emitter is (stage 2's `fit_panels`, [`crate::emitter_panel`]): what
+    /// every cast meets instead of the recovered surface there. None for bulbs, irregular
+    /// emitters and files written before it was kept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub panel: Option<Panel>,
 }
 
 /// How far outside the box of an emitter's points, as a fraction of the index margin, surface no
@@ -98,6 +104,13 @@ pub struct EmitterTable {
 
 impl EmitterTable {
     /// The emitters that are bulbs ([`Emitter::bulb`]): index, centre and radius.
+    /// The panels ([`Emitter::panel`]) with their emitter's index.
+    pub fn panels(&self) -> Vec<(usize, Panel)> {
+        (self.emitters.iter().enumerate())
+            .filter_map(|(k, e)| e.panel.map(|p| (k, p)))
+            .collect()
+    }
+
     pub fn bulbs(&self) -> Vec<(usize, glam::Vec3, f32)> {
         (self.emitters.iter().enumerate())
             .filter_map(|(k, e)| e.bulb().map(|(c, r)| (k, c, r)))
@@ -150,7 +163,8 @@ impl EmitterTable {
     /// Writes `RUN/emitters.json`, atomically:
     /// `{"emitters": [{"centre": [x,y,z], "extent": [dx,dy,dz], "radius": r, "points": n, "sphere":
     /// [x,y,z,r] or null, "bounds": [[x,y,z], [x,y,z]] (the box of the points) or null,
-    /// "emission": [r,g,b], "radiance": [r,g,b] or null}]}` — world units;
+    /// "panel": {"axis", "offset", "lo", "hi", "facing", "depth"} (a flat emitter's rectangle,
+    /// [`Panel`]) or null, "emission": [r,g,b], "radiance": [r,g,b] or null}]}` — world units;
     /// `emission` is L\[k\] in image units, `radiance` = emission / exposure (the physical
     /// radiance) when the dataset states its exposure, else null.
     pub fn write_json(&self, path: &Path, exposure: Option<f64>) -> Result<(), DataError> {
@@ -168,6 +182,7 @@ impl EmitterTable {
                     "points": e.points,
                     "sphere": e.sphere,
                     "bounds": e.bounds,
+                    "panel": e.panel,
                     "emission": l,
                     "radiance": radiance,
                 })
@@ -246,6 +261,24 @@ impl EmitterTable {
                     .filter(|c| (0..3).all(|i| c[i] <= c[i + 3]))
             })?
             .map(|c| [[c[0], c[1], c[2]], [c[3], c[4], c[5]]]);
+            let panel = match entry.get("panel") {
+                None | Some(Value::Null) => None,
+                Some(v) => Some(
+                    serde_json::from_value::<Panel>(v.clone())
+                        .ok()
+                        .filter(|p| {
+                            let finite = [p.offset, p.depth, p.lo[0], p.lo[1], p.hi[0], p.hi[1]].iter().all(|x| x.is_finite());
+                            finite && p.axis < 3 && p.facing.abs() == 1.0 && p.depth >= 0.0 && p.lo[0] <= p.hi[0] && p.lo[1] <= p.hi[1]
+                        })
+                        .ok_or_else(|| {
+                            DataError::field(
+                                path,
+                                key("panel"),
+                                "must be {\"axis\": 0-2, \"offset\", \"lo\": [u, v], \"hi\": [u, v] (lo ≤ hi), \"facing\": 1 or -1, \"depth\" ≥ 0}, finite",
+                            )
+                        })?,
+                ),
+            };
             emitters.push(Emitter {
                 centre,
                 extent,
@@ -253,6 +286,7 @@ impl EmitterTable {
                 points,
                 sphere,
                 bounds,
+                panel,
             });
             emission.push(l.map(|v| v as f32));
         }
@@ -315,6 +349,7 @@ mod tests {
                     points: 120,
                     sphere: Some([0.0, 2.05, 0.0, 0.1]),
                     bounds: None,
+                    panel: None,
                 },
                 Emitter {
                     centre: [3.0, 1.0, 0.0],
@@ -323,6 +358,7 @@ mod tests {
                     points: 800,
                     sphere: None,
                     bounds: Some([[2.95, 0.25, -0.75], [3.05, 1.75, 0.75]]),
+                    panel: Panel::of_box([[2.95, 0.25, -0.75], [3.05, 1.75, 0.75]], [0.0, 1.0, 0.0], 0.02),
                 },
             ],
             &[[5.0, 4.0, 3.0], [0.5, 0.5, 0.6]],
@@ -358,9 +394,10 @@ mod tests {
         keys.sort();
         assert_eq!(
             keys,
-            ["bounds", "centre", "emission", "extent", "points", "radiance", "radius", "sphere"]
+            ["bounds", "centre", "emission", "extent", "panel", "points", "radiance", "radius", "sphere"]
         );
         assert!(v["emitters"][1]["sphere"].is_null() && v["emitters"][0]["bounds"].is_null());
+        assert!(v["emitters"][0]["panel"].is_null() && v["emitters"][1]["panel"]["axis"] == 0);
         let r = v["emitters"][0]["radiance"].as_array().unwrap();
         assert!((r[0].as_f64().unwrap() - 2.5).abs() < 1e-5);
         let back = EmitterTable::read_json(&p).unwrap();
@@ -387,6 +424,10 @@ mod tests {
         std::fs::write(&p, s).unwrap();
         let e = EmitterTable::read_json(&p).unwrap_err();
         assert!(e.is_bad_input() && e.to_string().contains("emitters[0].sphere"), "{e}");
+        let s = r#"{"emitters": [{"centre": [0,0,0], "extent": [1,1,1], "points": 3, "emission": [1,1,1], "panel": {"axis": 3, "offset": 0, "lo": [0,0], "hi": [1,1], "facing": 1, "depth": 0}}]}"#;
+        std::fs::write(&p, s).unwrap();
+        let e = EmitterTable::read_json(&p).unwrap_err();
+        assert!(e.is_bad_input() && e.to_string().contains("emitters[0].panel"), "{e}");
         let s = r#"{"emitters": [{"centre": [0,0,0], "extent": [1,1,1], "points": 3, "emission": [1,1,1], "bounds": [[0,0,0], [1,-1,1]]}]}"#;
         std::fs::write(&p, s).unwrap();
         let e = EmitterTable::read_json(&p).unwrap_err();

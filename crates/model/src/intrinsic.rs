@@ -88,6 +88,9 @@ pub struct FrozenScene<'a> {
     queries: Mutex<Vec<SceneQuery<'a>>>,
 }
 
+/// [`FrozenScene::index_margin`] as a fraction of the scene's normalization scale.
+pub const INDEX_MARGIN: f64 = 0.02;
+
 /// Points per block of the labelling and field queries (parallel tasks over blocks).
 const FROZEN_BLOCK: usize = 4096;
 
@@ -120,7 +123,7 @@ impl<'a> FrozenScene<'a> {
             emitters,
             radiometry,
             emitter_threshold: 0.5,
-            index_margin: 0.02 * scene.normalization.scale,
+            index_margin: INDEX_MARGIN * scene.normalization.scale,
             baked_exact_normals: false,
             baked: None,
             observed: None,
@@ -430,10 +433,11 @@ impl<'a> FrozenScene<'a> {
         if self.emitters.is_empty() {
             return;
         }
-        let decided = match bulbs {
+        let mut decided = match bulbs {
             true => self.fitted_bulb_hits(rays, out),
             false => vec![false; rays.len()],
         };
+        self.panel_hits(rays, out, &mut decided);
         let (idx, cluster): (Vec<usize>, Vec<u32>) = (0..out.len())
             .filter(|&i| !decided[i])
             .filter_map(|i| {
@@ -530,6 +534,28 @@ impl<'a> FrozenScene<'a> {
             }
         }
         decided
+    }
+
+    /// Each flat emitter's rectangle ([`crate::emitter_panel`]) stands in for the recovered
+    /// surface there: a ray not yet `decided` that meets the nearest panel first, or whose hit
+    /// lies on the recovered panel, hits the panel and its emitter (and is then decided).
+    fn panel_hits(&self, rays: &[Ray], out: &mut [Option<LabelledHit>], decided: &mut [bool]) {
+        let panels = self.emitters.panels();
+        if panels.is_empty() {
+            return;
+        }
+        for (i, ray) in rays.iter().enumerate() {
+            if decided[i] {
+                continue;
+            }
+            let nearest = (panels.iter())
+                .filter_map(|&(k, p)| p.hit(ray, out[i].as_ref(), k as u32))
+                .min_by(|a, b| a.t.total_cmp(&b.t));
+            if let Some(h) = nearest {
+                out[i] = Some(h);
+                decided[i] = true;
+            }
+        }
     }
 
     /// Runs `f` with a query from the pool ([`FrozenScene::queries`]), returned to it after.
@@ -691,11 +717,12 @@ impl Geometry for FrozenScene<'_> {
     fn occluded(&self, rays: &[Ray], occluded: &mut [bool]) {
         let rays = self.gapped(rays);
         let rays = &rays[..];
-        if !self.emitters.bulbs().is_empty() {
-            // A fitted bulb stands in for the recovered one (no emitter labels needed).
+        if !self.emitters.bulbs().is_empty() || !self.emitters.panels().is_empty() {
+            // A fitted bulb or panel stands in for the recovered one (no emitter labels needed).
             let mut hits = vec![None; rays.len()];
             self.cast_unlabelled(rays, &mut hits, false);
-            self.fitted_bulb_hits(rays, &mut hits);
+            let mut decided = self.fitted_bulb_hits(rays, &mut hits);
+            self.panel_hits(rays, &mut hits, &mut decided);
             for (o, h) in occluded.iter_mut().zip(hits) {
                 *o = h.is_some();
             }

@@ -171,6 +171,7 @@ mod tests {
             points: 10,
             sphere: None,
             bounds: None,
+            panel: None,
         };
         let fields = IntrinsicFields {
             material: MaterialField::new(&config, 8, 3),

@@ -61,6 +61,7 @@ fn table(s: &NeuralScene) -> EmitterTable {
             points: 10,
             sphere: None,
             bounds: None,
+            panel: None,
         }],
         &[[4.0, 3.0, 2.0]],
     )
@@ -547,6 +548,7 @@ fn a_fitted_bulb_is_its_sphere() {
                 points: 10,
                 sphere,
                 bounds: None,
+                panel: None,
             }],
             &[[4.0, 3.0, 2.0]],
         )
@@ -595,4 +597,71 @@ fn sphere_entry_and_exit() {
     assert_eq!(sphere_entry(&inside, c, 1.0), None);
     let short = Ray::new(Vec3::ZERO, Vec3::Z, 0.0, 3.5);
     assert_eq!(sphere_entry(&short, c, 1.0), None);
+}
+
+/// A panel inside the recovered sphere, across the +y rays from the centre, facing it: those
+/// rays meet the panel (labelled, its normal) before the sphere; the others keep the caster's
+/// hit and label; shadow rays stop at the panel too; a ray from above passes.
+#[test]
+fn a_panel_stands_in_for_the_recovered_surface() {
+    let s = scene();
+    let lo = [
+        centre().x as f64 - 0.3,
+        centre().y as f64 + 0.5,
+        centre().z as f64 - 0.3,
+    ];
+    let hi = [
+        centre().x as f64 + 0.3,
+        centre().y as f64 + 0.52,
+        centre().z as f64 + 0.3,
+    ];
+    let panel = crate::emitter_panel::Panel::of_box([lo, hi], centre().as_dvec3().to_array(), 0.01).unwrap();
+    let t = EmitterTable::new(
+        vec![Emitter {
+            centre: [centre().x as f64, centre().y as f64 + 0.51, centre().z as f64],
+            extent: [0.6, 0.02, 0.6],
+            radius: 0.45,
+            points: 10,
+            sphere: None,
+            bounds: Some([lo, hi]),
+            panel: Some(panel),
+        }],
+        &[[4.0, 3.0, 2.0]],
+    );
+    let plain = EmitterTable::new(Vec::new(), &[]);
+    let (mut frozen, reference) = (frozen_scene(&s, &t), frozen_scene(&s, &plain));
+    // No label from F_e: only the panel's.
+    frozen.emitter_threshold = 2.0;
+    let rays = rays(400);
+    let (mut hits, mut want) = (vec![None; rays.len()], vec![None; rays.len()]);
+    frozen.cast(&rays, &mut hits);
+    reference.cast(&rays, &mut want);
+    let mut on_panel = 0;
+    for ((h, w), r) in hits.iter().zip(&want).zip(&rays) {
+        let (h, w) = (h.unwrap(), w.unwrap());
+        let y = r.origin.y + r.dir.y * (panel.offset as f32 - r.origin.y) / r.dir.y;
+        let x = r.origin + r.dir * ((y - r.origin.y) / r.dir.y);
+        let crosses = r.dir.y > 0.0 && (x.x - centre().x).abs() < 0.3 && (x.z - centre().z).abs() < 0.3;
+        if crosses {
+            on_panel += 1;
+            assert_eq!(h.emitter, Some(0));
+            assert!((h.position.y - panel.offset as f32).abs() < 1e-4 && h.normal == -Vec3::Y);
+            assert!(h.t < w.t);
+        } else {
+            assert_eq!((h.t, h.emitter), (w.t, None), "{r:?}");
+        }
+    }
+    assert!(on_panel > 5 && on_panel < 100, "{on_panel}");
+    // Shadow rays: blocked by the panel within their segment, whatever lies past it.
+    let up = Ray::new(centre(), Vec3::Y, 0.0, 0.8);
+    let side = Ray::new(centre(), Vec3::X, 0.0, 0.8);
+    let mut occ = [false; 2];
+    frozen.occluded(&[up, side], &mut occ);
+    assert_eq!(occ, [true, false]);
+    // From above the panel (its back), a ray down meets the sphere's surface as before.
+    let down = Ray::new(centre() + Vec3::new(0.0, 0.9, 0.0), -Vec3::Y, 0.0, f32::INFINITY);
+    let (mut a, mut b) = ([None], [None]);
+    frozen.cast(&[down], &mut a);
+    reference.cast(&[down], &mut b);
+    assert_eq!(a[0].map(|h| (h.t, h.emitter)), b[0].map(|h| (h.t, h.emitter)));
 }

@@ -10,6 +10,7 @@
 
 pub mod baked_surface;
 pub mod config;
+pub mod emitter_panel;
 pub mod emitters;
 pub mod images;
 pub mod intrinsic;

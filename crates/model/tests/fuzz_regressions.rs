@@ -104,6 +104,7 @@ fn stage2_metadata_describing_a_grid_the_file_lacks_is_refused() {
         points: 1,
         sphere: None,
         bounds: None,
+        panel: None,
     };
     let fields = IntrinsicFields {
         material: MaterialField::new(&material, 3, 0),

@@ -206,6 +206,11 @@ pub struct Stage2Config {
     /// +1.35 dB, the bulb alone relit +1.5 and +1.4 dB (differential); on seed 1 the relit sets
     /// lost 0.3–0.8 dB (docs/results.md).
     pub fit_bulbs: bool,
+    /// An emitter whose points lie in a thin axis-aligned box (a ceiling panel) is the box's
+    /// mid-plane rectangle, emitting towards the room, wherever a ray meets it or meets the
+    /// recovered surface within its slab (`i2sdf_model::emitter_panel`): in stage 2's fit, the
+    /// re-render, the relit sets and the export, as `fit_bulbs` for bulbs.
+    pub fit_panels: bool,
     /// A bulb's sphere takes the radius its emitter masks give (the median disc of its whole,
     /// unoccluded mask pieces at its centre's depth) instead of its surface fit's, which stage 1's
     /// inflated small bright objects make too large (`emitter_setup::size_bulbs_by_masks`). Needs emitter
@@ -295,6 +300,7 @@ impl Default for Stage2Config {
             input_normals: true,
             label_unobserved: true,
             fit_bulbs: true,
+            fit_panels: true,
             size_bulbs_by_masks: true,
             triangulate_emitters: true,
             samples: 16,

@@ -84,6 +84,7 @@ fn cached_and_live_estimators_agree() {
             points: 100,
             sphere: None,
             bounds: None,
+            panel: None,
         }],
         &[[6.0, 5.0, 4.0]],
     );

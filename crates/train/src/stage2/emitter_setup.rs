@@ -13,8 +13,9 @@ use crate::stage2::targets::TargetView;
 use glam::{DVec3, Vec3};
 use i2sdf_data::camera::RayGenerator;
 use i2sdf_data::Radiometry;
-use i2sdf_model::emitters::{Emitter, EmitterTable, BULB_CLEARANCE};
-use i2sdf_model::intrinsic::FrozenScene;
+use i2sdf_model::emitter_panel::Panel;
+use i2sdf_model::emitters::{Emitter, EmitterTable, BULB_CLEARANCE, UNSEEN_BOX_MARGIN};
+use i2sdf_model::intrinsic::{FrozenScene, INDEX_MARGIN};
 use i2sdf_model::NeuralScene;
 use i2sdf_render::Ray;
 use rand_pcg::Pcg64;
@@ -147,12 +148,32 @@ pub(super) fn cluster_new_emitters(
                     ]
                 })
             }),
+            panel: None,
+        })
+        .map(|mut e| {
+            // A flat cluster that is no bulb: the rectangle of its box, facing the room's
+            // centre, with the slab of the unseen-surface margin (`emitter_panel`).
+            if c2.fit_panels && e.bulb().is_none() {
+                let margin = UNSEEN_BOX_MARGIN * INDEX_MARGIN * s;
+                e.panel = e.bounds.and_then(|b| Panel::of_box(b, to_world([0.0; 3]), margin));
+            }
+            e
         })
         .collect();
     for (k, e) in list.iter().enumerate() {
         if let Some([x, y, z, r]) = e.sphere {
             progress(&format!(
                 "emitter {k}: its points lie on a sphere of radius {r:.3} m about ({x:.2}, {y:.2}, {z:.2}) m"
+            ));
+        }
+        if let Some(p) = e.panel {
+            let axis = ["x", "y", "z"][p.axis];
+            progress(&format!(
+                "emitter {k}: a panel of {:.2} × {:.2} m at {axis} = {:.3} m, emitting towards {}{axis}",
+                p.hi[0] - p.lo[0],
+                p.hi[1] - p.lo[1],
+                p.offset,
+                if p.facing > 0.0 { "+" } else { "−" }
             ));
         }
     }
@@ -456,6 +477,7 @@ fn triangulate_missed_lights(
                 points: n,
                 sphere: Some([c.x, c.y, c.z, r]),
                 bounds: Some([(c - r).to_array(), (c + r).to_array()]),
+                panel: None,
             };
             (emitter, sum.map(|s| ((s / n.max(1) as f64) as f32).max(1e-3)))
         })

@@ -383,6 +383,7 @@ mod tests {
                 points: 1,
                 sphere: None,
                 bounds: None,
+                panel: None,
             }],
             &[[1.0; 3]],
         );
@@ -417,6 +418,7 @@ mod tests {
                 points: 1,
                 sphere: Some([0.0, 0.0, 1.1, 0.1]),
                 bounds: None,
+                panel: None,
             }],
             &[[1.0; 3]],
         );
