@@ -133,44 +133,29 @@ impl RecoveredSurface {
 fn fitted_bulbs(
     mesh: TriangleMesh,
     labels: Vec<u32>,
-    mut normals: Vec<Vec3>,
+    normals: Vec<Vec3>,
     table: &EmitterTable,
 ) -> (TriangleMesh, Vec<u32>, Vec<Vec3>) {
     let spheres = table.bulbs();
-    if spheres.is_empty() {
-        return (mesh, labels, normals);
-    }
-    let TriangleMesh {
-        mut positions, faces, ..
-    } = mesh;
-    let (mut kept_faces, mut kept_labels) = (Vec::with_capacity(faces.len()), Vec::with_capacity(faces.len()));
-    for (f, &l) in faces.iter().zip(&labels) {
-        let p = f.map(|i| Vec3::from(positions[i as usize]));
-        let centroid = (p[0] + p[1] + p[2]) / 3.0;
-        let n = (p[1] - p[0]).cross(p[2] - p[0]);
-        let cleared = spheres.iter().any(|&(_, c, r)| on_recovered_bulb(c, r, centroid, n));
-        if !cleared {
-            kept_faces.push(*f);
-            kept_labels.push(l);
-        }
-    }
     let unit = TriangleMesh::unit_icosphere(3);
-    for &(k, centre, r) in &spheres {
-        let base = positions.len() as u32;
-        for p in &unit.positions {
-            let n = Vec3::from(*p).normalize();
-            positions.push((centre + r * n).to_array());
-            normals.push(n);
-        }
-        kept_faces.extend(unit.faces.iter().map(|f| f.map(|i| i + base)));
-        kept_labels.extend(std::iter::repeat(k as u32 + 1).take(unit.faces.len()));
-    }
-    let mesh = TriangleMesh {
-        positions,
-        faces: kept_faces,
-        face_object_ids: None,
+    let stand_ins = spheres
+        .iter()
+        .map(|&(k, centre, r)| StandIn {
+            emitter: k,
+            vertices: (unit.positions.iter())
+                .map(|p| {
+                    let n = Vec3::from(*p).normalize();
+                    (centre + r * n, n)
+                })
+                .collect(),
+            faces: unit.faces.clone(),
+        })
+        .collect();
+    let cleared = |p: [Vec3; 3]| {
+        let (centroid, n) = ((p[0] + p[1] + p[2]) / 3.0, (p[1] - p[0]).cross(p[2] - p[0]));
+        spheres.iter().any(|&(_, c, r)| on_recovered_bulb(c, r, centroid, n))
     };
-    (mesh, kept_labels, normals)
+    swap_emitter_faces(mesh, labels, normals, &cleared, stand_ins)
 }
 
 /// Each flat emitter's rectangle ([`i2sdf_model::emitter_panel`]) replaces the recovered panel
@@ -179,11 +164,40 @@ fn fitted_bulbs(
 fn fitted_panels(
     mesh: TriangleMesh,
     labels: Vec<u32>,
-    mut normals: Vec<Vec3>,
+    normals: Vec<Vec3>,
     table: &EmitterTable,
 ) -> (TriangleMesh, Vec<u32>, Vec<Vec3>) {
     let panels = table.panels();
-    if panels.is_empty() {
+    let stand_ins = panels
+        .iter()
+        .map(|&(k, p)| StandIn {
+            emitter: k,
+            vertices: p.corners().iter().map(|&c| (c, p.normal())).collect(),
+            faces: vec![[0, 1, 2], [0, 2, 3]],
+        })
+        .collect();
+    let cleared = |p: [Vec3; 3]| panels.iter().any(|(_, q)| q.holds((p[0] + p[1] + p[2]) / 3.0));
+    swap_emitter_faces(mesh, labels, normals, &cleared, stand_ins)
+}
+
+/// An emitter's exact shape for the recovered one: its vertices (position, normal) and faces on
+/// them, labelled as emitter `emitter`.
+struct StandIn {
+    emitter: usize,
+    vertices: Vec<(Vec3, Vec3)>,
+    faces: Vec<[u32; 3]>,
+}
+
+/// The labelled mesh without the faces `cleared` picks (by their corners), with `stand_ins`
+/// added; vertex normals follow the vertices.
+fn swap_emitter_faces(
+    mesh: TriangleMesh,
+    labels: Vec<u32>,
+    mut normals: Vec<Vec3>,
+    cleared: &dyn Fn([Vec3; 3]) -> bool,
+    stand_ins: Vec<StandIn>,
+) -> (TriangleMesh, Vec<u32>, Vec<Vec3>) {
+    if stand_ins.is_empty() {
         return (mesh, labels, normals);
     }
     let TriangleMesh {
@@ -191,20 +205,19 @@ fn fitted_panels(
     } = mesh;
     let (mut kept_faces, mut kept_labels) = (Vec::with_capacity(faces.len()), Vec::with_capacity(faces.len()));
     for (f, &l) in faces.iter().zip(&labels) {
-        let centroid = f.iter().map(|&i| Vec3::from(positions[i as usize])).sum::<Vec3>() / 3.0;
-        if !panels.iter().any(|(_, p)| p.holds(centroid)) {
+        if !cleared(f.map(|i| Vec3::from(positions[i as usize]))) {
             kept_faces.push(*f);
             kept_labels.push(l);
         }
     }
-    for (k, p) in &panels {
+    for s in stand_ins {
         let base = positions.len() as u32;
-        for c in p.corners() {
-            positions.push(c.to_array());
-            normals.push(p.normal());
+        for (p, n) in s.vertices {
+            positions.push(p.to_array());
+            normals.push(n);
         }
-        kept_faces.extend([[base, base + 1, base + 2], [base, base + 2, base + 3]]);
-        kept_labels.extend([*k as u32 + 1; 2]);
+        kept_faces.extend(s.faces.iter().map(|f| f.map(|i| i + base)));
+        kept_labels.extend(std::iter::repeat(s.emitter as u32 + 1).take(s.faces.len()));
     }
     let mesh = TriangleMesh {
         positions,
