@@ -76,6 +76,13 @@ impl<'a> Projector<'a> {
         let (i, j) = (u as usize, w as usize);
         Some((c.z, self.view.depth[j * cam.width + i]))
     }
+
+    /// Whether `p` is in this view's image and no more than `tolerance` behind its pixel's GT
+    /// depth (a pixel without GT depth hides nothing): the depth rule of both cullings.
+    fn not_hidden(&self, p: [f32; 3], tolerance: f64) -> bool {
+        self.project(p)
+            .is_some_and(|(z, d)| !valid_depth(d) || z <= d as f64 + tolerance)
+    }
 }
 
 fn valid_depth(d: f32) -> bool {
@@ -113,12 +120,7 @@ fn visible_reporting(
         .flat_map_iter(|batch| {
             let seen: Vec<bool> = batch
                 .iter()
-                .map(|&p| {
-                    projectors.iter().any(|proj| {
-                        proj.project(p)
-                            .is_some_and(|(z, d)| !valid_depth(d) || z <= d as f64 + tolerance)
-                    })
-                })
+                .map(|&p| projectors.iter().any(|proj| proj.not_hidden(p, tolerance)))
                 .collect();
             on_done(batch.len() as u64);
             seen

@@ -63,6 +63,20 @@ impl Panel {
         })
     }
 
+    /// Whether the fields describe a panel: an axis 0–2, finite numbers, `lo ≤ hi`, `facing` ±1,
+    /// `depth ≥ 0` (what `emitters.json` must hold).
+    pub fn is_valid(&self) -> bool {
+        let finite = [self.offset, self.depth, self.lo[0], self.lo[1], self.hi[0], self.hi[1]]
+            .iter()
+            .all(|x| x.is_finite());
+        finite
+            && self.axis < 3
+            && self.facing.abs() == 1.0
+            && self.depth >= 0.0
+            && self.lo[0] <= self.hi[0]
+            && self.lo[1] <= self.hi[1]
+    }
+
     /// The two axes other than `axis`, in increasing order.
     fn others(axis: usize) -> (usize, usize) {
         match axis {

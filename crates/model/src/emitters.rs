@@ -103,7 +103,6 @@ pub struct EmitterTable {
 }
 
 impl EmitterTable {
-    /// The emitters that are bulbs ([`Emitter::bulb`]): index, centre and radius.
     /// The panels ([`Emitter::panel`]) with their emitter's index.
     pub fn panels(&self) -> Vec<(usize, Panel)> {
         (self.emitters.iter().enumerate())
@@ -111,6 +110,7 @@ impl EmitterTable {
             .collect()
     }
 
+    /// The emitters that are bulbs ([`Emitter::bulb`]): index, centre and radius.
     pub fn bulbs(&self) -> Vec<(usize, glam::Vec3, f32)> {
         (self.emitters.iter().enumerate())
             .filter_map(|(k, e)| e.bulb().map(|(c, r)| (k, c, r)))
@@ -266,10 +266,7 @@ impl EmitterTable {
                 Some(v) => Some(
                     serde_json::from_value::<Panel>(v.clone())
                         .ok()
-                        .filter(|p| {
-                            let finite = [p.offset, p.depth, p.lo[0], p.lo[1], p.hi[0], p.hi[1]].iter().all(|x| x.is_finite());
-                            finite && p.axis < 3 && p.facing.abs() == 1.0 && p.depth >= 0.0 && p.lo[0] <= p.hi[0] && p.lo[1] <= p.hi[1]
-                        })
+                        .filter(Panel::is_valid)
                         .ok_or_else(|| {
                             DataError::field(
                                 path,

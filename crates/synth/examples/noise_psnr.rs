@@ -73,14 +73,14 @@ fn main() {
     let hi = render(&scene, 4 * spp, seed + 1_000_003);
     let t_hi = t.elapsed().as_secs_f64();
     let exposure = fixed_exposure.unwrap_or_else(|| auto_exposure(&[(&views[view], &hi)]));
-    let ones = match &relit {
+    let gains = match &relit {
         Some(spec) => {
             let spec = i2sdf_data::EditSpec::read(std::path::Path::new(spec)).expect("relight spec");
             i2sdf_synth::edit::emitter_gains(&spec, &scene.emitters)
         }
         None => vec![Vec3::ONE; lo.emitters],
     };
-    let (a, b) = (lo.hdr(&ones), hi.hdr(&ones));
+    let (a, b) = (lo.hdr(&gains), hi.hdr(&gains));
     let psnr = |f: &dyn Fn(f32) -> f32| {
         let mse = a
             .iter()
@@ -118,7 +118,7 @@ fn main() {
         scene.estimator = Estimator::UNBIASED;
         let ub = render(&scene, spp, seed);
         scene.estimator = biased;
-        let c = ub.hdr(&ones);
+        let c = ub.hdr(&gains);
         let ldr = |v: f32| i2sdf_data::imageio::linear_to_srgb((v * exposure).clamp(0.0, 1.0));
         let mse = a
             .iter()

@@ -8,7 +8,7 @@
 //! protocol) nor any method can recover them, yet they counted against recall, and on the
 //! captures their share decided how far run-to-run noise moved the F-score.
 
-use super::{valid_depth, Projector, REPORT_BATCH};
+use super::{Projector, REPORT_BATCH};
 use crate::mesh::TriangleMesh;
 use glam::Vec3;
 use i2sdf_data::DataError;
@@ -45,10 +45,7 @@ pub(super) fn seen_on_mesh(
                     projectors.iter().zip(&centres).any(|(proj, &o)| {
                         // The pixel's depth test as for the predicted points too, so that a GT
                         // point counts only where its own copy in an identical prediction would.
-                        if !proj
-                            .project(p.into())
-                            .is_some_and(|(z, d)| !valid_depth(d) || z <= d as f64 + tolerance)
-                        {
+                        if !proj.not_hidden(p.into(), tolerance) {
                             return false;
                         }
                         let to = p - o;
