@@ -17,9 +17,12 @@ use glam::Vec3;
 use i2sdf_render::Ray;
 use serde::{Deserialize, Serialize};
 
-/// Largest thickness of a panel's box as a fraction of its smaller other side: the built-in
-/// rooms' ceiling panels are 0.04–0.07 (the spread of the recovered points across the plane); a
-/// bulb's box is near 1.
+/// Largest thickness of a panel as a fraction of its smaller other side, both measured as the
+/// standard deviation of its points along the axis (for points that fill a box evenly, the
+/// ratio of the box's sides). The built-in rooms' ceiling panels are at 0.04–0.08; a bulb is
+/// near 1. The spread, not the box, because one stray point sets a box's side: a sensor-depth
+/// capture's ceiling panel is 14 cm thick by its points' box over 90 cm, while most of its
+/// points lie within a few centimetres of the plane.
 pub const PANEL_MAX_THICKNESS: f64 = 0.1;
 
 /// A flat, axis-aligned emitter (world units).
@@ -38,19 +41,64 @@ pub struct Panel {
     pub depth: f64,
 }
 
-impl Panel {
-    /// The panel of a box of emitter points `[lo, hi]`, where its thinnest side is at most
-    /// [`PANEL_MAX_THICKNESS`] of the next: facing `room` (a point inside the room), with a slab
-    /// of half the box's thickness plus `margin`.
-    pub fn of_box(bounds: [[f64; 3]; 2], room: [f64; 3], margin: f64) -> Option<Panel> {
-        let [lo, hi] = bounds;
-        let ext: Vec<f64> = (0..3).map(|a| hi[a] - lo[a]).collect();
-        let axis = (0..3).min_by(|&a, &b| ext[a].total_cmp(&ext[b]))?;
+/// A cluster's points summarized along each axis: their box and their standard deviation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Spread {
+    pub lo: [f64; 3],
+    pub hi: [f64; 3],
+    pub sigma: [f64; 3],
+}
+
+impl Spread {
+    /// The spread of `points`; `None` for none.
+    pub fn of(points: &[[f64; 3]]) -> Option<Spread> {
+        let first = *points.first()?;
+        let n = points.len() as f64;
+        let (mut lo, mut hi, mut mean) = (first, first, [0.0f64; 3]);
+        for p in points {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+                mean[a] += p[a] / n;
+            }
+        }
+        let mut sigma = [0.0f64; 3];
+        for p in points {
+            for a in 0..3 {
+                sigma[a] += (p[a] - mean[a]).powi(2) / n;
+            }
+        }
+        Some(Spread {
+            lo,
+            hi,
+            sigma: sigma.map(f64::sqrt),
+        })
+    }
+
+    /// The axis along which the points spread least, and their thickness there as a fraction
+    /// of the smaller of the two other spreads (∞ where those are zero).
+    pub fn flatness(&self) -> (usize, f64) {
+        let s = self.sigma;
+        let axis = (0..3).min_by(|&a, &b| s[a].total_cmp(&s[b])).unwrap_or(0);
         let (u, v) = Panel::others(axis);
-        let side = ext[u].min(ext[v]);
-        if !(side > 0.0 && ext[axis] <= PANEL_MAX_THICKNESS * side) {
+        let side = s[u].min(s[v]);
+        (axis, if side > 0.0 { s[axis] / side } else { f64::INFINITY })
+    }
+}
+
+impl Panel {
+    /// The panel of a cluster of emitter points, where they are flat (their spread across the
+    /// thinnest axis at most [`PANEL_MAX_THICKNESS`] of the next): the mid-plane of their box
+    /// across that axis, the box on the other two, facing `room` (a point inside the room), with
+    /// a slab of half the box's thickness plus `margin`.
+    pub fn of_points(points: &[[f64; 3]], room: [f64; 3], margin: f64) -> Option<Panel> {
+        let spread = Spread::of(points)?;
+        let (axis, thickness) = spread.flatness();
+        if thickness > PANEL_MAX_THICKNESS {
             return None;
         }
+        let (lo, hi) = (spread.lo, spread.hi);
+        let (u, v) = Panel::others(axis);
         let offset = 0.5 * (lo[axis] + hi[axis]);
         let facing = if room[axis] >= offset { 1.0 } else { -1.0 };
         Some(Panel {
@@ -59,8 +107,18 @@ impl Panel {
             lo: [lo[u], lo[v]],
             hi: [hi[u], hi[v]],
             facing,
-            depth: 0.5 * ext[axis] + margin,
+            depth: 0.5 * (hi[axis] - lo[axis]) + margin,
         })
+    }
+
+    /// The panel of a box `[lo, hi]` that points fill evenly (its eight corners' spread is its
+    /// sides' ratio): see [`Panel::of_points`].
+    pub fn of_box(bounds: [[f64; 3]; 2], room: [f64; 3], margin: f64) -> Option<Panel> {
+        let [lo, hi] = bounds;
+        let corners: Vec<[f64; 3]> = (0..8)
+            .map(|i| std::array::from_fn(|a| if i >> a & 1 == 0 { lo[a] } else { hi[a] }))
+            .collect();
+        Panel::of_points(&corners, room, margin)
     }
 
     /// Whether the fields describe a panel: an axis 0–2, finite numbers, `lo ≤ hi`, `facing` ±1,
@@ -191,6 +249,38 @@ mod tests {
         assert!(Panel::of_box([[0.0, 0.0, 0.0], [0.2, 0.2, 0.2]], [0.0; 3], 0.0).is_none());
         assert!(Panel::of_box([[0.0, 0.0, 0.0], [1.0, 0.05, 0.05]], [0.0; 3], 0.0).is_none());
         assert!(Panel::of_box([[1.0; 3], [1.0; 3]], [0.0; 3], 0.0).is_none());
+    }
+
+    /// Points over a 1 m × 0.8 m panel at y = 2.6, within a centimetre of it, and two stray ones
+    /// 7 cm off: their box is 14 cm thick (0.175 of its 80 cm side, no panel), their spread is
+    /// flat, so they are a panel whose slab reaches the strays.
+    #[test]
+    fn a_few_stray_points_do_not_hide_a_panel() {
+        let mut points: Vec<[f64; 3]> = (0..21 * 17)
+            .map(|i| {
+                let (a, b) = ((i % 21) as f64 / 20.0, (i / 21) as f64 / 16.0);
+                [a, 2.6 + 0.01 * ((i * 7919 % 13) as f64 / 6.0 - 1.0), 0.8 * b]
+            })
+            .collect();
+        points.extend([[0.3, 2.53, 0.4], [0.7, 2.67, 0.2]]);
+        let room = [0.5, 1.3, 0.4];
+        let spread = Spread::of(&points).unwrap();
+        assert_eq!(spread.flatness().0, 1);
+        assert!(spread.flatness().1 < 0.05, "{spread:?}");
+        assert!(Panel::of_box([spread.lo, spread.hi], room, 0.02).is_none());
+        let p = Panel::of_points(&points, room, 0.02).unwrap();
+        assert_eq!((p.axis, p.lo, p.hi, p.facing), (1, [0.0, 0.0], [1.0, 0.8], -1.0));
+        assert!((p.offset - 2.6).abs() < 1e-9 && (p.depth - 0.09).abs() < 1e-9, "{p:?}");
+        // The points of a sphere (a bulb) are no panel, however few stray.
+        let sphere: Vec<[f64; 3]> = (0..500)
+            .map(|i| {
+                let (z, phi) = (1.0 - 2.0 * (i as f64 + 0.5) / 500.0, i as f64 * 2.39996);
+                let r = (1.0 - z * z).sqrt();
+                [0.1 * r * phi.cos(), 1.8 + 0.1 * z, 0.1 * r * phi.sin()]
+            })
+            .collect();
+        assert!(Spread::of(&sphere).unwrap().flatness().1 > 0.9);
+        assert!(Panel::of_points(&sphere, room, 0.02).is_none() && Spread::of(&[]).is_none());
     }
 
     fn surface(ray: &Ray, t: f32) -> LabelledHit {

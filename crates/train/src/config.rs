@@ -206,7 +206,7 @@ pub struct Stage2Config {
     /// +1.35 dB, the bulb alone relit +1.5 and +1.4 dB (differential); on seed 1 the relit sets
     /// lost 0.3–0.8 dB (docs/results.md).
     pub fit_bulbs: bool,
-    /// An emitter whose points lie in a thin axis-aligned box (a ceiling panel) is the box's
+    /// An emitter whose points lie flat on an axis (a ceiling panel) is their box's
     /// mid-plane rectangle, emitting towards the room, wherever a ray meets it or meets the
     /// recovered surface within its slab (`i2sdf_model::emitter_panel`): in stage 2's fit, the
     /// re-render, the relit sets and the export, as `fit_bulbs` for bulbs.

@@ -13,7 +13,7 @@ use crate::stage2::targets::TargetView;
 use glam::{DVec3, Vec3};
 use i2sdf_data::camera::RayGenerator;
 use i2sdf_data::Radiometry;
-use i2sdf_model::emitter_panel::Panel;
+use i2sdf_model::emitter_panel::{Panel, Spread, PANEL_MAX_THICKNESS};
 use i2sdf_model::emitters::{Emitter, EmitterTable, BULB_CLEARANCE, UNSEEN_BOX_MARGIN};
 use i2sdf_model::intrinsic::{FrozenScene, INDEX_MARGIN};
 use i2sdf_model::NeuralScene;
@@ -150,12 +150,22 @@ pub(super) fn cluster_new_emitters(
             }),
             panel: None,
         })
-        .map(|mut e| {
+        .zip(&clusters)
+        .map(|(mut e, c)| {
             // A flat cluster that is no bulb: the rectangle of its box, facing the room's
             // centre, with the slab of the unseen-surface margin (`emitter_panel`).
             if c2.fit_panels && e.bulb().is_none() {
                 let margin = UNSEEN_BOX_MARGIN * INDEX_MARGIN * s;
-                e.panel = e.bounds.and_then(|b| Panel::of_box(b, to_world([0.0; 3]), margin));
+                let world: Vec<[f64; 3]> = c.members.iter().map(|&m| to_world(points.positions[m])).collect();
+                e.panel = Panel::of_points(&world, to_world([0.0; 3]), margin);
+                if let (None, Some(spread)) = (e.panel, Spread::of(&world)) {
+                    let (axis, thickness) = spread.flatness();
+                    let axis = ["x", "y", "z"][axis];
+                    progress(&format!(
+                        "no panel: the cluster at ({:.2}, {:.2}, {:.2}) m is {thickness:.2} as thick along {axis} as across (at most {PANEL_MAX_THICKNESS})",
+                        e.centre[0], e.centre[1], e.centre[2]
+                    ));
+                }
             }
             e
         })
