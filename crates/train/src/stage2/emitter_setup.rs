@@ -152,8 +152,8 @@ pub(super) fn cluster_new_emitters(
         })
         .zip(&clusters)
         .map(|(mut e, c)| {
-            // A flat cluster that is no bulb: the rectangle of its box, facing the room's
-            // centre, with the slab of the unseen-surface margin (`emitter_panel`).
+            // A flat cluster that is no bulb: the rectangle of its points, facing the room's
+            // centre, its slab widened by the unseen-surface margin (`emitter_panel`).
             if c2.fit_panels && e.bulb().is_none() {
                 let margin = UNSEEN_BOX_MARGIN * INDEX_MARGIN * s;
                 let world: Vec<[f64; 3]> = c.members.iter().map(|&m| to_world(points.positions[m])).collect();
@@ -179,10 +179,11 @@ pub(super) fn cluster_new_emitters(
         if let Some(p) = e.panel {
             let axis = ["x", "y", "z"][p.axis];
             progress(&format!(
-                "emitter {k}: a panel of {:.2} × {:.2} m at {axis} = {:.3} m, emitting towards {}{axis}",
+                "emitter {k}: a panel of {:.2} × {:.2} m at {axis} = {:.3} m (its slab ±{:.1} cm), emitting towards {}{axis}",
                 p.hi[0] - p.lo[0],
                 p.hi[1] - p.lo[1],
                 p.offset,
+                100.0 * p.depth,
                 if p.facing > 0.0 { "+" } else { "−" }
             ));
         }
