@@ -209,8 +209,8 @@ pub struct Stage2Config {
     /// An emitter whose points lie flat on an axis (a ceiling panel) is the rectangle of their
     /// box at their median plane, emitting towards the room, wherever a ray meets it or meets
     /// the recovered surface within its slab (`i2sdf_model::emitter_panel`): in stage 2's fit,
-    /// the re-render, the relit sets and the export, as `fit_bulbs` for bulbs. On the seed-1
-    /// capture the small light alone gains 1.6 dB traced, on the exact rooms under 0.15 dB
+    /// the re-render, the relit sets and the export, as `fit_bulbs` for bulbs. Kd +0.05 to
+    /// +0.39 dB on the exact rooms and the captures, the traced relit sets −0.1 to −0.3 on some
     /// (docs/results.md).
     pub fit_panels: bool,
     /// A bulb's sphere takes the radius its emitter masks give (the median disc of its whole,
