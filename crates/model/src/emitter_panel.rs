@@ -108,7 +108,11 @@ impl Panel {
     /// across that axis, their box on the other two, facing `room` (a point inside the room), with
     /// a slab reaching all but the strays ([`Spread`]'s inner range) plus `margin`.
     pub fn of_points(points: &[[f64; 3]], room: [f64; 3], margin: f64) -> Option<Panel> {
-        let spread = Spread::of(points)?;
+        Panel::of_spread(&Spread::of(points)?, room, margin)
+    }
+
+    /// [`Panel::of_points`] from the points' [`Spread`].
+    pub fn of_spread(spread: &Spread, room: [f64; 3], margin: f64) -> Option<Panel> {
         let (axis, thickness) = spread.flatness();
         if thickness > PANEL_MAX_THICKNESS {
             return None;

@@ -157,8 +157,9 @@ pub(super) fn cluster_new_emitters(
             if c2.fit_panels && e.bulb().is_none() {
                 let margin = UNSEEN_BOX_MARGIN * INDEX_MARGIN * s;
                 let world: Vec<[f64; 3]> = c.members.iter().map(|&m| to_world(points.positions[m])).collect();
-                e.panel = Panel::of_points(&world, to_world([0.0; 3]), margin);
-                if let (None, Some(spread)) = (e.panel, Spread::of(&world)) {
+                let spread = Spread::of(&world);
+                e.panel = spread.and_then(|sp| Panel::of_spread(&sp, to_world([0.0; 3]), margin));
+                if let (None, Some(spread)) = (e.panel, spread) {
                     let (axis, thickness) = spread.flatness();
                     let axis = ["x", "y", "z"][axis];
                     progress(&format!(
