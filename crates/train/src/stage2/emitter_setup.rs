@@ -125,39 +125,31 @@ pub(super) fn cluster_new_emitters(
     let s = norm.scale;
     let list: Vec<Emitter> = clusters
         .iter()
-        .map(|c| Emitter {
-            centre: to_world(c.centre),
-            extent: c.extent.map(|e| e * s),
-            radius: c.radius * s,
-            points: c.members.len(),
-            sphere: c2
-                .fit_bulbs
-                .then(|| fit_sphere(&c.members.iter().map(|&m| points.positions[m]).collect::<Vec<_>>()))
-                .flatten()
-                .map(|f| {
-                    let w = to_world([f[0], f[1], f[2]]);
-                    [w[0], w[1], w[2], f[3] * s]
-                }),
-            bounds: c.members.first().map(|&m0| {
-                let first = to_world(points.positions[m0]);
-                c.members.iter().fold([first, first], |[lo, hi], &m| {
-                    let w = to_world(points.positions[m]);
-                    [
-                        std::array::from_fn(|a| lo[a].min(w[a])),
-                        std::array::from_fn(|a| hi[a].max(w[a])),
-                    ]
-                })
-            }),
-            panel: None,
-        })
-        .zip(&clusters)
-        .map(|(mut e, c)| {
+        .map(|c| {
+            // The cluster's points in world units, summarized once: their box and, for a
+            // panel, their spread.
+            let world: Vec<[f64; 3]> = c.members.iter().map(|&m| to_world(points.positions[m])).collect();
+            let spread = Spread::of(&world);
+            let mut e = Emitter {
+                centre: to_world(c.centre),
+                extent: c.extent.map(|e| e * s),
+                radius: c.radius * s,
+                points: c.members.len(),
+                sphere: c2
+                    .fit_bulbs
+                    .then(|| fit_sphere(&c.members.iter().map(|&m| points.positions[m]).collect::<Vec<_>>()))
+                    .flatten()
+                    .map(|f| {
+                        let w = to_world([f[0], f[1], f[2]]);
+                        [w[0], w[1], w[2], f[3] * s]
+                    }),
+                bounds: spread.map(|sp| [sp.lo, sp.hi]),
+                panel: None,
+            };
             // A flat cluster that is no bulb: the rectangle of its points, facing the room's
             // centre, its slab widened by the unseen-surface margin (`emitter_panel`).
             if c2.fit_panels && e.bulb().is_none() {
                 let margin = UNSEEN_BOX_MARGIN * INDEX_MARGIN * s;
-                let world: Vec<[f64; 3]> = c.members.iter().map(|&m| to_world(points.positions[m])).collect();
-                let spread = Spread::of(&world);
                 e.panel = spread.and_then(|sp| Panel::of_spread(&sp, to_world([0.0; 3]), margin));
                 if let (None, Some(spread)) = (e.panel, spread) {
                     let (axis, thickness) = spread.flatness();
