@@ -8,7 +8,7 @@ emitter-mask pixels left out as `eval` does) over all pixels and over those seen
 
     python3 docs/experiments/kd_observed.py ROOM RENDERED
 RENDERED: `i2sdf render --run RUN --out RENDERED --split test --what albedo`.
-Needs numpy, OpenEXR, Pillow.
+Needs numpy, OpenEXR, Pillow. `kd_by_geometry.py` uses its helpers.
 """
 import json, sys
 import numpy as np
@@ -26,44 +26,65 @@ def exr(path):
     return a[..., 0] if a.ndim == 3 else a
 
 
-room, rendered = sys.argv[1], sys.argv[2]
-t = json.load(open(f"{room}/transforms.json"))
-fx, fy, cx, cy, w, h = t["fl_x"], t["fl_y"], t["cx"], t["cy"], t["w"], t["h"]
-train = [f for f in t["frames"] if f["split"] == "train"]
-test = [f for f in t["frames"] if f["split"] == "test"]
-tdepth = [exr(f"{room}/{f['depth_file_path']}") for f in train]
-tw2c = [np.linalg.inv(np.array(f["transform_matrix"])) for f in train]
-u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
-err_all, seen_all = [], []
-for f in test:
-    z = exr(f"{room}/{f['depth_file_path']}")
-    c2w = np.array(f["transform_matrix"])
-    # OpenGL camera: x right, y up, looking down -z; z-depth along the optical axis.
-    pc = np.stack([(u - cx) / fx * z, -(v - cy) / fy * z, -z, np.ones_like(z)], -1)
-    pw = pc @ c2w.T
-    seen = np.zeros(z.shape, int)
-    for d, m in zip(tdepth, tw2c):
-        q = pw @ m.T
-        zq = -q[..., 2]
-        ok = zq > 1e-3
-        uq = np.where(ok, q[..., 0] / np.maximum(zq, 1e-3) * fx + cx, -1)
-        vq = np.where(ok, -q[..., 1] / np.maximum(zq, 1e-3) * fy + cy, -1)
-        inb = ok & (uq >= 0) & (vq >= 0) & (uq < w) & (vq < h)
-        xi = np.clip(uq.astype(int), 0, w - 1)
-        yi = np.clip(vq.astype(int), 0, h - 1)
-        dz = d[yi, xi]
-        seen += inb & (np.abs(dz - zq) < 0.02 * zq)
-    gt = np.clip(exr(f"{room}/{f['albedo_file_path']}"), 0, 1)
-    name = f["file_path"].split("/")[-1].split(".")[0]
-    pr = np.clip(exr(f"{rendered}/albedo/{name}.exr"), 0, 1)
-    mask = np.asarray(Image.open(f"{room}/{f['emitter_mask_path']}").convert("L")) > 127
-    keep = ~mask & (z > 0)
-    err_all.append(((gt - pr) ** 2).mean(-1)[keep])
-    seen_all.append(seen[keep])
-e, s = np.concatenate(err_all), np.concatenate(seen_all)
-psnr = lambda x: 10 * np.log10(1 / x.mean())
-print(f"pixels {len(e)}: Kd PSNR {psnr(e):.2f} dB")
-for k in (1, 2, 3):
-    sel = s >= k
-    print(f"  seen by >= {k} training views: {sel.mean() * 100:.1f} % of pixels, Kd PSNR {psnr(e[sel]):.2f} dB")
-print(f"  share of the squared error on pixels seen by < 2 views: {e[s < 2].sum() / e.sum() * 100:.1f} %")
+class Room:
+    """A native dataset's cameras, its training views' GT depth, and its test frames."""
+
+    def __init__(self, room):
+        self.dir = room
+        t = json.load(open(f"{room}/transforms.json"))
+        self.fx, self.fy, self.cx, self.cy, self.w, self.h = t["fl_x"], t["fl_y"], t["cx"], t["cy"], t["w"], t["h"]
+        train = [f for f in t["frames"] if f["split"] == "train"]
+        self.test = [f for f in t["frames"] if f["split"] == "test"]
+        self.tdepth = [exr(f"{room}/{f['depth_file_path']}") for f in train]
+        self.tw2c = [np.linalg.inv(np.array(f["transform_matrix"])) for f in train]
+        self.u, self.v = np.meshgrid(np.arange(self.w) + 0.5, np.arange(self.h) + 0.5)
+
+    def points(self, f):
+        """The GT z-depth of test frame `f` and its pixels' world points (h × w × 4)."""
+        z = exr(f"{self.dir}/{f['depth_file_path']}")
+        pc = np.stack([(self.u - self.cx) / self.fx * z, -(self.v - self.cy) / self.fy * z, -z, np.ones_like(z)], -1)
+        return z, pc @ np.array(f["transform_matrix"]).T
+
+    def views_seeing(self, pw):
+        """How many training views see each world point (lands in the image, GT depth within 2 %)."""
+        seen = np.zeros(pw.shape[:2], int)
+        for d, m in zip(self.tdepth, self.tw2c):
+            q = pw @ m.T
+            zq = -q[..., 2]
+            ok = zq > 1e-3
+            uq = np.where(ok, q[..., 0] / np.maximum(zq, 1e-3) * self.fx + self.cx, -1)
+            vq = np.where(ok, -q[..., 1] / np.maximum(zq, 1e-3) * self.fy + self.cy, -1)
+            inb = ok & (uq >= 0) & (vq >= 0) & (uq < self.w) & (vq < self.h)
+            xi = np.clip(uq.astype(int), 0, self.w - 1)
+            yi = np.clip(vq.astype(int), 0, self.h - 1)
+            seen += inb & (np.abs(d[yi, xi] - zq) < 0.02 * zq)
+        return seen
+
+    def scored(self, f, z):
+        """The pixels `eval` scores: not an emitter by the GT mask, a finite GT surface."""
+        mask = np.asarray(Image.open(f"{self.dir}/{f['emitter_mask_path']}").convert("L")) > 127
+        return ~mask & (z > 0)
+
+
+def frame_name(f):
+    return f["file_path"].split("/")[-1].split(".")[0]
+
+
+if __name__ == "__main__":
+    room, rendered = Room(sys.argv[1]), sys.argv[2]
+    err_all, seen_all = [], []
+    for f in room.test:
+        z, pw = room.points(f)
+        seen = room.views_seeing(pw)
+        gt = np.clip(exr(f"{room.dir}/{f['albedo_file_path']}"), 0, 1)
+        pr = np.clip(exr(f"{rendered}/albedo/{frame_name(f)}.exr"), 0, 1)
+        keep = room.scored(f, z)
+        err_all.append(((gt - pr) ** 2).mean(-1)[keep])
+        seen_all.append(seen[keep])
+    e, s = np.concatenate(err_all), np.concatenate(seen_all)
+    psnr = lambda x: 10 * np.log10(1 / x.mean())
+    print(f"pixels {len(e)}: Kd PSNR {psnr(e):.2f} dB")
+    for k in (1, 2, 3):
+        sel = s >= k
+        print(f"  seen by >= {k} training views: {sel.mean() * 100:.1f} % of pixels, Kd PSNR {psnr(e[sel]):.2f} dB")
+    print(f"  share of the squared error on pixels seen by < 2 views: {e[s < 2].sum() / e.sum() * 100:.1f} %")
