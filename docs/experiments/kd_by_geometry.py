@@ -8,7 +8,10 @@ For each test pixel: the training views that see its GT surface point as in kd_o
 within 2 % (both finite). Prints each group's share of the pixels, its Kd PSNR (linear, clipped
 to [0, 1], emitter-mask pixels left out as `eval` does), its share of the squared error, the Kd
 PSNR of the whole set if the group's error were that of the seen on-surface pixels, and its
-roughness L1 (mean and share of the sum). Then two fills of the pixels no training view sees:
+roughness L1 (mean and share of the sum). Where the reconstruction's surface lies in front of the true one, how many training views see
+its point as empty space (over 5 cm in front of their GT depth, no depth edge within 2 px:
+`Room.free_space_views`), i.e. whether the data contradict it. Then two fills of the pixels no
+training view sees:
 the mean of their true Kd per view (the best a constant guess can do), and the mean predicted
 Kd of the test pixels seen by two or more views within R with the same GT normal (what the
 nearest observed surface would give; needs scipy).
@@ -30,6 +33,7 @@ from kd_observed import Room, exr, frame_name
 room, rendered = Room(sys.argv[1]), sys.argv[2]
 tiles = []
 cols = {k: [] for k in ("gt", "pred", "views", "on", "ks", "rough", "fill", "point", "normal")}
+phantom_free = []
 for f in room.test:
     z, pw = room.points(f)
     seen = room.views_seeing(pw)
@@ -44,6 +48,11 @@ for f in room.test:
     rg, rp = (r[..., 0] if r.ndim == 3 else r for r in (rg, rp))
     keep = room.scored(f, z)
     on = np.isfinite(zp) & (np.abs(zp - z) < 0.02 * z)
+    # The reconstruction's surface points in front of the true ones: do the training views say
+    # that space is empty?
+    ahead = keep & ~on & np.isfinite(zp) & (zp < z)
+    pr_pts = (pw[..., :3] - np.array(f["transform_matrix"])[:3, 3]) * (np.where(ahead, zp, 0) / np.where(z > 0, z, 1))[..., None]
+    phantom_free.append(room.free_space_views(pr_pts[ahead] + np.array(f["transform_matrix"])[:3, 3]))
     if len(tiles) < 3:
         geo, vis = gt.copy(), gt.copy()
         front = np.isfinite(zp) & (zp < z)
@@ -88,6 +97,10 @@ for name, sel in groups:
         f"{name:<52} {sel.mean()*100:5.1f}% {psnr(e[sel]):7.2f} {e[sel].sum()/e.sum()*100:5.1f}% "
         f"{psnr(alt):14.2f} {rough[sel].mean():8.3f} {rough[sel].sum()/rough.sum()*100:5.1f}%"
     )
+pf = np.concatenate(phantom_free)
+if len(pf):
+    shares = " / ".join(f"{x * 100:.0f} %" for x in ((pf == 0).mean(), (pf == 1).mean(), (pf == 2).mean(), (pf >= 3).mean()))
+    print(f"reconstructed surface in front of the true one ({len(pf)} px): in the free space of 0 / 1 / 2 / >= 3 training views {shares}")
 print(f"no training view's pixels filled by their true mean per view: {psnr(((c['gt'] - c['fill']) ** 2).mean(-1)):.2f} dB")
 try:
     from scipy.spatial import cKDTree

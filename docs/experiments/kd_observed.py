@@ -60,6 +60,28 @@ class Room:
             seen += inb & (np.abs(d[yi, xi] - zq) < 0.02 * zq)
         return seen
 
+    def free_space_views(self, pts, margin=0.05, edge=2):
+        """How many training views see each world point (n × 3) as empty: it lies over `margin`
+        in front of the GT depth of the pixel it lands in, and of every pixel within `edge` of
+        it (so that a point a pixel beside a depth edge does not count)."""
+        count = np.zeros(len(pts), int)
+        p = np.concatenate([pts, np.ones((len(pts), 1))], 1)
+        for d, m in zip(self.tdepth, self.tw2c):
+            near = d.copy()
+            for dy in range(-edge, edge + 1):
+                for dx in range(-edge, edge + 1):
+                    near = np.minimum(near, np.roll(np.roll(d, dy, 0), dx, 1))
+            q = p @ m.T
+            zq = -q[:, 2]
+            ok = zq > 1e-3
+            uq = np.where(ok, q[:, 0] / np.maximum(zq, 1e-3) * self.fx + self.cx, -1)
+            vq = np.where(ok, -q[:, 1] / np.maximum(zq, 1e-3) * self.fy + self.cy, -1)
+            inb = ok & (uq >= 0) & (vq >= 0) & (uq < self.w) & (vq < self.h)
+            xi = np.clip(uq.astype(int), 0, self.w - 1)
+            yi = np.clip(vq.astype(int), 0, self.h - 1)
+            count += inb & (zq < near[yi, xi] - margin)
+        return count
+
     def scored(self, f, z):
         """The pixels `eval` scores: not an emitter by the GT mask, a finite GT surface."""
         mask = np.asarray(Image.open(f"{self.dir}/{f['emitter_mask_path']}").convert("L")) > 127
