@@ -50,9 +50,12 @@ for f in room.test:
     on = np.isfinite(zp) & (np.abs(zp - z) < 0.02 * z)
     # The reconstruction's surface points in front of the true ones: do the training views say
     # that space is empty?
+    # (The reconstruction's point on a pixel's ray: the camera centre plus the GT point's offset
+    # from it scaled by the ratio of the z-depths.)
     ahead = keep & ~on & np.isfinite(zp) & (zp < z)
-    pr_pts = (pw[..., :3] - np.array(f["transform_matrix"])[:3, 3]) * (np.where(ahead, zp, 0) / np.where(z > 0, z, 1))[..., None]
-    phantom_free.append(room.free_space_views(pr_pts[ahead] + np.array(f["transform_matrix"])[:3, 3]))
+    centre = np.array(f["transform_matrix"])[:3, 3]
+    ahead_pts = centre + (pw[ahead][:, :3] - centre) * (zp[ahead] / z[ahead])[:, None]
+    phantom_free.append(room.free_space_views(ahead_pts))
     if len(tiles) < 3:
         geo, vis = gt.copy(), gt.copy()
         front = np.isfinite(zp) & (zp < z)
