@@ -8,11 +8,10 @@ For each test pixel: the training views that see its GT surface point as in kd_o
 within 2 % (both finite). Prints each group's share of the pixels, its Kd PSNR (linear, clipped
 to [0, 1], emitter-mask pixels left out as `eval` does), its share of the squared error, the Kd
 PSNR of the whole set if the group's error were that of the seen on-surface pixels, and its
-roughness L1 (mean and share of the sum). Where the reconstruction's surface lies in front of the true one, how many training views see
-its point as empty space (over 5 cm in front of their GT depth, no depth edge within 2 px:
-`Room.free_space_views`), i.e. whether the data contradict it. Then two fills of the pixels no
-training view sees:
-the mean of their true Kd per view (the best a constant guess can do), and the mean predicted
+roughness L1 (mean and share of the sum). Where the reconstruction's surface lies in front of
+the true one, how many training views see its point as empty space (over 5 cm in front of their
+GT depth, no depth edge within 2 px: `Room.free_space_views`), i.e. whether the data contradict
+it. Then two fills of the pixels no training view sees: the mean of their true Kd per view (the best a constant guess can do), and the mean predicted
 Kd of the test pixels seen by two or more views within R with the same GT normal (what the
 nearest observed surface would give; needs scipy).
 

@@ -40,23 +40,28 @@ class Room:
         self.u, self.v = np.meshgrid(np.arange(self.w) + 0.5, np.arange(self.h) + 0.5)
 
     def points(self, f):
-        """The GT z-depth of test frame `f` and its pixels' world points (h × w × 4)."""
+        """The GT z-depth of test frame `f` and its pixels' world points (h × w × 4). OpenGL
+        camera: x right, y up, looking down -z; z-depth along the optical axis."""
         z = exr(f"{self.dir}/{f['depth_file_path']}")
         pc = np.stack([(self.u - self.cx) / self.fx * z, -(self.v - self.cy) / self.fy * z, -z, np.ones_like(z)], -1)
         return z, pc @ np.array(f["transform_matrix"]).T
 
+    def project(self, p, w2c):
+        """Homogeneous world points `p` (… × 4) in a training view: their z-depth, whether they
+        land in its image in front of it, and the pixel they land in (column, row)."""
+        q = p @ w2c.T
+        zq = -q[..., 2]
+        ok = zq > 1e-3
+        uq = np.where(ok, q[..., 0] / np.maximum(zq, 1e-3) * self.fx + self.cx, -1)
+        vq = np.where(ok, -q[..., 1] / np.maximum(zq, 1e-3) * self.fy + self.cy, -1)
+        inb = ok & (uq >= 0) & (vq >= 0) & (uq < self.w) & (vq < self.h)
+        return zq, inb, np.clip(uq.astype(int), 0, self.w - 1), np.clip(vq.astype(int), 0, self.h - 1)
+
     def views_seeing(self, pw):
         """How many training views see each world point (lands in the image, GT depth within 2 %)."""
-        seen = np.zeros(pw.shape[:2], int)
+        seen = np.zeros(pw.shape[:-1], int)
         for d, m in zip(self.tdepth, self.tw2c):
-            q = pw @ m.T
-            zq = -q[..., 2]
-            ok = zq > 1e-3
-            uq = np.where(ok, q[..., 0] / np.maximum(zq, 1e-3) * self.fx + self.cx, -1)
-            vq = np.where(ok, -q[..., 1] / np.maximum(zq, 1e-3) * self.fy + self.cy, -1)
-            inb = ok & (uq >= 0) & (vq >= 0) & (uq < self.w) & (vq < self.h)
-            xi = np.clip(uq.astype(int), 0, self.w - 1)
-            yi = np.clip(vq.astype(int), 0, self.h - 1)
+            zq, inb, xi, yi = self.project(pw, m)
             seen += inb & (np.abs(d[yi, xi] - zq) < 0.02 * zq)
         return seen
 
@@ -64,21 +69,19 @@ class Room:
         """How many training views see each world point (n × 3) as empty: it lies over `margin`
         in front of the GT depth of the pixel it lands in, and of every pixel within `edge` of
         it (so that a point a pixel beside a depth edge does not count)."""
+        if getattr(self, "_near_edge", None) != edge:
+            # Each training view's least depth within `edge` pixels, made once per `edge`.
+            self._near_edge, self._near = edge, []
+            for d in self.tdepth:
+                near = d.copy()
+                for dy in range(-edge, edge + 1):
+                    for dx in range(-edge, edge + 1):
+                        near = np.minimum(near, np.roll(np.roll(d, dy, 0), dx, 1))
+                self._near.append(near)
         count = np.zeros(len(pts), int)
         p = np.concatenate([pts, np.ones((len(pts), 1))], 1)
-        for d, m in zip(self.tdepth, self.tw2c):
-            near = d.copy()
-            for dy in range(-edge, edge + 1):
-                for dx in range(-edge, edge + 1):
-                    near = np.minimum(near, np.roll(np.roll(d, dy, 0), dx, 1))
-            q = p @ m.T
-            zq = -q[:, 2]
-            ok = zq > 1e-3
-            uq = np.where(ok, q[:, 0] / np.maximum(zq, 1e-3) * self.fx + self.cx, -1)
-            vq = np.where(ok, -q[:, 1] / np.maximum(zq, 1e-3) * self.fy + self.cy, -1)
-            inb = ok & (uq >= 0) & (vq >= 0) & (uq < self.w) & (vq < self.h)
-            xi = np.clip(uq.astype(int), 0, self.w - 1)
-            yi = np.clip(vq.astype(int), 0, self.h - 1)
+        for near, m in zip(self._near, self.tw2c):
+            zq, inb, xi, yi = self.project(p, m)
             count += inb & (zq < near[yi, xi] - margin)
         return count
 
