@@ -11,9 +11,11 @@ PSNR of the whole set if the group's error were that of the seen on-surface pixe
 roughness L1 (mean and share of the sum). Where the reconstruction's surface lies in front of
 the true one, how many training views see its point as empty space (over 5 cm in front of their
 GT depth, no depth edge within 2 px: `Room.free_space_views`), i.e. whether the data contradict
-it. Then two fills of the pixels no training view sees: the mean of their true Kd per view (the best a constant guess can do), and the mean predicted
-Kd of the test pixels seen by two or more views within R with the same GT normal (what the
-nearest observed surface would give; needs scipy).
+it. Then fills of the pixels no training view sees: the mean of their true Kd per view (the best a
+constant guess can do); the same fill as a method could make it, where no training view's depth
+map sees the reconstructed point, by the mean prediction of the seen pixels (and halfway to it);
+and the mean predicted Kd of the test pixels seen by two or more views within R with the same GT
+normal (what the nearest observed surface would give; needs scipy).
 
     python3 docs/experiments/kd_by_geometry.py ROOM RENDERED [FIGURE.png]
 RENDERED: `i2sdf render --run RUN --out RENDERED --split test --what albedo,depth,roughness`.
@@ -31,7 +33,7 @@ from kd_observed import Room, exr, frame_name
 
 room, rendered = Room(sys.argv[1]), sys.argv[2]
 tiles = []
-cols = {k: [] for k in ("gt", "pred", "views", "on", "ks", "rough", "fill", "point", "normal")}
+cols = {k: [] for k in ("gt", "pred", "views", "own_views", "on", "ks", "rough", "fill", "point", "normal")}
 phantom_free = []
 for f in room.test:
     z, pw = room.points(f)
@@ -68,7 +70,12 @@ for f in room.test:
     unseen = keep & (seen == 0)
     if unseen.any():
         fill[unseen] = gt[unseen].mean(0)
-    for k, a in (("gt", gt), ("pred", pr), ("views", seen), ("on", on), ("ks", ks), ("fill", fill)):
+    # What a method can know of it: how many training views see the *reconstructed* point (by
+    # their depth maps, an input), the GT point where the render has no surface.
+    zr = np.where(np.isfinite(zp), zp, z)
+    pr_w = np.stack([(room.u - room.cx) / room.fx * zr, -(room.v - room.cy) / room.fy * zr, -zr, np.ones_like(zr)], -1)
+    own = room.views_seeing(pr_w @ np.array(f["transform_matrix"]).T)
+    for k, a in (("gt", gt), ("pred", pr), ("views", seen), ("own_views", own), ("on", on), ("ks", ks), ("fill", fill)):
         cols[k].append(a[keep])
     cols["rough"].append(np.abs(rp - rg)[keep])
     cols["point"].append(pw[..., :3][keep])
@@ -104,6 +111,16 @@ if len(pf):
     shares = " / ".join(f"{x * 100:.0f} %" for x in ((pf == 0).mean(), (pf == 1).mean(), (pf == 2).mean(), (pf >= 3).mean()))
     print(f"reconstructed surface in front of the true one ({len(pf)} px): in the free space of 0 / 1 / 2 / >= 3 training views {shares}")
 print(f"no training view's pixels filled by their true mean per view: {psnr(((c['gt'] - c['fill']) ** 2).mean(-1)):.2f} dB")
+# The same fill as a method could do it: where no training view sees the reconstructed point,
+# the mean prediction of the pixels two or more views see (and halfway towards it).
+own = c["own_views"] == 0
+for a in (1.0, 0.5):
+    fill = c["pred"].copy()
+    fill[own] += a * (c["pred"][c["own_views"] >= 2].mean(0) - fill[own])
+    print(
+        f"reconstructed point seen by no training view ({own.mean()*100:.1f} % of the pixels, {(views[own] == 0).mean()*100:.0f} % of them "
+        f"truly unseen) {'filled by' if a == 1 else 'moved halfway to'} the seen mean: {psnr(((c['gt'] - fill) ** 2).mean(-1)):.2f} dB"
+    )
 try:
     from scipy.spatial import cKDTree
 except ImportError:

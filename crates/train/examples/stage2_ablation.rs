@@ -20,6 +20,9 @@ use i2sdf_train::run::read_run_config;
 use i2sdf_train::stage2::{radiometry, target_views, Stage2};
 use std::time::Instant;
 
+#[path = "probes/segments.rs"]
+mod segments;
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
     if args.len() < 4 {
@@ -212,21 +215,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let hyp: [(f32, f32); 5] = [(-1.0, -1.0), (0.0, 0.9), (0.01, 0.9), (0.04, 0.9), (0.02, 0.5)];
             let mut cells: std::collections::HashMap<[i32; 3], Vec<(Vec3, Vec3, Vec3, Vec<Vec3>, u32)>> =
                 std::collections::HashMap::new();
-            for px in &stage.pixels {
-                let PixelKind::Surface { index } = px.kind else {
-                    continue;
-                };
-                let fr = train[px.view as usize];
-                let (Some(kd), Some(ks), Some(r)) = (&fr.albedo, &fr.specular, &fr.roughness) else {
-                    continue;
-                };
-                let p = px.pixel as usize;
-                let (gks, gr) = (ks.data[p * 3], r.data[p]);
-                if !(0.03..0.05).contains(&gks) || !(0.45..0.55).contains(&gr) || px.saturated != 0 {
-                    continue;
-                }
+            for (px, i, gt) in segments::sheen_pixels(&stage, &train) {
                 let nv = px.point.normal.dot(px.point.view);
-                let i = index as usize;
+                let (gks, gr) = (gt.ks.x, gt.rho);
                 let diffuse = stage.cache.shade(
                     i,
                     &i2sdf_render::GgxBrdf::new(Vec3::ONE, Vec3::ZERO, 1.0),
@@ -246,13 +237,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     })
                     .collect();
                 let q = (px.point.position / 0.02).floor().as_ivec3().to_array();
-                cells.entry(q).or_default().push((
-                    Vec3::from_slice(&kd.data[p * 3..p * 3 + 3]),
-                    diffuse,
-                    px.target,
-                    specs,
-                    px.view,
-                ));
+                cells
+                    .entry(q)
+                    .or_default()
+                    .push((gt.kd, diffuse, px.target, specs, px.view));
             }
             let mut tot = vec![0.0f64; hyp.len() + 1];
             const MIN_PX: usize = 4;
@@ -463,6 +451,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let idx: Vec<usize> = (0..hits.len()).filter(|&i| hits[i].is_some()).collect();
     let world: Vec<Vec3> = idx.iter().map(|&i| hits[i].unwrap().position).collect();
     let exposure = gt_data.radiometry.exposure.unwrap_or(1.0) as f32;
+    // SEGMENT_SELECT=1: each variant's training-pixel L1 and test-pixel materials, for the
+    // per-material selection after the last variant.
+    let select = std::env::var("SEGMENT_SELECT").is_ok();
+    let mut kept: Vec<(Vec<f32>, Vec<f32>, Vec<[f32; 9]>)> = Vec::new();
     for (vi, sets) in variants.iter().enumerate() {
         let config = config_of(sets)?;
         if vi > 0 {
@@ -507,7 +499,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let m = materials_at(&stage, &world);
         let (mut se, mut cnt, mut rl1, mut ksl1) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
         let (mut pg, mut pp) = ([0.0f64; 3], [0.0f64; 3]);
-        let mut glossy = [[0.0f64; 6]; 3];
+        let mut glossy = [[0.0f64; 9]; 3];
         for (j, &i) in idx.iter().enumerate() {
             let (kd, ks, r) = gt[i];
             let o = &m[j * MATERIAL_CHANNELS..(j + 1) * MATERIAL_CHANNELS];
@@ -619,6 +611,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 acc[1][1]
             );
         }
+        if select {
+            let (l1, feat) = segments::training_l1(&stage);
+            kept.push((l1, m.clone(), feat));
+        }
+        // SEGMENT_FIT=1: after the fit, the floor's pixels pooled: does a shared (Ks, ρ) with the
+        // fitted Kd decide the sheen?
+        if std::env::var("SEGMENT_FIT").is_ok() {
+            segments::segment_fit(&stage, &gt_data)?;
+        }
         for (name, g) in ["matte", "glossy", "sheen"].iter().zip(&glossy) {
             let n = g[0].max(1.0);
             println!(
@@ -637,11 +638,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             );
         }
     }
+    if select {
+        let test_gt: Vec<_> = idx.iter().map(|&i| gt[i]).collect();
+        let test_normal: Vec<Vec3> = idx.iter().map(|&i| hits[i].unwrap().normal).collect();
+        segments::segment_select(&stage, &gt_data, &kept, &test_gt, &test_normal, &world);
+    }
     Ok(())
 }
 
 /// Kd, Ks, ρ (`[n × 7]`) of the stage's material field at world points.
-fn materials_at(stage: &Stage2, world: &[Vec3]) -> Vec<f32> {
+pub(crate) fn materials_at(stage: &Stage2, world: &[Vec3]) -> Vec<f32> {
     let n = stage.scene.normalization;
     let c = Vec3::from_array(n.center.map(|v| v as f32));
     let pos: Vec<f32> = world
