@@ -72,9 +72,7 @@ for f in room.test:
         fill[unseen] = gt[unseen].mean(0)
     # What a method can know of it: how many training views see the *reconstructed* point (by
     # their depth maps, an input), the GT point where the render has no surface.
-    zr = np.where(np.isfinite(zp), zp, z)
-    pr_w = np.stack([(room.u - room.cx) / room.fx * zr, -(room.v - room.cy) / room.fy * zr, -zr, np.ones_like(zr)], -1)
-    own = room.views_seeing(pr_w @ np.array(f["transform_matrix"]).T)
+    own = room.views_seeing(room.points(f, np.where(np.isfinite(zp), zp, z))[1])
     for k, a in (("gt", gt), ("pred", pr), ("views", seen), ("own_views", own), ("on", on), ("ks", ks), ("fill", fill)):
         cols[k].append(a[keep])
     cols["rough"].append(np.abs(rp - rg)[keep])

@@ -39,10 +39,11 @@ class Room:
         self.tw2c = [np.linalg.inv(np.array(f["transform_matrix"])) for f in train]
         self.u, self.v = np.meshgrid(np.arange(self.w) + 0.5, np.arange(self.h) + 0.5)
 
-    def points(self, f):
-        """The GT z-depth of test frame `f` and its pixels' world points (h × w × 4). OpenGL
-        camera: x right, y up, looking down -z; z-depth along the optical axis."""
-        z = exr(f"{self.dir}/{f['depth_file_path']}")
+    def points(self, f, z=None):
+        """The GT z-depth of test frame `f` (or the z-depth `z` given) and its pixels' world points
+        (h × w × 4). OpenGL camera: x right, y up, looking down -z; z-depth along the optical axis."""
+        if z is None:
+            z = exr(f"{self.dir}/{f['depth_file_path']}")
         pc = np.stack([(self.u - self.cx) / self.fx * z, -(self.v - self.cy) / self.fy * z, -z, np.ones_like(z)], -1)
         return z, pc @ np.array(f["transform_matrix"]).T
 

@@ -499,7 +499,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let m = materials_at(&stage, &world);
         let (mut se, mut cnt, mut rl1, mut ksl1) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
         let (mut pg, mut pp) = ([0.0f64; 3], [0.0f64; 3]);
-        let mut glossy = [[0.0f64; 9]; 3];
+        let mut glossy = [[0.0f64; 6]; 3];
         for (j, &i) in idx.iter().enumerate() {
             let (kd, ks, r) = gt[i];
             let o = &m[j * MATERIAL_CHANNELS..(j + 1) * MATERIAL_CHANNELS];

@@ -36,7 +36,7 @@ pub fn sheen_pixels<'a>(stage: &'a Stage2, train: &[&i2sdf_data::Frame]) -> Vec<
 }
 
 /// The fitted materials' L1 (mean over RGB) on every cached surface pixel, in cache order, and
-/// each pixel's segmentation feature (fitted Kd, normal).
+/// each pixel's segmentation feature ([`feature`]).
 pub fn training_l1(stage: &Stage2) -> (Vec<f32>, Vec<[f32; 9]>) {
     let emission: Vec<Vec3> = (0..stage.fields.emitters.len())
         .map(|k| stage.fields.emitters.emission(k))
@@ -73,12 +73,12 @@ fn feature(kd: &[f32], n: Vec3, p: Vec3) -> [f32; 9] {
     [kd[0], kd[1], kd[2], n.x, n.y, n.z, p.x, p.y, p.z]
 }
 
-/// k-means (Lloyd, `k` centres from evenly spaced points of a fixed shuffle, 30 rounds on up to
-/// 60 000 of them) over `x`; returns the centres.
-fn kmeans(x: &[[f32; 9]], k: usize) -> Vec<[f32; 9]> {
+/// k-means (Lloyd, `k` centres from evenly spaced points of a shuffle seeded by `seed`, 30
+/// rounds on up to 60 000 of them) over `x`; returns the centres.
+fn kmeans(x: &[[f32; 9]], k: usize, seed: u64) -> Vec<[f32; 9]> {
     let d2 = |a: &[f32; 9], b: &[f32; 9]| a.iter().zip(b).map(|(p, q)| (p - q) * (p - q)).sum::<f32>();
     let mut order: Vec<usize> = (0..x.len()).collect();
-    let mut h = 0x9e3779b97f4a7c15u64;
+    let mut h = 0x9e3779b97f4a7c15u64 ^ seed.wrapping_mul(0x2545f4914f6cdd1d);
     for i in (1..order.len()).rev() {
         h ^= h << 13;
         h ^= h >> 7;
@@ -113,12 +113,15 @@ fn nearest(c: &[[f32; 9]], p: &[f32; 9], d2: impl Fn(&[f32; 9], &[f32; 9]) -> f3
         .unwrap_or(0)
 }
 
-/// Choosing the specular per material segment: each segment takes the variant whose fit has the
-/// least mean L1 on its cached training pixels, and its test pixels take that variant's
-/// materials. Two segmentations: the TRUE material classes (Ks luminance to 0.01, ρ to 0.05: an
-/// oracle, the upper bound) and k-means (`SEGMENTS`, default 16) over the first variant's fitted
-/// Kd and normal (what a method can do). Prints each segment's choice and the composite's Kd
-/// PSNR and roughness L1 on the test pixels.
+/// Choosing the specular per material segment: each segment takes one variant's fit by the mean
+/// L1 of each fit on its cached training pixels, and its test pixels take that fit's materials.
+/// The first variant is the defaults; the others are meant as lobes forced narrow to wide, the
+/// last the widest (see the rules in the body). Segmentations: the TRUE material classes (Ks
+/// luminance to 0.01, ρ to 0.05: an oracle, the upper bound) and k-means of the first fit's
+/// [`feature`]s for each k of `SEGMENTS` (default "16 32 64 128") and each shuffle seed of
+/// `SEGMENT_SEED` (default "0"), what a method can do. Prints the composite's Kd PSNR and
+/// roughness L1 on the test pixels for each rule and margin, and each segment's L1s (k-means
+/// ones with `SEGMENT_VERBOSE`).
 pub fn segment_select(
     stage: &Stage2,
     gt_data: &i2sdf_data::Dataset,
@@ -157,10 +160,15 @@ pub fn segment_select(
         oracle_train.clone(),
         oracle_test,
     )];
-    // SEGMENTS="16 64": the k of each k-means segmentation.
     let ks = std::env::var("SEGMENTS").unwrap_or_else(|_| "16 32 64 128".into());
-    for k in ks.split_whitespace().filter_map(|v| v.parse::<usize>().ok()) {
-        let centres = kmeans(&kept[0].2, k);
+    let seeds: Vec<u64> = std::env::var("SEGMENT_SEED")
+        .unwrap_or_else(|_| "0".into())
+        .split_whitespace()
+        .filter_map(|v| v.parse().ok())
+        .collect();
+    let ks: Vec<usize> = ks.split_whitespace().filter_map(|v| v.parse().ok()).collect();
+    for (&seed, &k) in seeds.iter().flat_map(|s| ks.iter().map(move |k| (s, k))) {
+        let centres = kmeans(&kept[0].2, k, seed);
         let train: Vec<(i32, i32)> = kept[0].2.iter().map(|f| (nearest(&centres, f, d2) as i32, 0)).collect();
         let test: Vec<(i32, i32)> = (0..test_gt.len())
             .map(|j| {
@@ -172,7 +180,7 @@ pub fn segment_select(
             })
             .collect();
         segmentations.push((
-            format!("k-means ({k}) of the fitted Kd, normal and position"),
+            format!("k-means ({k}, shuffle seed {seed}) of the fitted Kd, normal and position"),
             train,
             test,
         ));
