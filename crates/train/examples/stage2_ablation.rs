@@ -71,9 +71,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     {
         use i2sdf_train::stage2::PixelKind;
         let train: Vec<_> = gt_data.split(Split::Train).collect();
-        let emission: Vec<Vec3> = (0..stage.fields.emitters.len())
-            .map(|k| stage.fields.emitters.emission(k))
-            .collect();
+        let emission = stage.emissions();
         let (mut l1, mut l1_rel, mut n) = (0.0f64, 0.0f64, 0.0f64);
         let mut ratio = Vec::new();
         let mut glossy_ratio = Vec::new();
@@ -209,9 +207,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         // Kd? Floor pixels are binned into 8 cm cells; in each, Kd = c·GT Kd with the c that
         // minimizes the L1 of the cell's pixels, under the true specular and under alternatives.
         if std::env::var("SHEEN").is_ok() {
-            let emission: Vec<Vec3> = (0..stage.fields.emitters.len())
-                .map(|k| stage.fields.emitters.emission(k))
-                .collect();
+            let emission = stage.emissions();
             let hyp: [(f32, f32); 5] = [(-1.0, -1.0), (0.0, 0.9), (0.01, 0.9), (0.04, 0.9), (0.02, 0.5)];
             let mut cells: std::collections::HashMap<[i32; 3], Vec<(Vec3, Vec3, Vec3, Vec<Vec3>, u32)>> =
                 std::collections::HashMap::new();
@@ -580,9 +576,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         {
             use i2sdf_train::stage2::PixelKind;
             let train: Vec<_> = gt_data.split(Split::Train).collect();
-            let emission: Vec<Vec3> = (0..stage.fields.emitters.len())
-                .map(|k| stage.fields.emitters.emission(k))
-                .collect();
+            let emission = stage.emissions();
             let surf: Vec<usize> = (0..stage.pixels.len())
                 .filter(|&i| matches!(stage.pixels[i].kind, PixelKind::Surface { .. }))
                 .collect();

@@ -38,9 +38,7 @@ pub fn sheen_pixels<'a>(stage: &'a Stage2, train: &[&i2sdf_data::Frame]) -> Vec<
 /// The fitted materials' L1 (mean over RGB) on every cached surface pixel, in cache order, and
 /// each pixel's segmentation feature ([`feature`]).
 pub fn training_l1(stage: &Stage2) -> (Vec<f32>, Vec<[f32; 9]>) {
-    let emission: Vec<Vec3> = (0..stage.fields.emitters.len())
-        .map(|k| stage.fields.emitters.emission(k))
-        .collect();
+    let emission = stage.emissions();
     let surf: Vec<_> = stage
         .pixels
         .iter()
@@ -76,7 +74,6 @@ fn feature(kd: &[f32], n: Vec3, p: Vec3) -> [f32; 9] {
 /// k-means (Lloyd, `k` centres from evenly spaced points of a shuffle seeded by `seed`, 30
 /// rounds on up to 60 000 of them) over `x`; returns the centres.
 fn kmeans(x: &[[f32; 9]], k: usize, seed: u64) -> Vec<[f32; 9]> {
-    let d2 = |a: &[f32; 9], b: &[f32; 9]| a.iter().zip(b).map(|(p, q)| (p - q) * (p - q)).sum::<f32>();
     let mut order: Vec<usize> = (0..x.len()).collect();
     let mut h = 0x9e3779b97f4a7c15u64 ^ seed.wrapping_mul(0x2545f4914f6cdd1d);
     for i in (1..order.len()).rev() {
@@ -90,7 +87,7 @@ fn kmeans(x: &[[f32; 9]], k: usize, seed: u64) -> Vec<[f32; 9]> {
     for _ in 0..30 {
         let mut acc = vec![([0.0f64; 9], 0usize); k];
         for p in &sample {
-            let j = nearest(&c, p, d2);
+            let j = nearest(&c, p);
             for (a, v) in acc[j].0.iter_mut().zip(p.iter()) {
                 *a += *v as f64;
             }
@@ -107,9 +104,11 @@ fn kmeans(x: &[[f32; 9]], k: usize, seed: u64) -> Vec<[f32; 9]> {
     c
 }
 
-fn nearest(c: &[[f32; 9]], p: &[f32; 9], d2: impl Fn(&[f32; 9], &[f32; 9]) -> f32) -> usize {
+/// The index of the centre nearest to `p` (squared Euclidean distance).
+fn nearest(c: &[[f32; 9]], p: &[f32; 9]) -> usize {
+    let d2 = |a: &[f32; 9]| a.iter().zip(p).map(|(x, y)| (x - y) * (x - y)).sum::<f32>();
     (0..c.len())
-        .min_by(|&a, &b| d2(&c[a], p).total_cmp(&d2(&c[b], p)))
+        .min_by(|&a, &b| d2(&c[a]).total_cmp(&d2(&c[b])))
         .unwrap_or(0)
 }
 
@@ -154,7 +153,6 @@ pub fn segment_select(
         .iter()
         .map(|(_, ks, r)| class(ks.element_sum() / 3.0, *r))
         .collect();
-    let d2 = |a: &[f32; 9], b: &[f32; 9]| a.iter().zip(b).map(|(p, q)| (p - q) * (p - q)).sum::<f32>();
     let mut segmentations = vec![(
         "oracle classes (Ks x100, rho x20)".to_string(),
         oracle_train.clone(),
@@ -169,14 +167,11 @@ pub fn segment_select(
     let ks: Vec<usize> = ks.split_whitespace().filter_map(|v| v.parse().ok()).collect();
     for (&seed, &k) in seeds.iter().flat_map(|s| ks.iter().map(move |k| (s, k))) {
         let centres = kmeans(&kept[0].2, k, seed);
-        let train: Vec<(i32, i32)> = kept[0].2.iter().map(|f| (nearest(&centres, f, d2) as i32, 0)).collect();
+        let train: Vec<(i32, i32)> = kept[0].2.iter().map(|f| (nearest(&centres, f) as i32, 0)).collect();
         let test: Vec<(i32, i32)> = (0..test_gt.len())
             .map(|j| {
                 let kd = &kept[0].1[j * MATERIAL_CHANNELS..j * MATERIAL_CHANNELS + 3];
-                (
-                    nearest(&centres, &feature(kd, test_normal[j], test_world[j]), d2) as i32,
-                    0,
-                )
+                (nearest(&centres, &feature(kd, test_normal[j], test_world[j])) as i32, 0)
             })
             .collect();
         segmentations.push((
@@ -209,7 +204,7 @@ pub fn segment_select(
             }
             let last = e.len() - 1;
             let best = (1..e.len()).min_by(|&a, &b| e[a].total_cmp(&e[b])).unwrap_or(0);
-            if best > 0 && best < last && e[best] < e[last] * (1.0 - margin) && e[best] < e[0] * (1.0 + margin) {
+            if best < last && e[best] < e[last] * (1.0 - margin) && e[best] < e[0] * (1.0 + margin) {
                 best
             } else {
                 0
@@ -268,9 +263,7 @@ pub fn segment_select(
 /// pooled, a per-segment specular fit could find it; if not, the data do not decide it.
 pub fn segment_fit(stage: &Stage2, gt_data: &i2sdf_data::Dataset) -> Result<(), Box<dyn std::error::Error>> {
     let train: Vec<_> = gt_data.split(Split::Train).collect();
-    let emission: Vec<Vec3> = (0..stage.fields.emitters.len())
-        .map(|k| stage.fields.emitters.emission(k))
-        .collect();
+    let emission = stage.emissions();
     let floor = sheen_pixels(stage, &train);
     let world: Vec<Vec3> = floor.iter().map(|(px, ..)| px.point.position).collect();
     let m = materials_at(stage, &world);
