@@ -10,7 +10,7 @@ use glam::Vec3;
 use i2sdf_data::Split;
 use i2sdf_eval::image_metrics::psnr_from_mse;
 use i2sdf_model::intrinsic::{FrozenScene, LabelledHit};
-use i2sdf_model::material_field::{brdf_of_channels, MaterialBackbone, MATERIAL_CHANNELS};
+use i2sdf_model::material_field::{brdf_of_channels, MATERIAL_CHANNELS};
 use i2sdf_model::{NeuralScene, RunDir};
 use i2sdf_render::Ray;
 use i2sdf_train::config::TrainConfig;
@@ -450,7 +450,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // SEGMENT_SELECT=1: each variant's training-pixel L1 and test-pixel materials, for the
     // per-material selection after the last variant.
     let select = std::env::var("SEGMENT_SELECT").is_ok();
-    let mut kept: Vec<(Vec<f32>, Vec<f32>, Vec<[f32; 9]>)> = Vec::new();
+    let mut kept: Vec<(
+        Vec<f32>,
+        Vec<f32>,
+        Vec<[f32; i2sdf_train::stage2::lobe_choice::FEATURES]>,
+    )> = Vec::new();
     for (vi, sets) in variants.iter().enumerate() {
         let config = config_of(sets)?;
         if vi > 0 {
@@ -492,7 +496,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         stage = trainer.stage;
         let secs = t.elapsed().as_secs_f64();
         // Materials at the test pixels.
-        let m = materials_at(&stage, &world);
+        let m = stage.materials_at(&world);
         let (mut se, mut cnt, mut rl1, mut ksl1) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
         let (mut pg, mut pp) = ([0.0f64; 3], [0.0f64; 3]);
         let mut glossy = [[0.0f64; 6]; 3];
@@ -581,7 +585,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 .filter(|&i| matches!(stage.pixels[i].kind, PixelKind::Surface { .. }))
                 .collect();
             let w: Vec<Vec3> = surf.iter().map(|&i| stage.pixels[i].point.position).collect();
-            let mo = materials_at(&stage, &w);
+            let mo = stage.materials_at(&w);
             let mut acc = [[0.0f64; 2]; 2];
             for (j, &i) in surf.iter().enumerate() {
                 let px = &stage.pixels[i];
@@ -638,28 +642,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         segments::segment_select(&stage, &gt_data, &kept, &test_gt, &test_normal, &world);
     }
     Ok(())
-}
-
-/// Kd, Ks, ρ (`[n × 7]`) of the stage's material field at world points.
-pub(crate) fn materials_at(stage: &Stage2, world: &[Vec3]) -> Vec<f32> {
-    let n = stage.scene.normalization;
-    let c = Vec3::from_array(n.center.map(|v| v as f32));
-    let pos: Vec<f32> = world
-        .iter()
-        .flat_map(|p| ((*p - c) / n.scale as f32).to_array())
-        .collect();
-    let features = match stage.fields.material.config.backbone {
-        MaterialBackbone::FeatureMlp => {
-            let frozen = FrozenScene::new(&stage.scene, &stage.fields.emitters, stage.fields.radiometry);
-            let mut z = vec![0.0; world.len() * stage.scene.feature_dim()];
-            frozen.features(world, &mut z);
-            z
-        }
-        MaterialBackbone::HashGrid => Vec::new(),
-    };
-    let mut m = vec![0.0; world.len() * MATERIAL_CHANNELS];
-    stage.fields.material.infer(&pos, &features, &mut m);
-    m
 }
 
 fn tempfile_dir() -> std::io::Result<std::path::PathBuf> {

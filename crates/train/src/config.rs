@@ -5,6 +5,7 @@
 
 pub use crate::auto::Auto;
 use crate::stage1::schedule::{LossWeights, Schedule, PAPER_BUBBLE_EIKONAL};
+pub use crate::stage2::lobe_choice::LobeConfig;
 use i2sdf_data::{DataError, Dataset};
 pub use i2sdf_model::material_field::{MaterialBackbone, MaterialConfig};
 pub use i2sdf_model::{Backbone, ModelConfig};
@@ -24,6 +25,8 @@ pub struct TrainConfig {
     pub stage2: Stage2Config,
     /// Stage 2's material fields.
     pub material: MaterialConfig,
+    /// Stage 2's choice of a specular lobe per material segment.
+    pub lobes: LobeConfig,
     /// Stage 1's per-camera pose correction.
     pub pose: PoseConfig,
     /// What training does for each map the dataset may lack (`crate::maps`).
@@ -41,6 +44,7 @@ impl Default for TrainConfig {
             adaptive: AdaptiveConfig::default(),
             stage2: Stage2Config::default(),
             material: MaterialConfig::default(),
+            lobes: LobeConfig::default(),
             pose: PoseConfig::default(),
             maps: MapsConfig::default(),
         }
@@ -773,6 +777,7 @@ impl TrainConfig {
             );
         }
         self.material.check()?;
+        self.lobes.check()?;
         self.model.validate()
     }
 

@@ -72,7 +72,7 @@ const FREE_KEYS: [&str; 5] = [
 ];
 
 /// The sections only stage 2 reads: free to change until stage 2 has a checkpoint.
-pub const STAGE2_SECTIONS: [&str; 2] = ["stage2", "material"];
+pub const STAGE2_SECTIONS: [&str; 3] = ["stage2", "material", "lobes"];
 
 /// Every leaf of a configuration as `section.key` → its TOML text.
 fn leaves(config: &TrainConfig) -> BTreeMap<String, String> {
@@ -101,13 +101,17 @@ fn leaves(config: &TrainConfig) -> BTreeMap<String, String> {
 }
 
 /// The keys of `new` that differ from `old` and may not, as `key: old → new`; `frozen_stage2`:
-/// stage 2 has a checkpoint, so its sections are fixed too.
+/// stage 2 has a checkpoint, so its sections are fixed too, and so is `stage2.iterations` where
+/// stage 2 runs several fits (`[lobes]`): their boundaries follow it.
 pub fn config_changes(old: &TrainConfig, new: &TrainConfig, frozen_stage2: bool) -> Vec<String> {
     let (a, b) = (leaves(old), leaves(new));
     let keys: std::collections::BTreeSet<&String> = a.keys().chain(b.keys()).collect();
     let missing = "(unset)".to_string();
     keys.into_iter()
-        .filter(|k| !FREE_KEYS.contains(&k.as_str()))
+        .filter(|k| {
+            !FREE_KEYS.contains(&k.as_str())
+                || (frozen_stage2 && k.as_str() == "stage2.iterations" && old.lobes.fits() > 1)
+        })
         .filter(|k| frozen_stage2 || !STAGE2_SECTIONS.iter().any(|s| k.starts_with(&format!("{s}."))))
         .filter_map(|k| {
             let (x, y) = (a.get(k).unwrap_or(&missing), b.get(k).unwrap_or(&missing));
@@ -227,12 +231,19 @@ mod tests {
 
     #[test]
     fn config_changes_name_the_key_and_both_values() {
-        let old = TrainConfig::default();
+        let mut old = TrainConfig::default();
+        old.lobes.rhos = vec![0.5, 1.0];
         let mut new = old.clone();
         assert!(config_changes(&old, &new, true).is_empty());
         new.train.log_every += 1;
         new.train.iterations = crate::auto::Auto::Value(1);
         new.stage2.iterations += 1;
+        // Free while stage 2 has no checkpoint, or fits once; not between the lobe choice's fits.
+        assert!(config_changes(&old, &new, false).is_empty());
+        assert_eq!(config_changes(&old, &new, true).len(), 1);
+        let (mut old, mut new) = (old.clone(), new.clone());
+        old.lobes.rhos.clear();
+        new.lobes.rhos.clear();
         assert!(config_changes(&old, &new, true).is_empty());
         new.train.seed = 7;
         new.stage2.pixels += 1;

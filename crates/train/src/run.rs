@@ -252,7 +252,7 @@ pub fn train_materials(
     let config = continued_config(run, dataset, config, ckpt.is_file())?;
     let finished = info
         .stage("stage2")
-        .is_some_and(|s| s.done && s.iterations == config.stage2.iterations);
+        .is_some_and(|s| s.done && s.iterations == crate::stage2::total_iterations(&config));
     if resume && ckpt.is_file() && finished {
         return Ok(None);
     }

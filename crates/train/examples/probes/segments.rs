@@ -2,12 +2,12 @@
 //! shared (Ks, ρ) (`SEGMENT_FIT=1`), and each material segment taking the variant whose fit
 //! explains its training pixels best (`SEGMENT_SELECT=1`).
 
-use super::materials_at;
 use glam::Vec3;
 use i2sdf_data::Split;
 use i2sdf_eval::image_metrics::psnr_from_mse;
 use i2sdf_model::material_field::{brdf_of_channels, MATERIAL_CHANNELS};
 use i2sdf_render::GgxBrdf;
+use i2sdf_train::stage2::lobe_choice::{feature, kmeans, nearest, FEATURES};
 use i2sdf_train::stage2::{CachedPixel, PixelKind, Stage2};
 
 /// The cached training pixels on the default room's floor sheen (GT Ks 0.03–0.05, ρ 0.45–0.55,
@@ -37,7 +37,7 @@ pub fn sheen_pixels<'a>(stage: &'a Stage2, train: &[&i2sdf_data::Frame]) -> Vec<
 
 /// The fitted materials' L1 (mean over RGB) on every cached surface pixel, in cache order, and
 /// each pixel's segmentation feature ([`feature`]).
-pub fn training_l1(stage: &Stage2) -> (Vec<f32>, Vec<[f32; 9]>) {
+pub fn training_l1(stage: &Stage2) -> (Vec<f32>, Vec<[f32; FEATURES]>) {
     let emission = stage.emissions();
     let surf: Vec<_> = stage
         .pixels
@@ -48,7 +48,7 @@ pub fn training_l1(stage: &Stage2) -> (Vec<f32>, Vec<[f32; 9]>) {
         })
         .collect();
     let w: Vec<Vec3> = surf.iter().map(|(p, _)| p.point.position).collect();
-    let mo = materials_at(stage, &w);
+    let mo = stage.materials_at(&w);
     surf.iter()
         .enumerate()
         .map(|(j, (px, i))| {
@@ -58,58 +58,12 @@ pub fn training_l1(stage: &Stage2) -> (Vec<f32>, Vec<[f32; 9]>) {
                 .abs()
                 .element_sum()
                 / 3.0;
-            (l1, feature(&o[..3], px.point.normal, px.point.position))
+            (
+                l1,
+                feature(&o[..3], px.point.normal, stage.normalized(px.point.position)),
+            )
         })
         .unzip()
-}
-
-/// What the material segmentation clusters: the fitted Kd and, weighted down, the normal (so that
-/// a floor and a wall of one colour part) and the position in metres (so that a segment is a
-/// region, not one colour all over the room).
-fn feature(kd: &[f32], n: Vec3, p: Vec3) -> [f32; 9] {
-    let (n, p) = (n * 0.3, p * 0.1);
-    [kd[0], kd[1], kd[2], n.x, n.y, n.z, p.x, p.y, p.z]
-}
-
-/// k-means (Lloyd, `k` centres from evenly spaced points of a shuffle seeded by `seed`, 30
-/// rounds on up to 60 000 of them) over `x`; returns the centres.
-fn kmeans(x: &[[f32; 9]], k: usize, seed: u64) -> Vec<[f32; 9]> {
-    let mut order: Vec<usize> = (0..x.len()).collect();
-    let mut h = 0x9e3779b97f4a7c15u64 ^ seed.wrapping_mul(0x2545f4914f6cdd1d);
-    for i in (1..order.len()).rev() {
-        h ^= h << 13;
-        h ^= h >> 7;
-        h ^= h << 17;
-        order.swap(i, (h % (i as u64 + 1)) as usize);
-    }
-    let sample: Vec<&[f32; 9]> = order.iter().take(60_000).map(|&i| &x[i]).collect();
-    let mut c: Vec<[f32; 9]> = (0..k).map(|j| *sample[j * sample.len() / k]).collect();
-    for _ in 0..30 {
-        let mut acc = vec![([0.0f64; 9], 0usize); k];
-        for p in &sample {
-            let j = nearest(&c, p);
-            for (a, v) in acc[j].0.iter_mut().zip(p.iter()) {
-                *a += *v as f64;
-            }
-            acc[j].1 += 1;
-        }
-        for (cj, (sum, n)) in c.iter_mut().zip(&acc) {
-            if *n > 0 {
-                for (v, s) in cj.iter_mut().zip(sum) {
-                    *v = (*s / *n as f64) as f32;
-                }
-            }
-        }
-    }
-    c
-}
-
-/// The index of the centre nearest to `p` (squared Euclidean distance).
-fn nearest(c: &[[f32; 9]], p: &[f32; 9]) -> usize {
-    let d2 = |a: &[f32; 9]| a.iter().zip(p).map(|(x, y)| (x - y) * (x - y)).sum::<f32>();
-    (0..c.len())
-        .min_by(|&a, &b| d2(&c[a]).total_cmp(&d2(&c[b])))
-        .unwrap_or(0)
 }
 
 /// Choosing the specular per material segment: each segment takes one variant's fit by the mean
@@ -124,7 +78,7 @@ fn nearest(c: &[[f32; 9]], p: &[f32; 9]) -> usize {
 pub fn segment_select(
     stage: &Stage2,
     gt_data: &i2sdf_data::Dataset,
-    kept: &[(Vec<f32>, Vec<f32>, Vec<[f32; 9]>)],
+    kept: &[(Vec<f32>, Vec<f32>, Vec<[f32; FEATURES]>)],
     test_gt: &[(Vec3, Vec3, f32)],
     test_normal: &[Vec3],
     test_world: &[Vec3],
@@ -171,7 +125,10 @@ pub fn segment_select(
         let test: Vec<(i32, i32)> = (0..test_gt.len())
             .map(|j| {
                 let kd = &kept[0].1[j * MATERIAL_CHANNELS..j * MATERIAL_CHANNELS + 3];
-                (nearest(&centres, &feature(kd, test_normal[j], test_world[j])) as i32, 0)
+                (
+                    nearest(&centres, &feature(kd, test_normal[j], stage.normalized(test_world[j]))) as i32,
+                    0,
+                )
             })
             .collect();
         segmentations.push((
@@ -266,7 +223,7 @@ pub fn segment_fit(stage: &Stage2, gt_data: &i2sdf_data::Dataset) -> Result<(), 
     let emission = stage.emissions();
     let floor = sheen_pixels(stage, &train);
     let world: Vec<Vec3> = floor.iter().map(|(px, ..)| px.point.position).collect();
-    let m = materials_at(stage, &world);
+    let m = stage.materials_at(&world);
     let ks_grid = [0.0f32, 0.01, 0.02, 0.04, 0.06];
     let rho_grid = [0.3f32, 0.45, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0];
     // Per pixel: fitted Kd ⊙ diffuse sums, target, specular of each hypothesis, its cell.

@@ -21,12 +21,13 @@
 //! prediction from below only. Pixels that see an emitter are not shaded: their prediction is
 //! L\[k\] itself.
 
-use crate::config::TrainConfig;
+use crate::config::{Stage2Estimator, TrainConfig};
 use crate::driver::{StepOutcome, TrainStage};
 pub mod emission_from_shading;
 pub mod emitter_clusters;
 mod emitter_setup;
 pub mod emitter_triangulation;
+pub mod lobe_choice;
 pub mod losses;
 mod mixture;
 mod setup;
@@ -41,15 +42,19 @@ use i2sdf_data::{DataError, Radiometry};
 use i2sdf_model::emitters::EmitterTable;
 use i2sdf_model::intrinsic::{BakedSurface, FrozenScene};
 use i2sdf_model::intrinsic_io::IntrinsicFields;
-use i2sdf_model::material_field::{MaterialBackbone, MaterialField, MaterialGrad, MaterialWorkspace};
+use i2sdf_model::material_field::{
+    brdf_of_channels, MaterialBackbone, MaterialField, MaterialGrad, MaterialWorkspace, MATERIAL_CHANNELS,
+};
 use i2sdf_model::observed::ObservedViews;
 use i2sdf_model::{BakeRecord, NeuralScene};
 use i2sdf_nn::params::ModuleSlot;
 use i2sdf_nn::{Adam, AdamConfig, LrSchedule, Parameters};
 use i2sdf_render::GgxBrdf;
+use lobe_choice::{feature, LobeChoice};
 pub use mixture::{cache_mixture, live_mixture};
 use rand::{Rng, SeedableRng};
 use rand_pcg::{Pcg32, Pcg64};
+use rayon::prelude::*;
 use serde::Serialize;
 use shading::{pool_diffuse, trace_incident, IncidentSample, ShadingPoint};
 use std::path::Path;
@@ -92,6 +97,10 @@ pub struct Stage2Stats {
     pub smooth: f32,
     pub energy: f32,
     pub rho_prior: f32,
+    /// The forced lobes' terms (`[lobes]`; 0 in a fit without them).
+    pub lobe: f32,
+    /// Which fit of the stage (`[lobes]`: 0 the defaults, then each forced lobe, then the last).
+    pub fit: u64,
     pub loss: f32,
     /// L\[k\] (linear RGB, image units).
     pub emission: Vec<[f32; 3]>,
@@ -129,6 +138,9 @@ pub struct Stage2 {
     observed: Option<Arc<ObservedViews>>,
     /// The mean surface target ([`crate::config::Stage2Loss::L2`]'s scale).
     target_scale: f32,
+    /// The choice of a specular lobe per material segment (`[lobes]`; none when off or with the
+    /// live estimator, which has no cache to score the fits on).
+    lobes: Option<LobeChoice>,
 }
 
 /// The surface pixels (cache order) whose samples iteration `it` re-traces: `count` draws of the
@@ -160,6 +172,24 @@ fn new_adam(config: &TrainConfig, material: &MaterialField, emitters: &EmitterTa
 }
 
 const GROUP_GRID: &str = "material_grid";
+/// The checkpoint tensors of the lobe choice: under the optimizer's prefix, as trainer state
+/// that the loaders of the fields (`eval`, `render`, …) skip.
+const LOBES_PREFIX: &str = "adam.lobes";
+
+/// The choice of a lobe per segment that `config` asks for, over `pixels` cached pixels.
+fn lobe_choice_for(config: &TrainConfig, pixels: usize) -> Option<LobeChoice> {
+    (config.lobes.fits() > 1 && config.stage2.estimator == Stage2Estimator::Cached)
+        .then(|| LobeChoice::new(config.lobes.clone(), pixels))
+}
+
+/// Stage 2's iterations in all: `stage2.iterations` for each fit (`[lobes]`).
+pub fn total_iterations(config: &TrainConfig) -> u64 {
+    let fits = match config.stage2.estimator {
+        Stage2Estimator::Cached => config.lobes.fits(),
+        Stage2Estimator::Live => 1,
+    };
+    config.stage2.iterations * fits
+}
 const GROUP_MLP: &str = "material_mlp";
 const GROUP_EMISSION: &str = "emission";
 
@@ -293,6 +323,7 @@ impl Stage2 {
             None => Vec::new(),
         };
         let k = emitters.len();
+        let lobes = lobe_choice_for(&config, pixels.len());
         Ok(Stage2 {
             adam: new_adam(&config, &material, &emitters),
             grad: material.new_grad(),
@@ -320,6 +351,7 @@ impl Stage2 {
             bake,
             baked,
             observed,
+            lobes,
         })
     }
 
@@ -327,16 +359,93 @@ impl Stage2 {
     /// and loss settings and its `[material]` section): fresh material fields, the initial
     /// emissions, a fresh optimizer. For ablations and tests: the cache is the expensive part.
     pub fn restart(&mut self, config: TrainConfig) {
+        self.lobes = lobe_choice_for(&config, self.pixels.len());
+        self.config = config;
+        self.iteration = 0;
+        self.fresh_fit();
+    }
+
+    /// Fresh material fields, the initial emissions and a fresh optimizer (a fit's start).
+    fn fresh_fit(&mut self) {
+        let config = &self.config;
         self.fields.material = MaterialField::new(
             &config.material,
             self.scene.feature_dim(),
             config.train.seed.wrapping_add(17),
         );
         self.fields.emitters.log_emission = self.initial_emission.clone();
-        self.adam = new_adam(&config, &self.fields.material, &self.fields.emitters);
+        self.adam = new_adam(config, &self.fields.material, &self.fields.emitters);
         self.grad = self.fields.material.new_grad();
-        self.iteration = 0;
-        self.config = config;
+    }
+
+    /// The fit (`[lobes]`) that iteration `it` belongs to, and its iteration within it.
+    fn fit_of(&self, it: u64) -> (usize, u64) {
+        let n = self.config.stage2.iterations;
+        match self.lobes {
+            Some(_) => ((it / n) as usize, it % n),
+            None => (0, it),
+        }
+    }
+
+    /// Ends fit `fit` of the choice (`[lobes]`): scores it on every cached surface pixel (the
+    /// L1 of its re-render, mean over RGB), segments the pixels by fit 0's materials, and starts
+    /// the next fit afresh.
+    fn end_fit(&mut self, fit: usize) {
+        let Some(mut lobes) = self.lobes.take() else { return };
+        let index = self.surface.clone();
+        let world: Vec<Vec3> = index.iter().map(|&i| self.pixels[i as usize].point.position).collect();
+        let m = self.materials_at(&world);
+        let emission = self.emissions();
+        let l1: Vec<f32> = index
+            .par_iter()
+            .enumerate()
+            .map(|(j, &i)| {
+                let px = &self.pixels[i as usize];
+                let o = &m[j * MATERIAL_CHANNELS..(j + 1) * MATERIAL_CHANNELS];
+                let nv = px.point.normal.dot(px.point.view);
+                (self.cache.shade(j, &brdf_of_channels(o), nv, &emission) - px.target)
+                    .abs()
+                    .element_sum()
+                    / 3.0
+            })
+            .collect();
+        if fit == 0 {
+            let features: Vec<_> = index
+                .iter()
+                .enumerate()
+                .map(|(j, &i)| {
+                    let p = &self.pixels[i as usize].point;
+                    feature(
+                        &m[j * MATERIAL_CHANNELS..],
+                        p.normal,
+                        normalized(&self.scene, p.position),
+                    )
+                })
+                .collect();
+            lobes.segment_pixels(&index, &features, self.config.train.seed);
+            lobes.hold(&index, &m);
+        }
+        lobes.record(fit, &index, &l1);
+        self.lobes = Some(lobes);
+        self.fresh_fit();
+    }
+
+    /// The choice of a lobe per material segment, where `[lobes]` asks for one.
+    pub fn lobes(&self) -> Option<&LobeChoice> {
+        self.lobes.as_ref()
+    }
+
+    /// A world point in the scene's normalized frame.
+    pub fn normalized(&self, p: Vec3) -> [f32; 3] {
+        normalized(&self.scene, p)
+    }
+
+    /// The materials (`MATERIAL_CHANNELS` each) of the current fit at world points.
+    pub fn materials_at(&self, world: &[Vec3]) -> Vec<f32> {
+        let (positions, features) = self.material_inputs(world);
+        let mut out = vec![0.0; world.len() * MATERIAL_CHANNELS];
+        self.fields.material.infer(&positions, &features, &mut out);
+        out
     }
 
     /// Resumes from a stage-2 checkpoint: fields, emitters, optimizer state and iteration; the
@@ -370,12 +479,19 @@ impl Stage2 {
             progress,
         )?;
         let (mut loaded, meta) = {
-            let Stage2 { adam, scene, .. } = &mut s;
-            let mut slots = [ModuleSlot {
+            let Stage2 { adam, scene, lobes, .. } = &mut s;
+            let mut slots = vec![ModuleSlot {
                 prefix: "adam",
                 module: adam as &mut dyn Parameters,
                 required: true,
             }];
+            if let Some(l) = lobes {
+                slots.push(ModuleSlot {
+                    prefix: LOBES_PREFIX,
+                    module: l as &mut dyn Parameters,
+                    required: true,
+                });
+            }
             IntrinsicFields::load(checkpoint, scene.feature_dim(), &mut slots)?
         };
         // The checkpoint's fields again (the load above filled the optimizer from the same file).
@@ -417,8 +533,9 @@ impl Stage2 {
             .collect()
     }
 
-    /// Material of `n` world points (and, for the FeatureMlp backbone, their z) in one forward.
-    fn material_forward(&mut self, world: &[Vec3], out: &mut [f32]) {
+    /// What the material field reads at world points: their normalized positions and, for the
+    /// FeatureMlp backbone, their z.
+    fn material_inputs(&self, world: &[Vec3]) -> (Vec<f32>, Vec<f32>) {
         let positions: Vec<f32> = world.iter().flat_map(|p| normalized(&self.scene, *p)).collect();
         let features = match self.fields.material.config.backbone {
             MaterialBackbone::FeatureMlp => {
@@ -428,6 +545,12 @@ impl Stage2 {
             }
             MaterialBackbone::HashGrid => Vec::new(),
         };
+        (positions, features)
+    }
+
+    /// Material of `n` world points in one forward (kept for the backward).
+    fn material_forward(&mut self, world: &[Vec3], out: &mut [f32]) {
+        let (positions, features) = self.material_inputs(world);
         self.fields.material.forward(&positions, &features, &mut self.ws, out);
     }
 
@@ -458,7 +581,12 @@ impl TrainStage for Stage2 {
         self.iteration
     }
     fn total(&self) -> u64 {
-        self.config.stage2.iterations
+        total_iterations(&self.config)
+    }
+    fn pending_pause(&self) -> Option<&'static str> {
+        let (fit, local) = self.fit_of(self.iteration);
+        (self.lobes.is_some() && fit > 0 && local == 0)
+            .then_some("scoring the fit on every training pixel (the choice of a specular lobe per material)")
     }
     fn seed(&self) -> u64 {
         self.config.train.seed ^ 0x5354_4147_4532
@@ -480,15 +608,17 @@ impl TrainStage for Stage2 {
     }
 
     fn write_checkpoint(&self, path: &Path) -> Result<(), DataError> {
-        self.fields.save(
-            path,
-            &[
-                ("iteration", self.iteration.to_string()),
-                ("adam_step", self.adam.step.to_string()),
-                ("chosen_k", self.chosen_k.to_string()),
-                BakeRecord::meta(self.bake.as_ref()),
-            ],
-            &[("adam", &self.adam as &dyn Parameters)],
-        )
+        let mut meta = vec![
+            ("iteration", self.iteration.to_string()),
+            ("adam_step", self.adam.step.to_string()),
+            ("chosen_k", self.chosen_k.to_string()),
+            BakeRecord::meta(self.bake.as_ref()),
+        ];
+        let mut extra = vec![("adam", &self.adam as &dyn Parameters)];
+        if let Some(l) = &self.lobes {
+            meta.push(("lobes", l.summary()));
+            extra.push((LOBES_PREFIX, l as &dyn Parameters));
+        }
+        self.fields.save(path, &meta, &extra)
     }
 }

@@ -4,7 +4,7 @@
 //! with L\[k\], add the material regularizers, then backpropagate into the material field and the
 //! emissions (held lights excepted) and take an Adam step.
 
-use super::losses::{material_regularizers, rerender_channel, MaterialPriors};
+use super::losses::{lobe_terms, material_regularizers, rerender_channel, MaterialPriors};
 use super::shading::{shade, shade_backward, trace_incident, IncidentSample, ShadingPoint};
 use super::surface_cache::ShadingCache;
 use super::{cache_mixture, pixel_rng, refresh_selection, CachedPixel, PixelKind, Stage2, Stage2Stats};
@@ -48,6 +48,7 @@ struct BatchTerms {
     smooth: f32,
     energy: f32,
     rho_prior: f32,
+    lobe: f32,
     loss: f32,
 }
 
@@ -56,6 +57,11 @@ impl Stage2 {
     pub(super) fn step_with(&mut self, rng: &mut Pcg64) -> Result<StepOutcome<Stage2Stats>, DataError> {
         let c2 = self.config.stage2.clone();
         let it = self.iteration;
+        // `[lobes]`: a new fit starts where the last one ends (its score kept for the choice).
+        let (fit, local) = self.fit_of(it);
+        if local == 0 && fit > 0 {
+            self.end_fit(fit - 1);
+        }
         self.iteration += 1;
         let b = c2.pixels.min(self.pixels.len().max(1));
         if self.pixels.is_empty() {
@@ -75,32 +81,45 @@ impl Stage2 {
         let emission = self.emissions();
         let mut d_out = vec![0.0f32; 2 * b * MATERIAL_CHANNELS];
         let (render, emitter) = self.rerender_terms(&batch, &brdfs, live.as_deref(), &emission, &mut d_out);
-        // eq:material (smoothness and energy) and the roughness prior.
+        // eq:material (smoothness and energy) and the roughness prior, which acts late in the fit.
+        let late = local as f32 >= c2.rho_prior_from * c2.iterations as f32;
         let priors = MaterialPriors {
             smooth: c2.smooth,
             energy: c2.energy,
-            rho_prior: if it as f32 >= c2.rho_prior_from * c2.iterations as f32 {
-                c2.rho_prior
-            } else {
-                0.0
-            },
+            rho_prior: if late { c2.rho_prior } else { 0.0 },
             rho_target: c2.rho_prior_target,
         };
         let [smooth, energy, rho_prior] = material_regularizers(&out, b, &priors, &mut d_out);
+        let (lobe, lobe_weight) = match &self.lobes {
+            Some(l) => {
+                // The hold where no lobe was chosen acts when the roughness prior does, once
+                // the fit has found its glossy surfaces.
+                let targets = l.batch_targets(fit, &batch, late);
+                let c = &l.config;
+                (lobe_terms(&out, b, &targets, c.ks_min, c.weight, &mut d_out), c.weight)
+            }
+            None => (0.0, 0.0),
+        };
         let terms = BatchTerms {
             render,
             emitter,
             smooth,
             energy,
             rho_prior,
-            loss: render + emitter + c2.smooth * smooth + c2.energy * energy + priors.rho_prior * rho_prior,
+            lobe,
+            loss: render
+                + emitter
+                + c2.smooth * smooth
+                + c2.energy * energy
+                + priors.rho_prior * rho_prior
+                + lobe_weight * lobe,
         };
         let finite = terms.loss.is_finite()
             && d_out.iter().all(|v| v.is_finite())
             && self.d_emission.iter().all(|v| v.is_finite());
         let finite = finite && self.update(&d_out, &emission);
         Ok(StepOutcome {
-            stats: self.stats(it, &terms),
+            stats: self.stats(it, fit as u64, &terms),
             finite,
         })
     }
@@ -255,7 +274,7 @@ impl Stage2 {
         true
     }
 
-    fn stats(&self, iteration: u64, t: &BatchTerms) -> Stage2Stats {
+    fn stats(&self, iteration: u64, fit: u64, t: &BatchTerms) -> Stage2Stats {
         Stage2Stats {
             iteration,
             render: t.render,
@@ -263,6 +282,8 @@ impl Stage2 {
             smooth: t.smooth,
             energy: t.energy,
             rho_prior: t.rho_prior,
+            lobe: t.lobe,
+            fit,
             loss: t.loss,
             emission: self.emissions().iter().map(|e| e.to_array()).collect(),
         }
