@@ -15,10 +15,11 @@
 //!    `margin` of its L1 — the data ask for a narrower lobe — and is within `margin` of the
 //!    defaults; otherwise it keeps the defaults ([`choose`]);
 //! 4. the last fit: the defaults, with each chosen segment's pixels held to its lobe and, from
-//!    `stage2.rho_prior_from` of it on, every other pixel's specular to what fit 0 gave it (Ks
-//!    as a ceiling; else the matte walls, whose pixels barely depend on it, drift towards the
-//!    lobes forced elsewhere in the shared field: on the default room Ks 0.006 → 0.030 on the
-//!    walls, roughness L1 there ×9 and Kd −0.2 dB).
+//!    `stage2.rho_prior_from` of it on, the other pixels that fit 0 left near matte (Ks under
+//!    `ks_min`) held to the specular it gave them (Ks as a ceiling, ρ where Ks is small; else
+//!    the matte walls, whose pixels barely depend on it, drift towards the lobes forced
+//!    elsewhere in the shared field: on the default room Ks 0.006 → 0.030 on the walls,
+//!    roughness L1 there ×9 and Kd −0.2 dB).
 //!
 //! Each fit restarts the material field and the emissions from their initial values and runs
 //! `stage2.iterations` on the same cache; the driver sees one stage of (m + 2) × iterations.

@@ -172,14 +172,16 @@ fn new_adam(config: &TrainConfig, material: &MaterialField, emitters: &EmitterTa
 }
 
 const GROUP_GRID: &str = "material_grid";
+const GROUP_MLP: &str = "material_mlp";
+const GROUP_EMISSION: &str = "emission";
+
 /// The checkpoint tensors of the lobe choice: under the optimizer's prefix, as trainer state
 /// that the loaders of the fields (`eval`, `render`, …) skip.
 const LOBES_PREFIX: &str = "adam.lobes";
 
 /// The choice of a lobe per segment that `config` asks for, over `pixels` cached pixels.
 fn lobe_choice_for(config: &TrainConfig, pixels: usize) -> Option<LobeChoice> {
-    (config.lobes.fits() > 1 && config.stage2.estimator == Stage2Estimator::Cached)
-        .then(|| LobeChoice::new(config.lobes.clone(), pixels))
+    (total_iterations(config) > config.stage2.iterations).then(|| LobeChoice::new(config.lobes.clone(), pixels))
 }
 
 /// Stage 2's iterations in all: `stage2.iterations` for each fit (`[lobes]`).
@@ -190,8 +192,6 @@ pub fn total_iterations(config: &TrainConfig) -> u64 {
     };
     config.stage2.iterations * fits
 }
-const GROUP_MLP: &str = "material_mlp";
-const GROUP_EMISSION: &str = "emission";
 
 /// World → normalized frame.
 fn normalized(scene: &NeuralScene, p: Vec3) -> [f32; 3] {
