@@ -36,34 +36,11 @@ pub fn sheen_pixels<'a>(stage: &'a Stage2, train: &[&i2sdf_data::Frame]) -> Vec<
 }
 
 /// The fitted materials' L1 (mean over RGB) on every cached surface pixel, in cache order, and
-/// each pixel's segmentation feature ([`feature`]).
+/// each pixel's segmentation feature ([`feature`]): what stage 2's lobe choice scores.
 pub fn training_l1(stage: &Stage2) -> (Vec<f32>, Vec<[f32; FEATURES]>) {
-    let emission = stage.emissions();
-    let surf: Vec<_> = stage
-        .pixels
-        .iter()
-        .filter_map(|p| match p.kind {
-            PixelKind::Surface { index } => Some((p, index as usize)),
-            _ => None,
-        })
-        .collect();
-    let w: Vec<Vec3> = surf.iter().map(|(p, _)| p.point.position).collect();
-    let mo = stage.materials_at(&w);
-    surf.iter()
-        .enumerate()
-        .map(|(j, (px, i))| {
-            let o = &mo[j * MATERIAL_CHANNELS..(j + 1) * MATERIAL_CHANNELS];
-            let nv = px.point.normal.dot(px.point.view);
-            let l1 = (stage.cache.shade(*i, &brdf_of_channels(o), nv, &emission) - px.target)
-                .abs()
-                .element_sum()
-                / 3.0;
-            (
-                l1,
-                feature(&o[..3], px.point.normal, stage.normalized(px.point.position)),
-            )
-        })
-        .unzip()
+    let (l1, m) = stage.surface_scores();
+    let features = stage.surface_features(&m);
+    (l1, features)
 }
 
 /// Choosing the specular per material segment: each segment takes one variant's fit by the mean

@@ -387,21 +387,37 @@ impl Stage2 {
         }
     }
 
-    /// Ends fit `fit` of the choice (`[lobes]`): scores it on every cached surface pixel (the
-    /// L1 of its re-render, mean over RGB), segments the pixels by fit 0's materials, and starts
-    /// the next fit afresh.
+    /// Ends fit `fit` of the choice (`[lobes]`): scores it on every cached surface pixel,
+    /// segments the pixels by fit 0's materials, and starts the next fit afresh.
     fn end_fit(&mut self, fit: usize) {
         let Some(mut lobes) = self.lobes.take() else { return };
-        let index = self.surface.clone();
-        let world: Vec<Vec3> = index.iter().map(|&i| self.pixels[i as usize].point.position).collect();
+        let (l1, m) = self.surface_scores();
+        if fit == 0 {
+            lobes.segment_pixels(&self.surface, &self.surface_features(&m), self.config.train.seed);
+            lobes.hold(&self.surface, &m);
+        }
+        lobes.record(fit, &self.surface, &l1);
+        self.lobes = Some(lobes);
+        self.fresh_fit();
+    }
+
+    /// The current fit on every cached surface pixel, in cache order: the L1 of its re-render
+    /// (mean over RGB), and its materials there (`MATERIAL_CHANNELS` each).
+    pub fn surface_scores(&self) -> (Vec<f32>, Vec<f32>) {
+        let world: Vec<Vec3> = self
+            .surface
+            .iter()
+            .map(|&i| self.pixels[i as usize].point.position)
+            .collect();
         let m = self.materials_at(&world);
         let emission = self.emissions();
-        let l1: Vec<f32> = index
+        let l1 = self
+            .surface
             .par_iter()
+            .zip(m.par_chunks_exact(MATERIAL_CHANNELS))
             .enumerate()
-            .map(|(j, &i)| {
+            .map(|(j, (&i, o))| {
                 let px = &self.pixels[i as usize];
-                let o = &m[j * MATERIAL_CHANNELS..(j + 1) * MATERIAL_CHANNELS];
                 let nv = px.point.normal.dot(px.point.view);
                 (self.cache.shade(j, &brdf_of_channels(o), nv, &emission) - px.target)
                     .abs()
@@ -409,25 +425,20 @@ impl Stage2 {
                     / 3.0
             })
             .collect();
-        if fit == 0 {
-            let features: Vec<_> = index
-                .iter()
-                .enumerate()
-                .map(|(j, &i)| {
-                    let p = &self.pixels[i as usize].point;
-                    feature(
-                        &m[j * MATERIAL_CHANNELS..],
-                        p.normal,
-                        normalized(&self.scene, p.position),
-                    )
-                })
-                .collect();
-            lobes.segment_pixels(&index, &features, self.config.train.seed);
-            lobes.hold(&index, &m);
-        }
-        lobes.record(fit, &index, &l1);
-        self.lobes = Some(lobes);
-        self.fresh_fit();
+        (l1, m)
+    }
+
+    /// The segmentation feature ([`lobe_choice::feature`]) of every cached surface pixel (cache
+    /// order) under `materials` there (as [`Stage2::surface_scores`] gives them).
+    pub fn surface_features(&self, materials: &[f32]) -> Vec<[f32; lobe_choice::FEATURES]> {
+        self.surface
+            .iter()
+            .zip(materials.chunks_exact(MATERIAL_CHANNELS))
+            .map(|(&i, o)| {
+                let p = &self.pixels[i as usize].point;
+                feature(o, p.normal, normalized(&self.scene, p.position))
+            })
+            .collect()
     }
 
     /// The choice of a lobe per material segment, where `[lobes]` asks for one.
