@@ -278,6 +278,7 @@ const STAGE2_SETS: &[(&str, &str, &[&str])] = &[
     ("lobes.margin negative", "lobes.margin=-0.1", &["lobes.margin"]),
     ("lobes.ks_min 0", "lobes.ks_min=0", &["lobes.ks_min"]),
     ("lobes.weight = inf", "lobes.weight=inf", &["lobes.weight", "finite"]),
+    ("lobes.last_lr 0", "lobes.last_lr=0", &["lobes.last_lr"]),
     ("stage2 not a section", "stage2=3", &["stage2"]),
     ("material.hash_levels 0", "material.hash_levels=0", &["material.hash_levels"]),
     ("material.hash_log2_table 30", "material.hash_log2_table=30", &["material.hash_log2_table"]),

@@ -4,30 +4,30 @@
 //! carries a lobe by about 1 % of the loss, and a fit free to choose drifts to a near-matte,
 //! rough surface (ρ → 1) although, once a lobe is given, the pixels prefer ρ 0.5–0.7 to 1.0 by
 //! 3–5 % (docs/results.md, "A specular per material"). The drift is the fit's path, not the
-//! loss's minimum. So stage 2 asks each material the question directly:
+//! loss's minimum. So stage 2 asks each material the question directly, in m + 2 fits of
+//! `stage2.iterations` on the same cache (the driver sees one stage):
 //!
-//! 1. fit 0: the defaults (the ordinary fit);
-//! 2. fits 1..=m: the same fit with a lobe forced on every surface — Ks at least `ks_min`, ρ
-//!    held at `rhos[i]` ([`crate::stage2::losses::lobe_terms`]), narrow to wide;
-//! 3. the training pixels are cut into `segments` material segments (k-means of fit 0's Kd,
-//!    normal and position, [`feature`]); each segment takes the lobe of the forced fit that
-//!    explains its pixels best, if that fit beats the widest lobe (the last of `rhos`) by
-//!    `margin` of its L1 — the data ask for a narrower lobe — and is within `margin` of the
+//! 1. fits 0..m: one per forced lobe, narrow to wide, each from a fresh material field — Ks at
+//!    least `ks_min`, ρ held at `rhos[i]` ([`crate::stage2::losses::lobe_terms`]); each pixel's
+//!    L1 is kept;
+//! 2. fit m: the defaults (the ordinary fit), from a fresh field;
+//! 3. the choice: the training pixels are cut into `segments` material segments (k-means of the
+//!    defaults' Kd, normal and position, [`feature`]); each segment takes the lobe of the forced
+//!    fit that explains its pixels best, if that fit beats the widest lobe (the last of `rhos`)
+//!    by `margin` of its L1 — the data ask for a narrower lobe — and is within `margin` of the
 //!    defaults; otherwise it keeps the defaults ([`choose`]);
-//! 4. the last fit: the defaults, with each chosen segment's pixels held to its lobe and, from
-//!    `stage2.rho_prior_from` of it on, the other pixels that fit 0 left near matte (Ks under
-//!    `ks_min`) held to the specular it gave them (Ks as a ceiling, ρ where Ks is small; else
-//!    the matte walls, whose pixels barely depend on it, drift towards the lobes forced
-//!    elsewhere in the shared field: on the default room Ks 0.006 → 0.030 on the walls,
-//!    roughness L1 there ×9 and Kd −0.2 dB).
+//! 4. the last fit continues the defaults' field, with a fresh optimizer at `last_lr` of the
+//!    learning rates, each chosen segment's pixels held to its lobe and the other pixels that the
+//!    defaults left near matte (Ks under `ks_min`) held to the specular they gave them (Ks as a
+//!    ceiling, ρ where Ks is small): else the matte walls, whose pixels barely depend on it,
+//!    drift towards the lobes forced elsewhere in the shared field (default room: Ks 0.006 →
+//!    0.030 on the walls, roughness L1 there ×9).
 //!
-//! Each fit restarts the material field and the emissions from their initial values and runs
-//! `stage2.iterations` on the same cache; the driver sees one stage of (m + 2) × iterations.
-//!
-//! Off by default: on the built-in rooms it brings roughness under 0.10 but costs Kd 0.3–1.0 dB
-//! and the re-render 0.6–1.1 dB (docs/results.md, "A specular lobe chosen per material
-//! segment"); the last fit starts afresh and the late holds pull the shared field's Ks down on
-//! the glossy surfaces.
+//! The last fit continues, slowly, rather than restarts: from a fresh field the same holds cost
+//! Kd 0.3–1.0 dB and the re-render 0.6–1.1 dB, as the glossy surfaces' Ks fell (true 0.35,
+//! fitted 0.31 → 0.16); continued at the full rates, seed 1 still lost 1.5 dB of Kd, its field
+//! shaken loose by the fresh optimizer (docs/results.md, "A specular lobe chosen per material
+//! segment").
 
 use super::losses::LobeTarget;
 use glam::Vec3;
@@ -41,9 +41,8 @@ use serde::{Deserialize, Serialize};
 #[serde(deny_unknown_fields, default)]
 pub struct LobeConfig {
     /// Roughnesses of the forced lobes, ascending; the last, the widest, is the reference a
-    /// narrower one must beat. Empty (the default): one fit, no choice. `[0.3, 0.5, 0.7, 1.0]`
-    /// on the built-in rooms: roughness L1 −0.024 to −0.030 (under 0.10 on each), Kd −0.3 to
-    /// −1.0 dB, the re-render −0.6 to −1.1 dB, stage 2 twice as long (docs/results.md).
+    /// narrower one must beat. Empty: one fit, no choice (stage 2 half as long; the built-in
+    /// rooms' roughness L1 0.10–0.12 instead of under 0.10, docs/results.md).
     pub rhos: Vec<f32>,
     /// Material segments (k-means clusters of the training pixels).
     pub segments: usize,
@@ -53,16 +52,20 @@ pub struct LobeConfig {
     pub ks_min: f32,
     /// Weight of a forced lobe's terms (ρ to its target, Ks above `ks_min`).
     pub weight: f32,
+    /// The last fit's learning rates, as a fraction of `stage2`'s: it continues a converged
+    /// field, which a fresh optimizer at the full rates would first shake loose.
+    pub last_lr: f32,
 }
 
 impl Default for LobeConfig {
     fn default() -> Self {
         LobeConfig {
-            rhos: Vec::new(),
+            rhos: vec![0.3, 0.5, 0.7, 1.0],
             segments: 64,
             margin: 0.02,
             ks_min: 0.04,
             weight: 100.0,
+            last_lr: 0.2,
         }
     }
 }
@@ -84,10 +87,11 @@ impl LobeConfig {
         int("lobes.segments", self.segments, 1, 4096)?;
         real("lobes.margin", self.margin, 0.0, 0.5)?;
         real("lobes.ks_min", self.ks_min, 0.001, 0.5)?;
-        real("lobes.weight", self.weight, 0.0, 1e4)
+        real("lobes.weight", self.weight, 0.0, 1e4)?;
+        real("lobes.last_lr", self.last_lr, 1e-3, 1.0)
     }
 
-    /// Fits of the stage: 1 without a choice, else the defaults, each forced lobe and the last.
+    /// Fits of the stage: 1 without a choice, else each forced lobe, the defaults and the last.
     pub fn fits(&self) -> u64 {
         if self.rhos.is_empty() {
             1
@@ -168,19 +172,33 @@ pub fn choose(l1: &[f32], margin: f32) -> Option<usize> {
     (best < last && l1[best] < l1[last] * (1.0 - margin) && l1[best] < l1[0] * (1.0 + margin)).then(|| best - 1)
 }
 
-/// The state of the choice: each cached pixel's segment and each finished fit's L1 sums per
-/// segment. Kept in the stage-2 checkpoint (`lobes.*` tensors), so that a resumed run chooses
-/// as the uninterrupted one does.
+/// What a fit of the stage is (`[lobes]`; see the module).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FitRole {
+    /// A lobe forced on every surface: `rhos[i]`.
+    Forced(usize),
+    /// The ordinary fit (also the only one without a choice).
+    Defaults,
+    /// The defaults' field continued, with the chosen lobes held.
+    Last,
+}
+
+/// The state of the choice: each forced fit's L1 at each cached pixel, each pixel's segment and
+/// the L1 sums per segment. Kept in the stage-2 checkpoint (`lobes.*` tensors), so that a
+/// resumed run chooses as the uninterrupted one does.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LobeChoice {
     pub config: LobeConfig,
-    /// Segment of each cached pixel (`Stage2::pixels` order), [`NO_SEGMENT`] for none; f32 so
-    /// that the checkpoint's tensors hold it (exact up to 2^24).
+    /// Row i: forced fit i's L1 (mean over RGB) of each cached pixel (`Stage2::pixels` order; 0
+    /// for an emitter pixel).
+    pub forced_l1: Vec<f32>,
+    /// Segment of each cached pixel, [`NO_SEGMENT`] for none; f32 so that the checkpoint's
+    /// tensors hold it (exact up to 2^24).
     pub segment: Vec<f32>,
-    /// Row f (fit f: 0 the defaults, then the forced lobes): the sum of each segment's pixel L1.
+    /// Row 0 the defaults, row 1 + i forced lobe i: the sum of each segment's pixel L1.
     pub sums: Vec<f32>,
-    /// Fit 0's specular (Ks RGB, ρ) at each cached pixel: what the last fit holds the pixels of
-    /// segments without a lobe to.
+    /// The defaults' specular (Ks RGB, ρ) at each cached pixel: what the last fit holds the
+    /// pixels of segments without a lobe to.
     pub held: Vec<f32>,
 }
 
@@ -189,6 +207,7 @@ impl LobeChoice {
         let rows = config.rhos.len() + 1;
         let k = config.segments;
         LobeChoice {
+            forced_l1: vec![0.0; config.rhos.len() * pixels],
             config,
             segment: vec![NO_SEGMENT; pixels],
             sums: vec![0.0; rows * k],
@@ -196,35 +215,54 @@ impl LobeChoice {
         }
     }
 
-    /// Keeps fit 0's specular of the pixels `index`: `materials` holds their `MATERIAL_CHANNELS`
-    /// each (Ks in channels 3..6, ρ in 6).
-    pub fn hold(&mut self, index: &[u32], materials: &[f32]) {
-        use i2sdf_model::material_field::MATERIAL_CHANNELS as C;
-        for (j, &i) in index.iter().enumerate() {
-            self.held[i as usize * 4..i as usize * 4 + 4].copy_from_slice(&materials[j * C + 3..j * C + 7]);
+    /// What fit `fit` of the stage is.
+    pub fn role(&self, fit: usize) -> FitRole {
+        let m = self.config.rhos.len();
+        match fit {
+            f if f < m => FitRole::Forced(f),
+            f if f == m => FitRole::Defaults,
+            _ => FitRole::Last,
         }
     }
 
-    /// Labels the pixels: `features` of the pixels `index` (the others have no segment).
-    pub fn segment_pixels(&mut self, index: &[u32], features: &[[f32; FEATURES]], seed: u64) {
+    /// Keeps forced fit `lobe`'s L1 of the pixels `index`.
+    pub fn record_forced(&mut self, lobe: usize, index: &[u32], l1: &[f32]) {
+        let row = &mut self.forced_l1[lobe * self.segment.len()..(lobe + 1) * self.segment.len()];
+        for (&i, &l) in index.iter().zip(l1) {
+            row[i as usize] = l;
+        }
+    }
+
+    /// The choice, at the end of the defaults' fit: the pixels `index` are segmented by their
+    /// `features` under it, keep its specular (`materials`: `MATERIAL_CHANNELS` each, Ks in
+    /// channels 3..6, ρ in 6) and its L1 `l1` is summed per segment beside the forced fits'.
+    pub fn choose_segments(
+        &mut self,
+        index: &[u32],
+        features: &[[f32; FEATURES]],
+        materials: &[f32],
+        l1: &[f32],
+        seed: u64,
+    ) {
+        use i2sdf_model::material_field::MATERIAL_CHANNELS as C;
         let centres = kmeans(features, self.config.segments, seed);
         self.segment.fill(NO_SEGMENT);
         for (&i, f) in index.iter().zip(features) {
             self.segment[i as usize] = nearest(&centres, f) as f32;
         }
-    }
-
-    /// Records fit `fit`'s L1 of the pixels `index`.
-    pub fn record(&mut self, fit: usize, index: &[u32], l1: &[f32]) {
-        let k = self.config.segments;
-        let mut sums = vec![0.0f64; k];
-        for (&i, &l) in index.iter().zip(l1) {
-            let s = self.segment[i as usize];
-            if s >= 0.0 {
-                sums[s as usize] += l as f64;
+        for (j, &i) in index.iter().enumerate() {
+            self.held[i as usize * 4..i as usize * 4 + 4].copy_from_slice(&materials[j * C + 3..j * C + 7]);
+        }
+        let (k, n) = (self.config.segments, self.segment.len());
+        let mut sums = vec![0.0f64; (self.config.rhos.len() + 1) * k];
+        for (j, &i) in index.iter().enumerate() {
+            let s = self.segment[i as usize] as usize;
+            sums[s] += l1[j] as f64;
+            for (f, row) in self.forced_l1.chunks_exact(n).enumerate() {
+                sums[(f + 1) * k + s] += row[i as usize] as f64;
             }
         }
-        for (dst, s) in self.sums[fit * k..(fit + 1) * k].iter_mut().zip(sums) {
+        for (dst, s) in self.sums.iter_mut().zip(sums) {
             *dst = s as f32;
         }
     }
@@ -241,17 +279,15 @@ impl LobeChoice {
             .collect()
     }
 
-    /// What the `[lobes]` terms hold each pixel of `batch` to in fit `fit`: nothing in fit 0;
-    /// in fits 1..=m that fit's lobe; in the last, its segment's lobe, or (if `hold`) fit 0's
-    /// specular where the segment chose none and fit 0's Ks is under `ks_min` (nothing for a
-    /// pixel without a segment).
-    pub fn batch_targets(&self, fit: usize, batch: &[usize], hold: bool) -> Vec<LobeTarget> {
-        let m = self.config.rhos.len();
-        if fit == 0 || m == 0 {
-            return vec![LobeTarget::Free; batch.len()];
-        }
-        if fit <= m {
-            return vec![LobeTarget::Lobe(self.config.rhos[fit - 1]); batch.len()];
+    /// What the `[lobes]` terms hold each pixel of `batch` to in fit `fit`: in a forced fit its
+    /// lobe; nothing in the defaults'; in the last, its segment's lobe, or the defaults'
+    /// specular where the segment chose none and the defaults' Ks is under `ks_min` (nothing for
+    /// a pixel without a segment).
+    pub fn batch_targets(&self, fit: usize, batch: &[usize]) -> Vec<LobeTarget> {
+        match self.role(fit) {
+            FitRole::Forced(i) => return vec![LobeTarget::Lobe(self.config.rhos[i]); batch.len()],
+            FitRole::Defaults => return vec![LobeTarget::Free; batch.len()],
+            FitRole::Last => {}
         }
         let targets = self.targets();
         batch
@@ -263,10 +299,10 @@ impl LobeChoice {
                 }
                 match targets[s as usize] {
                     Some(r) => LobeTarget::Lobe(r),
-                    // Only where fit 0 left the pixel near matte: a glossy pixel's Ks varies
-                    // from pixel to pixel, and a ceiling at each pixel's drags the whole object
-                    // down (the default room's glossy Ks 0.31 → 0.16, its Kd error ×2.5).
-                    None if hold && luminance(Vec3::from_slice(&self.held[i * 4..i * 4 + 3])) < self.config.ks_min => {
+                    // Only where the defaults left the pixel near matte: a glossy pixel's Ks
+                    // varies from pixel to pixel, and a ceiling at each pixel's drags the whole
+                    // object down.
+                    None if luminance(Vec3::from_slice(&self.held[i * 4..i * 4 + 3])) < self.config.ks_min => {
                         let h = &self.held[i * 4..i * 4 + 4];
                         LobeTarget::Held {
                             ks: [h[0], h[1], h[2]],
@@ -304,12 +340,16 @@ impl LobeChoice {
 
 impl Parameters for LobeChoice {
     fn visit(&self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &[f32])) {
+        let (m, n) = (self.config.rhos.len(), self.segment.len());
+        f(format!("{prefix}.forced_l1"), vec![m, n], &self.forced_l1);
         f(format!("{prefix}.segment"), vec![self.segment.len()], &self.segment);
         let k = self.config.segments;
         f(format!("{prefix}.sums"), vec![self.sums.len() / k, k], &self.sums);
         f(format!("{prefix}.held"), vec![self.held.len() / 4, 4], &self.held);
     }
     fn visit_mut(&mut self, prefix: &str, f: &mut dyn FnMut(String, Vec<usize>, &mut [f32])) {
+        let (m, n) = (self.config.rhos.len(), self.segment.len());
+        f(format!("{prefix}.forced_l1"), vec![m, n], &mut self.forced_l1);
         f(format!("{prefix}.segment"), vec![self.segment.len()], &mut self.segment);
         let k = self.config.segments;
         f(format!("{prefix}.sums"), vec![self.sums.len() / k, k], &mut self.sums);
@@ -358,7 +398,19 @@ mod tests {
             x.len() + 1,
         );
         let index: Vec<u32> = (1..=x.len() as u32).collect();
-        choice.segment_pixels(&index, &x, 7);
+        // Forced fits 0..4 (ρ 0.3, 0.5, 0.7, 1.0) and the defaults: the pixels of cluster 0 fit
+        // best with ρ 0.5.
+        for (lobe, l) in [1.05f32, 0.97, 0.99, 1.0].iter().enumerate() {
+            let l1: Vec<f32> = (0..x.len()).map(|j| if j < 200 { *l } else { 1.0 }).collect();
+            choice.record_forced(lobe, &index, &l1);
+        }
+        assert_eq!(choice.role(3), FitRole::Forced(3));
+        assert_eq!(choice.role(4), FitRole::Defaults);
+        assert_eq!(choice.role(5), FitRole::Last);
+        // The defaults' materials (Kd, Ks, ρ): glossy but pixel 201 (index 200), near matte.
+        let mut materials = [0.5f32, 0.5, 0.5, 0.3, 0.3, 0.3, 0.3].repeat(x.len());
+        materials[200 * 7 + 3..200 * 7 + 7].copy_from_slice(&[0.01, 0.02, 0.03, 0.9]);
+        choice.choose_segments(&index, &x, &materials, &vec![1.0; x.len()], 7);
         assert_eq!(choice.segment[0], NO_SEGMENT);
         for c in 0..3 {
             let s = choice.segment[1 + c * 200];
@@ -367,39 +419,24 @@ mod tests {
                 assert_ne!(s, choice.segment[1 + (c - 1) * 200]);
             }
         }
-        // Fit sums by segment, and the choice they give: segment of cluster 0 asks for ρ 0.5.
         let s0 = choice.segment[1] as usize;
-        for (fit, l) in [1.0f32, 1.05, 0.97, 0.99, 1.0].iter().enumerate() {
-            let l1: Vec<f32> = (0..x.len()).map(|j| if j < 200 { *l } else { 1.0 }).collect();
-            choice.record(fit, &index, &l1);
-        }
+        assert!(
+            (choice.sums[2 * 3 + s0] - 0.97 * 200.0).abs() < 1e-3,
+            "forced ρ 0.5's sum"
+        );
         let t = choice.targets();
         assert_eq!(t[s0], Some(0.5));
         assert_eq!(t.iter().filter(|v| v.is_some()).count(), 1);
-        // Fit 0's specular of pixels 201 (near matte) and 202 (glossy; 7 channels: Kd, Ks, ρ).
-        choice.hold(
-            &[201, 202],
-            &[0.5, 0.5, 0.5, 0.01, 0.02, 0.03, 0.9, 0.5, 0.5, 0.5, 0.3, 0.3, 0.3, 0.3],
-        );
         let batch = [0usize, 1, 201, 202];
-        assert_eq!(choice.batch_targets(4, &batch, true), vec![LobeTarget::Lobe(1.0); 4]);
-        assert_eq!(choice.batch_targets(0, &batch, true), vec![LobeTarget::Free; 4]);
+        assert_eq!(choice.batch_targets(3, &batch), vec![LobeTarget::Lobe(1.0); 4]);
+        assert_eq!(choice.batch_targets(4, &batch), vec![LobeTarget::Free; 4]);
         let held = LobeTarget::Held {
             ks: [0.01, 0.02, 0.03],
             rho: 0.9,
         };
         assert_eq!(
-            choice.batch_targets(5, &batch, true),
+            choice.batch_targets(5, &batch),
             vec![LobeTarget::Free, LobeTarget::Lobe(0.5), held, LobeTarget::Free]
-        );
-        assert_eq!(
-            choice.batch_targets(5, &batch, false),
-            vec![
-                LobeTarget::Free,
-                LobeTarget::Lobe(0.5),
-                LobeTarget::Free,
-                LobeTarget::Free
-            ]
         );
         let summary: serde_json::Value = serde_json::from_str(&choice.summary()).unwrap();
         assert!((summary[2]["pixel_fraction"].as_f64().unwrap() - 1.0 / 3.0).abs() < 1e-9);
@@ -453,7 +490,20 @@ mod tests {
             "lobes.margin",
         );
         assert_eq!(d.fits(), 6);
+        bad(
+            LobeConfig {
+                last_lr: 0.0,
+                ..d.clone()
+            },
+            "lobes.last_lr",
+        );
         bad(LobeConfig { ks_min: 0.0, ..d }, "lobes.ks_min");
-        assert_eq!(LobeConfig::default().fits(), 1);
+        assert_eq!(LobeConfig::default().fits(), 6);
+        let off = LobeConfig {
+            rhos: Vec::new(),
+            ..Default::default()
+        };
+        off.check().unwrap();
+        assert_eq!(off.fits(), 1);
     }
 }

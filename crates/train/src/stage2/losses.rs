@@ -112,10 +112,10 @@ pub enum LobeTarget {
 /// - [`LobeTarget::Held`]: Σ_c (Ks_c − Ks₀_c − [`HELD_KS_SLACK`])₊² + w(Ks)·(ρ − ρ₀)²: Ks no
 ///   higher than the default fit gave the pixel, and its ρ where Ks is small, which a matte wall
 ///   would otherwise let drift (its pixels barely depend on them) while the shared field bends
-///   towards the lobes forced elsewhere. Gentle (absolute, Ks one-sided with slack) and applied
-///   late (`lobe_choice`): a hold relative to `ks_min` from the fit's start (its Ks starts at
-///   `material.ks_init`) outweighed the re-render and spoilt Kd (22.1 → 16.1 dB on the default
-///   room).
+///   towards the lobes forced elsewhere. Gentle (absolute, Ks one-sided with slack): the last
+///   fit starts from the defaults' field, where it holds already; a hold relative to `ks_min`
+///   on a fresh field (its Ks starts at `material.ks_init`) outweighed the re-render and spoilt
+///   Kd (22.1 → 16.1 dB on the default room).
 ///
 /// Returns the batch mean; adds `weight` × its gradient into `d_out`.
 pub fn lobe_terms(out: &[f32], b: usize, targets: &[LobeTarget], ks_min: f32, weight: f32, d_out: &mut [f32]) -> f32 {

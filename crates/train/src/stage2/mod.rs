@@ -50,7 +50,7 @@ use i2sdf_model::{BakeRecord, NeuralScene};
 use i2sdf_nn::params::ModuleSlot;
 use i2sdf_nn::{Adam, AdamConfig, LrSchedule, Parameters};
 use i2sdf_render::GgxBrdf;
-use lobe_choice::{feature, LobeChoice};
+use lobe_choice::{feature, FitRole, LobeChoice};
 pub use mixture::{cache_mixture, live_mixture};
 use rand::{Rng, SeedableRng};
 use rand_pcg::{Pcg32, Pcg64};
@@ -99,7 +99,7 @@ pub struct Stage2Stats {
     pub rho_prior: f32,
     /// The forced lobes' terms (`[lobes]`; 0 in a fit without them).
     pub lobe: f32,
-    /// Which fit of the stage (`[lobes]`: 0 the defaults, then each forced lobe, then the last).
+    /// Which fit of the stage (`[lobes]`: each forced lobe, the defaults, then the last).
     pub fit: u64,
     pub loss: f32,
     /// L\[k\] (linear RGB, image units).
@@ -155,7 +155,8 @@ fn refresh_selection(seed: u64, it: u64, surface: usize, count: usize) -> Vec<u3
         .collect()
 }
 
-fn new_adam(config: &TrainConfig, material: &MaterialField, emitters: &EmitterTable) -> Adam {
+/// The optimizer of a fit: `stage2`'s learning rates × `lr_factor`.
+fn new_adam(config: &TrainConfig, material: &MaterialField, emitters: &EmitterTable, lr_factor: f32) -> Adam {
     let c2 = &config.stage2;
     let mut adam = Adam::new(AdamConfig::default());
     let schedule = LrSchedule::WarmupCosine {
@@ -164,10 +165,15 @@ fn new_adam(config: &TrainConfig, material: &MaterialField, emitters: &EmitterTa
         min_factor: c2.lr_final_fraction,
     };
     if let Some(g) = &material.grid {
-        adam.add_group(GROUP_GRID, g.params.len(), c2.lr_grid, schedule);
+        adam.add_group(GROUP_GRID, g.params.len(), c2.lr_grid * lr_factor, schedule);
     }
-    adam.add_group(GROUP_MLP, material.mlp.params.len(), c2.lr_mlp, schedule);
-    adam.add_group(GROUP_EMISSION, emitters.log_emission.len(), c2.lr_emission, schedule);
+    adam.add_group(GROUP_MLP, material.mlp.params.len(), c2.lr_mlp * lr_factor, schedule);
+    adam.add_group(
+        GROUP_EMISSION,
+        emitters.log_emission.len(),
+        c2.lr_emission * lr_factor,
+        schedule,
+    );
     adam
 }
 
@@ -325,7 +331,7 @@ impl Stage2 {
         let k = emitters.len();
         let lobes = lobe_choice_for(&config, pixels.len());
         Ok(Stage2 {
-            adam: new_adam(&config, &material, &emitters),
+            adam: new_adam(&config, &material, &emitters, 1.0),
             grad: material.new_grad(),
             initial_emission: emitters.log_emission.clone(),
             target_scale: setup::mean_surface_target(&pixels),
@@ -374,7 +380,7 @@ impl Stage2 {
             config.train.seed.wrapping_add(17),
         );
         self.fields.emitters.log_emission = self.initial_emission.clone();
-        self.adam = new_adam(config, &self.fields.material, &self.fields.emitters);
+        self.adam = new_adam(config, &self.fields.material, &self.fields.emitters, 1.0);
         self.grad = self.fields.material.new_grad();
     }
 
@@ -387,18 +393,37 @@ impl Stage2 {
         }
     }
 
-    /// Ends fit `fit` of the choice (`[lobes]`): scores it on every cached surface pixel,
-    /// segments the pixels by fit 0's materials, and starts the next fit afresh.
+    /// Ends fit `fit` of the choice (`[lobes]`): scores it on every cached surface pixel. A forced
+    /// fit's score is kept and the next fit starts afresh; at the end of the defaults' fit the
+    /// choice is made and the last fit continues its field with a fresh optimizer at
+    /// `lobes.last_lr` of the learning rates.
     fn end_fit(&mut self, fit: usize) {
         let Some(mut lobes) = self.lobes.take() else { return };
         let (l1, m) = self.surface_scores();
-        if fit == 0 {
-            lobes.segment_pixels(&self.surface, &self.surface_features(&m), self.config.train.seed);
-            lobes.hold(&self.surface, &m);
+        let role = lobes.role(fit);
+        match role {
+            FitRole::Forced(i) => lobes.record_forced(i, &self.surface, &l1),
+            FitRole::Defaults => {
+                let features = self.surface_features(&m);
+                lobes.choose_segments(&self.surface, &features, &m, &l1, self.config.train.seed);
+            }
+            FitRole::Last => {}
         }
-        lobes.record(fit, &self.surface, &l1);
         self.lobes = Some(lobes);
-        self.fresh_fit();
+        match role {
+            FitRole::Forced(_) => self.fresh_fit(),
+            _ => self.adam = self.fit_adam(fit + 1),
+        }
+    }
+
+    /// A fresh optimizer for fit `fit`: the last fit of a choice (`[lobes]`) runs at
+    /// `lobes.last_lr` of the learning rates.
+    fn fit_adam(&self, fit: usize) -> Adam {
+        let lr = match &self.lobes {
+            Some(l) if l.role(fit) == FitRole::Last => l.config.last_lr,
+            _ => 1.0,
+        };
+        new_adam(&self.config, &self.fields.material, &self.fields.emitters, lr)
     }
 
     /// The current fit on every cached surface pixel, in cache order: the L1 of its re-render
@@ -489,6 +514,8 @@ impl Stage2 {
             at,
             progress,
         )?;
+        // The optimizer of the fit the run stopped in (its moments come from the checkpoint).
+        s.adam = s.fit_adam(s.fit_of(at).0);
         let (mut loaded, meta) = {
             let Stage2 { adam, scene, lobes, .. } = &mut s;
             let mut slots = vec![ModuleSlot {

@@ -92,9 +92,7 @@ impl Stage2 {
         let [smooth, energy, rho_prior] = material_regularizers(&out, b, &priors, &mut d_out);
         let (lobe, lobe_weight) = match &self.lobes {
             Some(l) => {
-                // The hold where no lobe was chosen acts when the roughness prior does, once
-                // the fit has found its glossy surfaces.
-                let targets = l.batch_targets(fit, &batch, late);
+                let targets = l.batch_targets(fit, &batch);
                 let c = &l.config;
                 (lobe_terms(&out, b, &targets, c.ks_min, c.weight, &mut d_out), c.weight)
             }
