@@ -411,8 +411,8 @@ fn lobe_choice_on_the_tiny_scene(rhos: [f32; 2]) {
         }
         n
     };
-    // The initial field and the defaults' (MLP weights).
-    let mut defaults_end: Option<(Vec<f32>, Vec<f32>)> = None;
+    // The MLP weights of the initial field and where the defaults' fit ended.
+    let (mut initial, mut defaults_end) = (Vec::new(), Vec::new());
     while !trainer.done() {
         let it = trainer.stage.iteration();
         // The end of each forced fit (before the next step starts the next fit).
@@ -420,11 +420,10 @@ fn lobe_choice_on_the_tiny_scene(rhos: [f32; 2]) {
             let r = if it == 60 { rhos[0] } else { rhos[1] };
             assert_eq!(held(&trainer.stage, &|_| Some(r)), trainer.stage.pixels.len());
         }
-        if it == 0 || it == 180 {
-            defaults_end = Some((
-                defaults_end.map_or_else(|| trainer.stage.fields.material.mlp.params.clone(), |(init, _)| init),
-                trainer.stage.fields.material.mlp.params.clone(),
-            ));
+        match it {
+            0 => initial = trainer.stage.fields.material.mlp.params.clone(),
+            180 => defaults_end = trainer.stage.fields.material.mlp.params.clone(),
+            _ => {}
         }
         let out = trainer.step().unwrap();
         assert!(out.finite);
@@ -432,10 +431,9 @@ fn lobe_choice_on_the_tiny_scene(rhos: [f32; 2]) {
         // The last fit starts from the defaults' field, not afresh: its first step is much
         // nearer to where the defaults ended than they are to the initial field.
         if it == 180 {
-            let (init, end) = defaults_end.as_ref().unwrap();
             let now = &trainer.stage.fields.material.mlp.params;
             let dist = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f32>().sqrt();
-            let (moved, trained) = (dist(end, now), dist(init, end));
+            let (moved, trained) = (dist(&defaults_end, now), dist(&initial, &defaults_end));
             assert!(
                 moved < 0.2 * trained,
                 "first step of the last fit {moved} from the defaults' end, which is {trained} from the start"
@@ -458,7 +456,7 @@ fn lobe_choice_on_the_tiny_scene(rhos: [f32; 2]) {
     let targets = lobes.targets();
     let chosen = held(&trainer.stage, &|i| targets[lobes.segment[i] as usize]);
     // The pixels of segments without a lobe keep their Ks under the defaults' (but for the slack;
-    // on the mean: the tiny scene's 30 steps of it leave a pixel here and there above).
+    // on the mean: the tiny scene's 60 steps of it leave a pixel here and there above).
     let world: Vec<Vec3> = trainer.stage.pixels.iter().map(|p| p.point.position).collect();
     let m = trainer.stage.materials_at(&world);
     let (mut n, mut above, mut ks0) = (0, 0.0f32, 0.0f32);

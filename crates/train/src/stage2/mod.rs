@@ -400,19 +400,23 @@ impl Stage2 {
     fn end_fit(&mut self, fit: usize) {
         let Some(mut lobes) = self.lobes.take() else { return };
         let (l1, m) = self.surface_scores();
-        let role = lobes.role(fit);
-        match role {
-            FitRole::Forced(i) => lobes.record_forced(i, &self.surface, &l1),
-            FitRole::Defaults => {
+        let forced = match lobes.role(fit) {
+            FitRole::Forced(i) => {
+                lobes.record_forced(i, &self.surface, &l1);
+                true
+            }
+            // The last fit never ends here (the stage does).
+            FitRole::Defaults | FitRole::Last => {
                 let features = self.surface_features(&m);
                 lobes.choose_segments(&self.surface, &features, &m, &l1, self.config.train.seed);
+                false
             }
-            FitRole::Last => {}
-        }
+        };
         self.lobes = Some(lobes);
-        match role {
-            FitRole::Forced(_) => self.fresh_fit(),
-            _ => self.adam = self.fit_adam(fit + 1),
+        if forced {
+            self.fresh_fit();
+        } else {
+            self.adam = self.fit_adam(fit + 1);
         }
     }
 
